@@ -1,0 +1,333 @@
+//! Typed configuration of the APF-PF pipeline and its named presets.
+//!
+//! Defaults are the paper's values; each field documents its unit and source. The
+//! committed files `configs/<preset>.toml` are the same values as text, and a test
+//! keeps the two equal so that a paper default never changes silently.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{require_non_negative, require_positive, Error, Result};
+
+/// Names of the built-in presets, the default first.
+pub const PRESET_NAMES: [&str; 2] = ["flight", "cable"];
+
+/// Largest number of states (voxels + free) accepted; past this the grid is a mistake.
+const MAX_STATES: usize = 4_000_000;
+/// Largest particle count accepted.
+const MAX_PARTICLES: usize = 50_000_000;
+/// Largest block side [px].
+const MAX_BLOCK_PX: u32 = 4096;
+/// How close `(d_max - d_min) / k_d` must be to a whole number of bins.
+const BIN_COUNT_TOLERANCE: f64 = 1e-6;
+
+/// How the 2.5D voxel grid cuts the image and the depth range.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridConfig {
+    /// Block width k_w [px]. Paper §V: 50.
+    pub block_width_px: u32,
+    /// Block height k_h [px]. Paper §V: 50.
+    pub block_height_px: u32,
+    /// Depth bin k_d [m]. Paper §V: 0.1.
+    pub depth_bin_m: f64,
+    /// Near end of the depth range d_min [m]. Paper §V: 0.1.
+    pub depth_min_m: f64,
+    /// Far end of the depth range d_max [m], the sensing horizon. Paper §V: 1.2.
+    pub depth_max_m: f64,
+}
+
+/// Transition model `T(s -> s') ∝ hn(L1; σ_s)·hn(z(s'); σ_z)`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransitionConfig {
+    /// σ_s [voxels]: spread of the Manhattan-distance kernel. Paper §V: 8.
+    pub sigma_s_voxels: f64,
+    /// σ_z [m]: spread of the bias toward near target voxels. Paper §V: 0.4.
+    pub sigma_z_m: f64,
+}
+
+/// Observation model: normal pdfs over per-voxel point counts.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObservationConfig {
+    /// σ_o [points]: spread of an occupied voxel's count. Paper §V-B: 170 (§V-A: 300).
+    pub sigma_o_points: f64,
+    /// σ_n [points]: spread of the largest count under "free". Paper §V-B: 60 (§V-A: 1).
+    pub sigma_n_points: f64,
+}
+
+/// Which Bayes filter runs over the voxel states.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FilterMode {
+    /// Particle filter, as in the paper.
+    Particle,
+    /// Exact histogram Bayes filter over the same model (no sampling noise; subterra).
+    Histogram,
+}
+
+/// How particles are resampled after weighting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Resampling {
+    /// One uniform draw, N evenly spaced pointers: lower variance (subterra default).
+    Systematic,
+    /// N independent draws, as in the paper.
+    Multinomial,
+}
+
+/// Filter settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FilterConfig {
+    /// Particle or exact histogram filter.
+    pub mode: FilterMode,
+    /// Number of particles N. Paper §V: 20000.
+    pub particles: usize,
+    /// Resampling scheme.
+    pub resampling: Resampling,
+}
+
+/// How the net force becomes a velocity command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CommandMode {
+    /// Forward speed, vertical speed and yaw rate (paper eq. 10).
+    Nonholonomic,
+    /// A body-frame velocity along the force direction, no yaw.
+    Holonomic,
+}
+
+/// Artificial potential fields and command limits.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ApfConfig {
+    /// ρ_0 [m]: voxels farther than this do not repel. Authors' apf_acc.yaml: 1.4.
+    pub rho_0_m: f64,
+    /// η [N·m]: repulsive gain. apf_acc.yaml: 1.1.
+    pub eta: f64,
+    /// ξ [1/s]: attractive gain. apf_acc.yaml: 0.4.
+    pub xi: f64,
+    /// ρ_r [m]: beyond this goal distance the attraction is conic (constant magnitude). apf_acc.yaml: 0.5.
+    pub rho_r_m: f64,
+    /// Forward speed limit v_x,max [m/s]. Paper §V-B: 0.6.
+    pub v_x_max_m_s: f64,
+    /// Vertical speed limit v_z,max [m/s]. Paper §V-B: 0.6.
+    pub v_z_max_m_s: f64,
+    /// Yaw-rate limit ψ̇_max [rad/s]. Paper §V-B: 1.0.
+    pub yaw_rate_max_rad_s: f64,
+    /// Command mapping.
+    pub mode: CommandMode,
+    /// The robot stops within this distance of the goal [m] (subterra).
+    pub success_radius_m: f64,
+    /// `|x|` is clamped below at this in the repulsion, so it stays finite [m] (subterra).
+    pub min_distance_m: f64,
+}
+
+/// Everything APF-PF needs besides the camera: one preset.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PerceptionConfig {
+    /// Voxel grid.
+    pub grid: GridConfig,
+    /// Transition model.
+    pub transition: TransitionConfig,
+    /// Observation model.
+    pub observation: ObservationConfig,
+    /// Filter.
+    pub filter: FilterConfig,
+    /// Potential fields and command limits.
+    pub apf: ApfConfig,
+}
+
+impl Default for PerceptionConfig {
+    fn default() -> Self {
+        Self::flight()
+    }
+}
+
+impl PerceptionConfig {
+    /// Preset `flight`: the paper's flight experiments (§V-B, authors' apf_acc.yaml).
+    pub fn flight() -> Self {
+        Self {
+            grid: GridConfig {
+                block_width_px: 50,
+                block_height_px: 50,
+                depth_bin_m: 0.1,
+                depth_min_m: 0.1,
+                depth_max_m: 1.2,
+            },
+            transition: TransitionConfig { sigma_s_voxels: 8.0, sigma_z_m: 0.4 },
+            observation: ObservationConfig { sigma_o_points: 170.0, sigma_n_points: 60.0 },
+            filter: FilterConfig { mode: FilterMode::Particle, particles: 20_000, resampling: Resampling::Systematic },
+            apf: ApfConfig {
+                rho_0_m: 1.4,
+                eta: 1.1,
+                xi: 0.4,
+                rho_r_m: 0.5,
+                v_x_max_m_s: 0.6,
+                v_z_max_m_s: 0.6,
+                yaw_rate_max_rad_s: 1.0,
+                mode: CommandMode::Nonholonomic,
+                success_radius_m: 0.3,
+                min_distance_m: 0.05,
+            },
+        }
+    }
+
+    /// Preset `cable`: the static thin-cable test (§V-A): σ_o = 300, σ_n = 1.
+    pub fn cable() -> Self {
+        let mut config = Self::flight();
+        config.observation = ObservationConfig { sigma_o_points: 300.0, sigma_n_points: 1.0 };
+        config
+    }
+
+    /// A preset by name (see [`PRESET_NAMES`]).
+    pub fn preset(name: &str) -> Result<Self> {
+        match name {
+            "flight" => Ok(Self::flight()),
+            "cable" => Ok(Self::cable()),
+            _ => Err(Error::UnknownPreset { name: name.to_owned(), known: PRESET_NAMES.join(", ") }),
+        }
+    }
+
+    /// Parses and validates a TOML document of the same layout as `configs/flight.toml`.
+    pub fn from_toml_str(text: &str) -> Result<Self> {
+        let config: Self = toml::from_str(text).map_err(|e| Error::ConfigParse { message: e.to_string() })?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The configuration as a TOML document.
+    pub fn to_toml_string(&self) -> String {
+        // Serialising plain structs of numbers and enums cannot fail.
+        toml::to_string(self).unwrap_or_default()
+    }
+
+    /// Number of depth bins `N_d = round((d_max - d_min)/k_d)`.
+    pub fn depth_bins(&self) -> usize {
+        let g = &self.grid;
+        ((g.depth_max_m - g.depth_min_m) / g.depth_bin_m).round() as usize
+    }
+
+    /// Checks every field; the stack trusts a validated config.
+    pub fn validate(&self) -> Result<()> {
+        let g = &self.grid;
+        for (field, px) in [("grid.block_width_px", g.block_width_px), ("grid.block_height_px", g.block_height_px)] {
+            if px == 0 || px > MAX_BLOCK_PX {
+                return Err(Error::config(field, format!("must be in 1..={MAX_BLOCK_PX} px"), px));
+            }
+        }
+        require_positive("grid.depth_bin_m", g.depth_bin_m)?;
+        require_non_negative("grid.depth_min_m", g.depth_min_m)?;
+        require_positive("grid.depth_max_m", g.depth_max_m)?;
+        if g.depth_max_m <= g.depth_min_m {
+            return Err(Error::config("grid.depth_max_m", format!("must exceed grid.depth_min_m = {}", g.depth_min_m), g.depth_max_m));
+        }
+        let bins = (g.depth_max_m - g.depth_min_m) / g.depth_bin_m;
+        if (bins - bins.round()).abs() > BIN_COUNT_TOLERANCE * bins.max(1.0) || bins.round() < 1.0 {
+            return Err(Error::config(
+                "grid.depth_bin_m",
+                format!("must divide the depth range [{}, {}] m into a whole number of bins", g.depth_min_m, g.depth_max_m),
+                g.depth_bin_m,
+            ));
+        }
+        require_positive("transition.sigma_s_voxels", self.transition.sigma_s_voxels)?;
+        require_positive("transition.sigma_z_m", self.transition.sigma_z_m)?;
+        require_positive("observation.sigma_o_points", self.observation.sigma_o_points)?;
+        require_positive("observation.sigma_n_points", self.observation.sigma_n_points)?;
+        let n = self.filter.particles;
+        if n == 0 || n > MAX_PARTICLES {
+            return Err(Error::config("filter.particles", format!("must be in 1..={MAX_PARTICLES}"), n));
+        }
+        let a = &self.apf;
+        require_positive("apf.rho_0_m", a.rho_0_m)?;
+        require_non_negative("apf.eta", a.eta)?;
+        require_non_negative("apf.xi", a.xi)?;
+        require_positive("apf.rho_r_m", a.rho_r_m)?;
+        require_non_negative("apf.v_x_max_m_s", a.v_x_max_m_s)?;
+        require_non_negative("apf.v_z_max_m_s", a.v_z_max_m_s)?;
+        require_non_negative("apf.yaw_rate_max_rad_s", a.yaw_rate_max_rad_s)?;
+        require_non_negative("apf.success_radius_m", a.success_radius_m)?;
+        require_positive("apf.min_distance_m", a.min_distance_m)?;
+        Ok(())
+    }
+
+    /// Validates the config together with the image size it will be used on.
+    pub fn validate_for_image(&self, width: u32, height: u32) -> Result<()> {
+        self.validate()?;
+        let states = (width.div_ceil(self.grid.block_width_px) as usize)
+            * (height.div_ceil(self.grid.block_height_px) as usize)
+            * self.depth_bins()
+            + 1;
+        if states > MAX_STATES {
+            return Err(Error::config("grid", format!("gives {states} states for a {width}x{height} image; at most {MAX_STATES}"), states));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn committed(name: &str) -> String {
+        let path = format!("{}/../../configs/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+        std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"))
+    }
+
+    #[test]
+    fn builtin_presets_equal_the_committed_files() {
+        for name in PRESET_NAMES {
+            let from_file = PerceptionConfig::from_toml_str(&committed(name)).unwrap();
+            assert_eq!(PerceptionConfig::preset(name).unwrap(), from_file, "preset {name} drifted from configs/{name}.toml");
+        }
+        assert_eq!(PerceptionConfig::default(), PerceptionConfig::flight());
+    }
+
+    #[test]
+    fn presets_hold_the_paper_values() {
+        let f = PerceptionConfig::flight();
+        assert_eq!((f.observation.sigma_o_points, f.observation.sigma_n_points), (170.0, 60.0));
+        assert_eq!(f.filter.particles, 20_000);
+        assert_eq!(f.depth_bins(), 11);
+        let c = PerceptionConfig::cable();
+        assert_eq!((c.observation.sigma_o_points, c.observation.sigma_n_points), (300.0, 1.0));
+        assert_eq!(c.grid, f.grid);
+    }
+
+    #[test]
+    fn toml_round_trip() {
+        let c = PerceptionConfig::cable();
+        assert_eq!(PerceptionConfig::from_toml_str(&c.to_toml_string()).unwrap(), c);
+    }
+
+    #[test]
+    fn bad_values_name_their_field() {
+        let mut c = PerceptionConfig::flight();
+        c.transition.sigma_s_voxels = -1.0;
+        assert!(c.validate().unwrap_err().to_string().contains("transition.sigma_s_voxels"));
+        let mut c = PerceptionConfig::flight();
+        c.grid.depth_bin_m = 0.3;
+        assert!(c.validate().unwrap_err().to_string().contains("grid.depth_bin_m"));
+        let mut c = PerceptionConfig::flight();
+        c.filter.particles = 0;
+        assert!(c.validate().unwrap_err().to_string().contains("filter.particles"));
+        let mut c = PerceptionConfig::flight();
+        c.grid.depth_max_m = 0.05;
+        assert!(c.validate().unwrap_err().to_string().contains("grid.depth_max_m"));
+        assert!(matches!(PerceptionConfig::preset("hover"), Err(Error::UnknownPreset { .. })));
+        let err = PerceptionConfig::from_toml_str("[grid]\nblock_width_px = 'x'").unwrap_err();
+        assert!(matches!(err, Error::ConfigParse { .. }));
+        let mut c = PerceptionConfig::flight();
+        c.grid.block_width_px = 1;
+        c.grid.block_height_px = 1;
+        assert!(c.validate_for_image(4000, 4000).unwrap_err().to_string().contains("states"));
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected() {
+        let text = committed("flight").replace("eta = 1.1", "eta = 1.1\netaa = 2.0");
+        assert!(PerceptionConfig::from_toml_str(&text).unwrap_err().to_string().contains("etaa"));
+    }
+}

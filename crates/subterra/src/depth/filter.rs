@@ -1,0 +1,215 @@
+//! Bayes filters over the voxel states: a particle filter (the paper's) and an exact
+//! histogram filter over the same model.
+//!
+//! Particles carry nothing but their state, so the particle set is kept as a count per
+//! state: propagating each of the `c` particles in state `s` by one draw from `T(s, ·)`,
+//! weighting every particle by its new state's likelihood and resampling with pointers
+//! over the particles ordered by state is the textbook filter, step for step, in
+//! O(N + S) time and memory.
+
+use rand::Rng;
+use rand_pcg::Pcg64Mcg;
+
+use super::transition::TransitionModel;
+use crate::config::Resampling;
+
+/// A uniform f64 in `[0, 1)` from 53 random bits.
+#[inline]
+fn unit_f64<R: Rng + ?Sized>(rng: &mut R) -> f64 {
+    (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+}
+
+/// Particle filter with `N` particles kept as counts per state.
+#[derive(Debug, Clone)]
+pub struct ParticleFilter {
+    particles: usize,
+    resampling: Resampling,
+    counts: Vec<u32>,
+    propagated: Vec<u32>,
+    mass: Vec<f64>,
+    rng: Pcg64Mcg,
+}
+
+impl ParticleFilter {
+    /// `particles` spread evenly over `states` (particle `p` starts in state `p mod S`).
+    pub fn new(states: usize, particles: usize, resampling: Resampling, rng: Pcg64Mcg) -> Self {
+        let mut counts = vec![0u32; states];
+        for p in 0..particles {
+            counts[p % states] += 1;
+        }
+        Self { particles, resampling, counts, propagated: vec![0; states], mass: vec![0.0; states], rng }
+    }
+
+    /// Number of particles.
+    pub fn particles(&self) -> usize {
+        self.particles
+    }
+
+    /// Particles per state.
+    pub fn counts(&self) -> &[u32] {
+        &self.counts
+    }
+
+    /// Moves every particle by one draw from the transition model.
+    pub fn propagate(&mut self, model: &TransitionModel) {
+        self.propagated.fill(0);
+        for (s, &c) in self.counts.iter().enumerate() {
+            for _ in 0..c {
+                self.propagated[model.sample(s, &mut self.rng)] += 1;
+            }
+        }
+    }
+
+    /// Weights the propagated particles by `log_likelihood` (per state) and resamples.
+    pub fn weight_and_resample(&mut self, log_likelihood: &[f64]) {
+        let max = self
+            .propagated
+            .iter()
+            .zip(log_likelihood)
+            .filter(|(&c, _)| c > 0)
+            .map(|(_, &l)| l)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let mut total = 0.0;
+        for ((m, &c), &l) in self.mass.iter_mut().zip(&self.propagated).zip(log_likelihood) {
+            *m = if c > 0 { c as f64 * (l - max).exp() } else { 0.0 };
+            total += *m;
+        }
+        self.counts.fill(0);
+        let n = self.particles;
+        match self.resampling {
+            Resampling::Systematic => {
+                // Pointers (u0 + p)/N of the total weight, p = 0..N, walked in state order.
+                let step = total / n as f64;
+                let u0 = unit_f64(&mut self.rng);
+                let mut s = 0;
+                let mut cumulative = self.mass[0];
+                let last = self.mass.len() - 1;
+                for p in 0..n {
+                    let pointer = (u0 + p as f64) * step;
+                    while pointer >= cumulative && s < last {
+                        s += 1;
+                        cumulative += self.mass[s];
+                    }
+                    self.counts[s] += 1;
+                }
+            }
+            Resampling::Multinomial => {
+                let mut cumulative = Vec::with_capacity(self.mass.len());
+                let mut acc = 0.0;
+                for &m in &self.mass {
+                    acc += m;
+                    cumulative.push(acc);
+                }
+                for _ in 0..n {
+                    let u = unit_f64(&mut self.rng) * total;
+                    let s = cumulative.partition_point(|&c| c <= u).min(cumulative.len() - 1);
+                    self.counts[s] += 1;
+                }
+            }
+        }
+        // A pointer can land on a state of zero mass only through rounding at the very end;
+        // move it to the nearest state with mass so no particle sits where weight is zero.
+        if let Some(last_with_mass) = self.mass.iter().rposition(|&m| m > 0.0) {
+            let stray: u32 = self.counts[last_with_mass + 1..].iter().sum();
+            if stray > 0 {
+                self.counts[last_with_mass + 1..].fill(0);
+                self.counts[last_with_mass] += stray;
+            }
+        }
+    }
+
+    /// Writes the belief (particle histogram / N) into `out`.
+    pub fn belief(&self, out: &mut [f64]) {
+        let inv = 1.0 / self.particles as f64;
+        for (o, &c) in out.iter_mut().zip(&self.counts) {
+            *o = c as f64 * inv;
+        }
+    }
+}
+
+/// Exact histogram Bayes filter.
+#[derive(Debug, Clone)]
+pub struct HistogramFilter {
+    belief: Vec<f64>,
+    predicted: Vec<f64>,
+}
+
+impl HistogramFilter {
+    /// Uniform belief over `states`.
+    pub fn new(states: usize) -> Self {
+        Self { belief: vec![1.0 / states as f64; states], predicted: vec![0.0; states] }
+    }
+
+    /// The belief.
+    pub fn belief(&self) -> &[f64] {
+        &self.belief
+    }
+
+    /// Prediction through the transition model.
+    pub fn predict(&mut self, model: &TransitionModel) {
+        model.predict(&self.belief, &mut self.predicted);
+    }
+
+    /// Bayes update with per-state log-likelihoods, normalised with log-sum-exp.
+    pub fn update(&mut self, log_likelihood: &[f64]) {
+        let max = self
+            .predicted
+            .iter()
+            .zip(log_likelihood)
+            .filter(|(&p, _)| p > 0.0)
+            .map(|(p, l)| p.ln() + l)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let mut total = 0.0;
+        for ((b, &p), &l) in self.belief.iter_mut().zip(&self.predicted).zip(log_likelihood) {
+            *b = if p > 0.0 { (p.ln() + l - max).exp() } else { 0.0 };
+            total += *b;
+        }
+        let inv = 1.0 / total;
+        self.belief.iter_mut().for_each(|b| *b *= inv);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn systematic_resampling_keeps_proportions() {
+        // No transition: weight four states 1:1:2:0 with equal particle counts.
+        let mut f = ParticleFilter::new(4, 400, Resampling::Systematic, Pcg64Mcg::seed_from_u64(1));
+        f.propagated = f.counts.clone();
+        f.weight_and_resample(&[0.0, 0.0, 2f64.ln(), f64::NEG_INFINITY]);
+        // Systematic resampling gives each state floor or ceil of its expected count.
+        assert_eq!(f.counts(), &[100, 100, 200, 0]);
+    }
+
+    #[test]
+    fn multinomial_resampling_is_unbiased() {
+        let mut totals = [0u64; 3];
+        for seed in 0..50 {
+            let mut f = ParticleFilter::new(3, 1000, Resampling::Multinomial, Pcg64Mcg::seed_from_u64(seed));
+            f.propagated = f.counts.clone();
+            f.weight_and_resample(&[0.0, 3f64.ln(), f64::NEG_INFINITY]);
+            assert_eq!(f.counts().iter().sum::<u32>(), 1000);
+            assert_eq!(f.counts()[2], 0);
+            for (t, &c) in totals.iter_mut().zip(f.counts()) {
+                *t += c as u64;
+            }
+        }
+        // The middle state starts with one more particle (1000 = 334 + 333 + 333).
+        let expected = 50_000.0 * 333.0 * 3.0 / (334.0 + 999.0);
+        assert!((totals[1] as f64 - expected).abs() < 0.02 * expected, "{totals:?}");
+    }
+
+    #[test]
+    fn histogram_update_is_bayes_rule() {
+        let mut h = HistogramFilter::new(3);
+        h.predicted = vec![0.5, 0.25, 0.25];
+        h.update(&[-1000.0, -1000.0 + 2f64.ln(), -1000.0]);
+        let expected = [0.5 / 1.25, 0.5 / 1.25, 0.25 / 1.25];
+        for (b, e) in h.belief().iter().zip(expected) {
+            assert!((b - e).abs() < 1e-12, "{b} vs {e}");
+        }
+    }
+}

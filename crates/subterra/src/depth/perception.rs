@@ -1,0 +1,273 @@
+//! The APF-PF perception pipeline of one camera: depth image -> voxel counts -> Bayes
+//! filter -> belief -> belief-weighted repulsive force in the body frame.
+
+use std::time::Instant;
+
+use glam::DVec3;
+use rand::SeedableRng;
+use rand_pcg::Pcg64Mcg;
+
+use super::filter::{HistogramFilter, ParticleFilter};
+use super::grid::{DepthImage, DepthVoxelGrid, StateId, VoxelCounts, VoxelIndex};
+use super::observation::ObservationModel;
+use super::transition::TransitionModel;
+use crate::apf::repulsive_force;
+use crate::camera::PinholeCamera;
+use crate::config::{FilterMode, PerceptionConfig};
+use crate::error::Result;
+use crate::frames::Isometry3;
+
+/// The most probable voxel of the belief (the free state is reported separately).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MostProbableVoxel {
+    /// The voxel.
+    pub voxel: VoxelIndex,
+    /// Its flat state id.
+    pub state: StateId,
+    /// Its belief.
+    pub probability: f64,
+    /// Its centre in the camera optical frame [m].
+    pub centre_camera: DVec3,
+    /// Its centre in the body frame [m].
+    pub centre_body: DVec3,
+}
+
+/// Wall-clock time of each stage of one update [s].
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StageTimings {
+    /// Counting the image into voxels.
+    pub count_s: f64,
+    /// Propagation (particles) or prediction (histogram).
+    pub predict_s: f64,
+    /// Observation log-likelihoods, weighting and resampling or Bayes update.
+    pub update_s: f64,
+    /// Belief extraction and repulsive force.
+    pub apf_s: f64,
+    /// The whole update.
+    pub total_s: f64,
+}
+
+/// What one frame gives.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PerceptionOutput {
+    /// States with belief above zero (particle mode) or above the sparse threshold
+    /// (histogram mode), ascending; the free state may be among them.
+    pub belief_states: Vec<StateId>,
+    /// Their probabilities.
+    pub belief_probabilities: Vec<f64>,
+    /// Belief of the free state.
+    pub p_free: f64,
+    /// The most probable voxel, if any voxel has belief.
+    pub most_probable: Option<MostProbableVoxel>,
+    /// Smallest valid raw depth of the frame, any range [m] (for comparison).
+    pub closest_depth_m: Option<f64>,
+    /// Pixels with valid depth, and those inside the horizon.
+    pub valid_pixels: u64,
+    /// Pixels with valid depth inside `[d_min, d_max)`.
+    pub in_range_pixels: u64,
+    /// Largest per-voxel count.
+    pub max_count: u32,
+    /// `Σ_s b(s)·F_rep(s)` in the body frame [N].
+    pub repulsive_body: DVec3,
+    /// Stage timings.
+    pub timings: StageTimings,
+}
+
+/// Histogram-mode beliefs below this are left out of the sparse view (the dense belief
+/// stays available through [`DepthPerception::belief`]).
+pub const SPARSE_BELIEF_THRESHOLD: f64 = 1e-12;
+
+#[derive(Debug, Clone)]
+enum Filter {
+    Particle(ParticleFilter),
+    Histogram(HistogramFilter),
+}
+
+/// APF-PF perception for one depth camera.
+#[derive(Debug, Clone)]
+pub struct DepthPerception {
+    config: PerceptionConfig,
+    body_from_camera: Isometry3,
+    grid: DepthVoxelGrid,
+    transition: TransitionModel,
+    observation: ObservationModel,
+    filter: Filter,
+    /// Per state: repulsive force of an obstacle at the voxel centre, body frame.
+    forces_body: Vec<DVec3>,
+    log_likelihood: Vec<f64>,
+    belief: Vec<f64>,
+    last_counts: Option<VoxelCounts>,
+    transition_build_s: f64,
+    frames: u64,
+}
+
+impl DepthPerception {
+    /// Builds the pipeline: validates, precomputes the transition model and the forces.
+    /// The filter's random stream is seeded with `seed`.
+    pub fn new(camera: PinholeCamera, body_from_camera: Isometry3, config: PerceptionConfig, seed: u64) -> Result<Self> {
+        camera.validate()?;
+        config.validate_for_image(camera.width, camera.height)?;
+        let grid = DepthVoxelGrid::new(camera, config.grid)?;
+        let started = Instant::now();
+        let transition = TransitionModel::new(&grid, &config.transition)?;
+        let transition_build_s = started.elapsed().as_secs_f64();
+        let observation = ObservationModel::new(&grid, &config.observation);
+        let states = grid.state_count();
+        let filter = match config.filter.mode {
+            FilterMode::Particle => Filter::Particle(ParticleFilter::new(
+                states,
+                config.filter.particles,
+                config.filter.resampling,
+                Pcg64Mcg::seed_from_u64(seed),
+            )),
+            FilterMode::Histogram => Filter::Histogram(HistogramFilter::new(states)),
+        };
+        let mut forces_body = Vec::with_capacity(states);
+        for s in 0..grid.voxel_count() as u32 {
+            let centre = grid.voxel_of(StateId(s)).map(|v| grid.voxel_centre_camera(v)).unwrap_or(DVec3::ZERO);
+            forces_body.push(repulsive_force(&config.apf, body_from_camera.transform_point(centre)));
+        }
+        forces_body.push(DVec3::ZERO); // s_free repels nothing
+        let mut perception = Self {
+            config,
+            body_from_camera,
+            grid,
+            transition,
+            observation,
+            filter,
+            forces_body,
+            log_likelihood: vec![0.0; states],
+            belief: vec![0.0; states],
+            last_counts: None,
+            transition_build_s,
+            frames: 0,
+        };
+        perception.refresh_belief();
+        Ok(perception)
+    }
+
+    /// The config.
+    pub fn config(&self) -> &PerceptionConfig {
+        &self.config
+    }
+
+    /// The grid (shape, ids, voxel centres).
+    pub fn grid(&self) -> &DepthVoxelGrid {
+        &self.grid
+    }
+
+    /// The transition model.
+    pub fn transition(&self) -> &TransitionModel {
+        &self.transition
+    }
+
+    /// `body_from_camera`.
+    pub fn body_from_camera(&self) -> &Isometry3 {
+        &self.body_from_camera
+    }
+
+    /// Seconds spent building the transition model.
+    pub fn transition_build_s(&self) -> f64 {
+        self.transition_build_s
+    }
+
+    /// Frames processed so far.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    /// The dense belief over all states (voxels, then `s_free`).
+    pub fn belief(&self) -> &[f64] {
+        &self.belief
+    }
+
+    /// Per-voxel counts of the last frame.
+    pub fn last_counts(&self) -> Option<&VoxelCounts> {
+        self.last_counts.as_ref()
+    }
+
+    /// Per-state repulsive forces in the body frame.
+    pub fn forces_body(&self) -> &[DVec3] {
+        &self.forces_body
+    }
+
+    fn refresh_belief(&mut self) {
+        match &self.filter {
+            Filter::Particle(f) => f.belief(&mut self.belief),
+            Filter::Histogram(f) => self.belief.copy_from_slice(f.belief()),
+        }
+    }
+
+    /// Processes one depth frame of the camera's size.
+    pub fn update(&mut self, image: DepthImage<'_>, width: u32, height: u32) -> Result<PerceptionOutput> {
+        let started = Instant::now();
+        let counts = self.grid.count(image, width, height)?;
+        let counted = Instant::now();
+        match &mut self.filter {
+            Filter::Particle(f) => f.propagate(&self.transition),
+            Filter::Histogram(f) => f.predict(&self.transition),
+        }
+        let predicted = Instant::now();
+        self.observation.log_likelihood(&counts, &mut self.log_likelihood);
+        match &mut self.filter {
+            Filter::Particle(f) => f.weight_and_resample(&self.log_likelihood),
+            Filter::Histogram(f) => f.update(&self.log_likelihood),
+        }
+        let updated = Instant::now();
+        self.refresh_belief();
+        let threshold = match self.filter {
+            Filter::Particle(_) => 0.0,
+            Filter::Histogram(_) => SPARSE_BELIEF_THRESHOLD,
+        };
+        let free = self.grid.free_state().0 as usize;
+        let mut belief_states = Vec::new();
+        let mut belief_probabilities = Vec::new();
+        let mut repulsive_body = DVec3::ZERO;
+        let mut best: Option<(usize, f64)> = None;
+        for (s, &b) in self.belief.iter().enumerate() {
+            if b > threshold {
+                belief_states.push(StateId(s as u32));
+                belief_probabilities.push(b);
+            }
+            if b > 0.0 {
+                repulsive_body += b * self.forces_body[s];
+                if s != free && best.is_none_or(|(_, p)| b > p) {
+                    best = Some((s, b));
+                }
+            }
+        }
+        let most_probable = best.and_then(|(s, probability)| {
+            let voxel = self.grid.voxel_of(StateId(s as u32))?;
+            let centre_camera = self.grid.voxel_centre_camera(voxel);
+            Some(MostProbableVoxel {
+                voxel,
+                state: StateId(s as u32),
+                probability,
+                centre_camera,
+                centre_body: self.body_from_camera.transform_point(centre_camera),
+            })
+        });
+        let done = Instant::now();
+        self.frames += 1;
+        let output = PerceptionOutput {
+            belief_states,
+            belief_probabilities,
+            p_free: self.belief[free],
+            most_probable,
+            closest_depth_m: counts.closest_depth_m,
+            valid_pixels: counts.valid,
+            in_range_pixels: counts.in_range,
+            max_count: counts.max_count,
+            repulsive_body,
+            timings: StageTimings {
+                count_s: (counted - started).as_secs_f64(),
+                predict_s: (predicted - counted).as_secs_f64(),
+                update_s: (updated - predicted).as_secs_f64(),
+                apf_s: (done - updated).as_secs_f64(),
+                total_s: (done - started).as_secs_f64(),
+            },
+        };
+        self.last_counts = Some(counts);
+        Ok(output)
+    }
+}

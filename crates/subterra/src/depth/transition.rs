@@ -1,0 +1,408 @@
+//! The transition model `T(s -> s') ∝ hn(L1(s, s'); σ_s) · hn(z(s'); σ_z)`, precomputed once.
+//!
+//! `hn(x; σ) = exp(-x²/2σ²)`, `L1` is the Manhattan distance in voxels and `z(s')` the
+//! depth of the target voxel's centre. The free state sits on the grid's left, right,
+//! top, bottom and far faces (`L1(v, s_free)` = the face distance of `v`) at depth `d_max`.
+//!
+//! Memory is O(S·N_d), never O(S²): the in-grid kernel depends only on the offset and
+//! the target depth, so one alias table over offsets per *source* depth bin serves every
+//! source voxel at that depth. A draw from voxel `v` first picks "free or grid" with
+//! `v`'s own probability of going free, then an offset from its depth bin's table,
+//! redrawing offsets that leave the grid — which is exactly the conditional over the
+//! in-grid targets. The free state's row is one alias table over all states.
+
+use rand::Rng;
+
+use super::alias::AliasTable;
+use super::grid::{DepthVoxelGrid, StateId, VoxelIndex};
+use crate::config::TransitionConfig;
+use crate::error::{Error, Result};
+
+/// Redraws of an out-of-grid offset before the exact (slow) fallback draw is used. The
+/// acceptance rate is at least about 1/8 (a corner voxel), so this is never reached in
+/// practice; it only guards against degenerate parameters.
+const MAX_OFFSET_REDRAWS: usize = 4096;
+
+/// A target of an offset table: a voxel offset in the image plane and an absolute target bin.
+#[derive(Debug, Clone, Copy)]
+struct Offset {
+    di: i16,
+    dj: i16,
+    k: u16,
+}
+
+/// The precomputed transition model of one grid.
+#[derive(Debug, Clone)]
+pub struct TransitionModel {
+    n_w: usize,
+    n_h: usize,
+    n_d: usize,
+    /// `hn(L; σ_s)` for every Manhattan distance `L` that occurs.
+    kernel: Vec<f64>,
+    /// `hn(z(k); σ_z)` relative to the nearest bin, per target bin.
+    depth_weight: Vec<f64>,
+    /// Per voxel: probability of moving to `s_free`.
+    p_free: Vec<f64>,
+    /// The same as a 32-bit fixed-point threshold.
+    free_threshold: Vec<u32>,
+    /// Per voxel: `1 / Σ_all targets` (the row normaliser).
+    inv_row_sum: Vec<f64>,
+    /// Per source bin: alias table over [`Offset`]s and the offsets.
+    offset_tables: Vec<(AliasTable, Vec<Offset>)>,
+    /// `T(s_free -> ·)`, dense over all states.
+    free_row: Vec<f64>,
+    free_table: AliasTable,
+    /// `kernel_rows[(k·(L_max+1) + m)·N_d + k']` = `hn(m + |k - k'|; σ_s)`, for the exact prediction.
+    kernel_rows: Vec<f64>,
+    max_plane_l1: usize,
+}
+
+fn half_normal(x: f64, sigma: f64) -> f64 {
+    (-x * x / (2.0 * sigma * sigma)).exp()
+}
+
+impl TransitionModel {
+    /// Precomputes the model for `grid`.
+    pub fn new(grid: &DepthVoxelGrid, config: &TransitionConfig) -> Result<Self> {
+        let (n_w, n_h, n_d) = grid.shape();
+        let sigma_s = config.sigma_s_voxels;
+        let sigma_z = config.sigma_z_m;
+        let max_plane_l1 = (n_w - 1) + (n_h - 1);
+        let max_l1 = max_plane_l1 + (n_d - 1);
+        let kernel: Vec<f64> = (0..=max_l1).map(|l| half_normal(l as f64, sigma_s)).collect();
+        // Depth weights relative to the nearest bin: rows are normalised, so a common factor
+        // cancels, and this keeps them from underflowing for a small σ_z.
+        let z0 = grid.bin_centre_m(0);
+        let relative = |z: f64| (-(z * z - z0 * z0) / (2.0 * sigma_z * sigma_z)).exp();
+        let depth_weight: Vec<f64> = (0..n_d as u32).map(|k| relative(grid.bin_centre_m(k))).collect();
+        let free_depth_weight = relative(grid.config().depth_max_m);
+
+        // H[(j·N_w + i)·N_d + e] = Σ_{in-grid i', j'} hn(|i-i'| + |j-j'| + e): the in-plane sum
+        // of the kernel for a source block at a depth offset e.
+        let plane_counts = |n: usize, i: usize| -> Vec<usize> {
+            // How many in-grid i' lie at each distance a = |i - i'|.
+            (0..n).map(|a| if a == 0 { 1 } else { (i >= a) as usize + (i + a < n) as usize }).collect()
+        };
+        let mut in_plane = vec![0.0; n_w * n_h * n_d];
+        for j in 0..n_h {
+            let cj = plane_counts(n_h, j);
+            for i in 0..n_w {
+                let ci = plane_counts(n_w, i);
+                // Number of in-grid targets at each in-plane Manhattan distance m.
+                let mut at_distance = vec![0usize; max_plane_l1 + 1];
+                for (a, &na) in ci.iter().enumerate() {
+                    for (b, &nb) in cj.iter().enumerate() {
+                        at_distance[a + b] += na * nb;
+                    }
+                }
+                for e in 0..n_d {
+                    in_plane[(j * n_w + i) * n_d + e] =
+                        at_distance.iter().enumerate().map(|(m, &c)| c as f64 * kernel[m + e]).sum();
+                }
+            }
+        }
+
+        let voxels = grid.voxel_count();
+        let mut p_free = Vec::with_capacity(voxels);
+        let mut inv_row_sum = Vec::with_capacity(voxels);
+        let mut free_row = Vec::with_capacity(voxels + 1);
+        for s in 0..voxels {
+            let v = grid.voxel_of(StateId(s as u32)).unwrap_or(VoxelIndex { i: 0, j: 0, k: 0 });
+            let block = v.j as usize * n_w + v.i as usize;
+            let k = v.k as usize;
+            let in_grid: f64 = (0..n_d).map(|kt| depth_weight[kt] * in_plane[block * n_d + k.abs_diff(kt)]).sum();
+            let face = kernel[grid.face_distance(v) as usize];
+            let to_free = face * free_depth_weight;
+            let total = in_grid + to_free;
+            if !(total.is_finite() && total > 0.0) {
+                return Err(Error::config(
+                    "transition",
+                    format!("every transition weight of voxel {v:?} underflows (σ_s = {sigma_s}, σ_z = {sigma_z})"),
+                    total,
+                ));
+            }
+            p_free.push(to_free / total);
+            inv_row_sum.push(1.0 / total);
+            free_row.push(face * depth_weight[k]);
+        }
+        free_row.push(kernel[0] * free_depth_weight);
+        let free_total: f64 = free_row.iter().sum();
+        free_row.iter_mut().for_each(|w| *w /= free_total);
+        let free_table = AliasTable::new(&free_row)
+            .ok_or_else(|| Error::config("transition", "the free state's row has no mass", free_total))?;
+        let free_threshold = p_free.iter().map(|&p| (p * 4_294_967_296.0).min(u32::MAX as f64) as u32).collect();
+
+        let mut offset_tables = Vec::with_capacity(n_d);
+        for k in 0..n_d {
+            let mut offsets = Vec::with_capacity((2 * n_w - 1) * (2 * n_h - 1) * n_d);
+            let mut weights = Vec::with_capacity(offsets.capacity());
+            for di in -(n_w as i64 - 1)..=(n_w as i64 - 1) {
+                for dj in -(n_h as i64 - 1)..=(n_h as i64 - 1) {
+                    for kt in 0..n_d {
+                        let l1 = di.unsigned_abs() as usize + dj.unsigned_abs() as usize + k.abs_diff(kt);
+                        offsets.push(Offset { di: di as i16, dj: dj as i16, k: kt as u16 });
+                        weights.push(kernel[l1] * depth_weight[kt]);
+                    }
+                }
+            }
+            let table = AliasTable::new(&weights)
+                .ok_or_else(|| Error::config("transition", format!("depth bin {k} has no in-grid transition mass"), 0))?;
+            offset_tables.push((table, offsets));
+        }
+
+        let mut kernel_rows = vec![0.0; n_d * (max_plane_l1 + 1) * n_d];
+        for k in 0..n_d {
+            for m in 0..=max_plane_l1 {
+                for kt in 0..n_d {
+                    kernel_rows[(k * (max_plane_l1 + 1) + m) * n_d + kt] = kernel[m + k.abs_diff(kt)];
+                }
+            }
+        }
+
+        Ok(Self {
+            n_w,
+            n_h,
+            n_d,
+            kernel,
+            depth_weight,
+            p_free,
+            free_threshold,
+            inv_row_sum,
+            offset_tables,
+            free_row,
+            free_table,
+            kernel_rows,
+            max_plane_l1,
+        })
+    }
+
+    /// Number of states.
+    pub fn state_count(&self) -> usize {
+        self.p_free.len() + 1
+    }
+
+    fn free_state(&self) -> usize {
+        self.p_free.len()
+    }
+
+    fn voxel(&self, s: usize) -> (usize, usize, usize) {
+        let block = s / self.n_d;
+        (block % self.n_w, block / self.n_w, s % self.n_d)
+    }
+
+    /// Bytes held by the model (all O(S·N_d)).
+    pub fn memory_bytes(&self) -> usize {
+        let f = std::mem::size_of::<f64>();
+        let tables: usize = self
+            .offset_tables
+            .iter()
+            .map(|(t, o)| t.memory_bytes() + o.capacity() * std::mem::size_of::<Offset>())
+            .sum();
+        (self.kernel.capacity() + self.depth_weight.capacity() + self.p_free.capacity() + self.inv_row_sum.capacity()
+            + self.free_row.capacity() + self.kernel_rows.capacity())
+            * f
+            + self.free_threshold.capacity() * 4
+            + self.free_table.memory_bytes()
+            + tables
+    }
+
+    /// The probability `T(from -> to)`, computed from the model's parts (for tests and tools).
+    pub fn probability(&self, from: StateId, to: StateId) -> f64 {
+        let (from, to) = (from.0 as usize, to.0 as usize);
+        let free = self.free_state();
+        if from == free {
+            return self.free_row[to];
+        }
+        if to == free {
+            return self.p_free[from];
+        }
+        let (i, j, k) = self.voxel(from);
+        let (it, jt, kt) = self.voxel(to);
+        let l1 = i.abs_diff(it) + j.abs_diff(jt) + k.abs_diff(kt);
+        self.kernel[l1] * self.depth_weight[kt] * self.inv_row_sum[from]
+    }
+
+    /// The whole row `T(from -> ·)`.
+    pub fn row(&self, from: StateId) -> Vec<f64> {
+        (0..self.state_count()).map(|to| self.probability(from, StateId(to as u32))).collect()
+    }
+
+    /// Draws a successor of state `from`.
+    #[inline]
+    pub fn sample<R: Rng + ?Sized>(&self, from: usize, rng: &mut R) -> usize {
+        let free = self.free_state();
+        if from == free {
+            return self.free_table.sample(rng);
+        }
+        if ((rng.next_u64() >> 32) as u32) < self.free_threshold[from] {
+            return free;
+        }
+        let (i, j, k) = self.voxel(from);
+        let (table, offsets) = &self.offset_tables[k];
+        for _ in 0..MAX_OFFSET_REDRAWS {
+            let o = offsets[table.sample(rng)];
+            let it = i as i64 + o.di as i64;
+            let jt = j as i64 + o.dj as i64;
+            if (0..self.n_w as i64).contains(&it) && (0..self.n_h as i64).contains(&jt) {
+                return (jt as usize * self.n_w + it as usize) * self.n_d + o.k as usize;
+            }
+        }
+        self.sample_in_grid_exactly(from, rng)
+    }
+
+    /// Inverse-CDF draw over the in-grid targets of `from`: O(S), for degenerate cases only.
+    fn sample_in_grid_exactly<R: Rng + ?Sized>(&self, from: usize, rng: &mut R) -> usize {
+        let u = (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64) * (1.0 - self.p_free[from]);
+        let mut acc = 0.0;
+        let last = self.free_state() - 1;
+        for to in 0..=last {
+            acc += self.probability(StateId(from as u32), StateId(to as u32));
+            if u < acc {
+                return to;
+            }
+        }
+        last
+    }
+
+    /// Exact prediction `out(s') = Σ_s belief(s)·T(s -> s')`. O(S²) time, O(S) memory.
+    pub fn predict(&self, belief: &[f64], out: &mut [f64]) {
+        let free = self.free_state();
+        let n_d = self.n_d;
+        let stride = self.max_plane_l1 + 1;
+        out.fill(0.0);
+        let mut to_free = belief[free] * self.free_row[free];
+        for block in 0..self.n_w * self.n_h {
+            let (i, j) = (block % self.n_w, block / self.n_w);
+            for k in 0..n_d {
+                let s = block * n_d + k;
+                let b = belief[s];
+                if b == 0.0 {
+                    continue;
+                }
+                to_free += b * self.p_free[s];
+                let c = b * self.inv_row_sum[s];
+                let rows = &self.kernel_rows[k * stride * n_d..(k + 1) * stride * n_d];
+                for jt in 0..self.n_h {
+                    let dj = j.abs_diff(jt);
+                    for it in 0..self.n_w {
+                        let m = i.abs_diff(it) + dj;
+                        let target = &mut out[(jt * self.n_w + it) * n_d..][..n_d];
+                        for (o, w) in target.iter_mut().zip(&rows[m * n_d..(m + 1) * n_d]) {
+                            *o += c * w;
+                        }
+                    }
+                }
+            }
+        }
+        // Apply the target-depth factor once per target, and add the free state's row.
+        for (s, o) in out[..free].iter_mut().enumerate() {
+            *o = *o * self.depth_weight[s % n_d] + belief[free] * self.free_row[s];
+        }
+        out[free] = to_free;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::PinholeCamera;
+    use crate::config::{GridConfig, PerceptionConfig};
+    use rand::SeedableRng;
+    use rand_pcg::Pcg64Mcg;
+
+    /// A 2x2x2 grid: 2x2 pixel image, 1x1 px blocks, two 0.5 m bins over [0.5, 1.5).
+    fn tiny() -> (DepthVoxelGrid, TransitionModel) {
+        let camera = PinholeCamera::new(1.0, 1.0, 0.5, 0.5, 2, 2).unwrap();
+        let grid = DepthVoxelGrid::new(
+            camera,
+            GridConfig { block_width_px: 1, block_height_px: 1, depth_bin_m: 0.5, depth_min_m: 0.5, depth_max_m: 1.5 },
+        )
+        .unwrap();
+        let model = TransitionModel::new(&grid, &TransitionConfig { sigma_s_voxels: 1.0, sigma_z_m: 1.0 }).unwrap();
+        (grid, model)
+    }
+
+    #[test]
+    fn tiny_row_by_hand() {
+        let (grid, model) = tiny();
+        // Source voxel (0,0,0): bin centre depths 0.75 m and 1.25 m, d_max 1.5 m.
+        let hn = |x: f64| (-x * x / 2.0).exp();
+        let zw = |k: u32| hn(grid.bin_centre_m(k));
+        let from = VoxelIndex { i: 0, j: 0, k: 0 };
+        let mut weights = vec![0.0; 9];
+        for to in 0..8u32 {
+            let v = grid.voxel_of(StateId(to)).unwrap();
+            let l1 = v.i + v.j + v.k;
+            weights[to as usize] = hn(l1 as f64) * zw(v.k);
+        }
+        // Face distance of (0,0,0): on the left and top faces -> 1.
+        weights[8] = hn(1.0) * hn(1.5);
+        let total: f64 = weights.iter().sum();
+        let row = model.row(grid.state_of(from));
+        for (p, w) in row.iter().zip(&weights) {
+            assert!((p - w / total).abs() < 1e-14, "{row:?}");
+        }
+        // The free state's row: hn(face(v'))·hn(z(v')), and hn(0)·hn(d_max) to itself.
+        let mut free = vec![0.0; 9];
+        for to in 0..8u32 {
+            let v = grid.voxel_of(StateId(to)).unwrap();
+            free[to as usize] = hn(grid.face_distance(v) as f64) * zw(v.k);
+        }
+        free[8] = hn(1.5);
+        let total: f64 = free.iter().sum();
+        for (p, w) in model.row(grid.free_state()).iter().zip(&free) {
+            assert!((p - w / total).abs() < 1e-14);
+        }
+    }
+
+    #[test]
+    fn flight_rows_sum_to_one() {
+        let grid = DepthVoxelGrid::new(PinholeCamera::d435(), PerceptionConfig::flight().grid).unwrap();
+        let model = TransitionModel::new(&grid, &PerceptionConfig::flight().transition).unwrap();
+        for s in [0u32, 17, 700, 1429, 1430] {
+            let sum: f64 = model.row(StateId(s)).iter().sum();
+            assert!((sum - 1.0).abs() < 1e-12, "row {s} sums to {sum}");
+        }
+        // O(S·N_d), not O(S²): far below a dense f64 table.
+        assert!(model.memory_bytes() < 1431 * 1431 * 8 / 4, "{}", model.memory_bytes());
+    }
+
+    #[test]
+    fn sampling_matches_the_rows() {
+        let (grid, model) = tiny();
+        let mut rng = Pcg64Mcg::seed_from_u64(3);
+        for from in [0usize, 5, 8] {
+            let row = model.row(StateId(from as u32));
+            let n = 200_000;
+            let mut hist = vec![0u32; grid.state_count()];
+            for _ in 0..n {
+                hist[model.sample(from, &mut rng)] += 1;
+            }
+            for (h, p) in hist.iter().zip(&row) {
+                let sd = (p * (1.0 - p) / n as f64).sqrt();
+                assert!((*h as f64 / n as f64 - p).abs() < 5.0 * sd + 1e-9, "from {from}: {hist:?} vs {row:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn predict_equals_the_dense_product() {
+        let grid = DepthVoxelGrid::new(
+            PinholeCamera::new(100.0, 100.0, 30.0, 20.0, 61, 41).unwrap(),
+            GridConfig { block_width_px: 10, block_height_px: 10, depth_bin_m: 0.2, depth_min_m: 0.2, depth_max_m: 1.0 },
+        )
+        .unwrap();
+        let model = TransitionModel::new(&grid, &TransitionConfig { sigma_s_voxels: 2.0, sigma_z_m: 0.4 }).unwrap();
+        let s = grid.state_count();
+        let belief: Vec<f64> = (0..s).map(|i| ((i * 37) % 11) as f64).collect();
+        let total: f64 = belief.iter().sum();
+        let belief: Vec<f64> = belief.iter().map(|b| b / total).collect();
+        let mut fast = vec![0.0; s];
+        model.predict(&belief, &mut fast);
+        for to in 0..s {
+            let dense: f64 = (0..s).map(|from| belief[from] * model.probability(StateId(from as u32), StateId(to as u32))).sum();
+            assert!((fast[to] - dense).abs() < 1e-14, "state {to}: {} vs {dense}", fast[to]);
+        }
+        assert!((fast.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,154 @@
+//! Rigid transforms between frames (ROS REP 103/105 conventions).
+//!
+//! A transform is named `target_from_source`: `body_from_camera.transform_point(p_camera)`
+//! gives `p_body`. Body frame FLU (x forward, y left, z up); camera optical frame
+//! (x right, y down, z forward); world frame ENU. Metres and radians.
+
+use glam::{DMat3, DVec3};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// Tolerance on `RᵀR = I` and `det R = 1` when a rotation comes from user data.
+const ROTATION_TOLERANCE: f64 = 1e-6;
+
+/// A rigid transform `target_from_source`: rotation then translation.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Isometry3 {
+    /// Rotation taking source-frame vectors to the target frame.
+    pub rotation: DMat3,
+    /// Origin of the source frame expressed in the target frame [m].
+    pub translation: DVec3,
+}
+
+impl Default for Isometry3 {
+    fn default() -> Self {
+        Self::IDENTITY
+    }
+}
+
+impl Isometry3 {
+    /// The identity transform.
+    pub const IDENTITY: Self = Self { rotation: DMat3::IDENTITY, translation: DVec3::ZERO };
+
+    /// `body_from_camera` of a camera looking along the body's x axis, at the body origin:
+    /// optical z -> body x, optical x -> body -y, optical y -> body -z.
+    pub fn body_from_forward_optical() -> Self {
+        Self {
+            rotation: DMat3::from_cols(DVec3::NEG_Y, DVec3::NEG_Z, DVec3::X),
+            translation: DVec3::ZERO,
+        }
+    }
+
+    /// `body_from_camera` of a camera looking up (+z of the body), its image top toward
+    /// the body's +x: optical z -> body z, optical y -> body -x, optical x -> body +y.
+    pub fn body_from_upward_optical() -> Self {
+        Self {
+            rotation: DMat3::from_cols(DVec3::Y, DVec3::NEG_X, DVec3::Z),
+            translation: DVec3::ZERO,
+        }
+    }
+
+    /// Builds a transform from a row-major 4x4 homogeneous matrix, checking that the
+    /// upper 3x3 block is a proper rotation and the last row is `[0, 0, 0, 1]`.
+    pub fn from_matrix_rows(argument: &str, m: &[[f64; 4]; 4]) -> Result<Self> {
+        if m.iter().flatten().any(|x| !x.is_finite()) {
+            return Err(Error::input(argument, "contains NaN or infinity"));
+        }
+        if m[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(Error::input(argument, format!("last row must be [0, 0, 0, 1], got {:?}", m[3])));
+        }
+        let rotation = DMat3::from_cols(
+            DVec3::new(m[0][0], m[1][0], m[2][0]),
+            DVec3::new(m[0][1], m[1][1], m[2][1]),
+            DVec3::new(m[0][2], m[1][2], m[2][2]),
+        );
+        let orthogonality = (rotation.transpose() * rotation - DMat3::IDENTITY).abs().to_cols_array();
+        let worst = orthogonality.iter().fold(0.0_f64, |a, &b| a.max(b));
+        if worst > ROTATION_TOLERANCE || (rotation.determinant() - 1.0).abs() > ROTATION_TOLERANCE {
+            return Err(Error::input(
+                argument,
+                format!("upper 3x3 block is not a rotation (|RᵀR - I| = {worst:.2e}, det = {:.6})", rotation.determinant()),
+            ));
+        }
+        Ok(Self { rotation, translation: DVec3::new(m[0][3], m[1][3], m[2][3]) })
+    }
+
+    /// The row-major 4x4 homogeneous matrix.
+    pub fn to_matrix_rows(&self) -> [[f64; 4]; 4] {
+        let r = self.rotation;
+        let t = self.translation;
+        [
+            [r.x_axis.x, r.y_axis.x, r.z_axis.x, t.x],
+            [r.x_axis.y, r.y_axis.y, r.z_axis.y, t.y],
+            [r.x_axis.z, r.y_axis.z, r.z_axis.z, t.z],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    }
+
+    /// Maps a point from the source frame to the target frame.
+    pub fn transform_point(&self, p_source: DVec3) -> DVec3 {
+        self.rotation * p_source + self.translation
+    }
+
+    /// Maps a free vector (a force, a velocity) from the source frame to the target frame.
+    pub fn transform_vector(&self, v_source: DVec3) -> DVec3 {
+        self.rotation * v_source
+    }
+
+    /// The inverse transform `source_from_target`.
+    pub fn inverse(&self) -> Self {
+        let rotation = self.rotation.transpose();
+        Self { rotation, translation: -(rotation * self.translation) }
+    }
+
+    /// Composition: `(a_from_b * b_from_c) = a_from_c`.
+    pub fn compose(&self, b_from_c: &Self) -> Self {
+        Self {
+            rotation: self.rotation * b_from_c.rotation,
+            translation: self.rotation * b_from_c.translation + self.translation,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn forward_optical_axes_map_to_flu() {
+        let body_from_camera = Isometry3::body_from_forward_optical();
+        // A point 2 m straight ahead of the lens is 2 m ahead of the body.
+        assert_eq!(body_from_camera.transform_point(DVec3::new(0.0, 0.0, 2.0)), DVec3::new(2.0, 0.0, 0.0));
+        // Image right is body right (-y); image down is body down (-z).
+        assert_eq!(body_from_camera.transform_vector(DVec3::X), DVec3::NEG_Y);
+        assert_eq!(body_from_camera.transform_vector(DVec3::Y), DVec3::NEG_Z);
+        assert!((body_from_camera.rotation.determinant() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn matrix_round_trip_and_inverse() {
+        let mut t = Isometry3::body_from_upward_optical();
+        t.translation = DVec3::new(0.1, -0.2, 0.3);
+        let back = Isometry3::from_matrix_rows("m", &t.to_matrix_rows()).unwrap();
+        assert_eq!(back, t);
+        let p = DVec3::new(1.0, 2.0, 3.0);
+        let q = t.inverse().transform_point(t.transform_point(p));
+        assert!((q - p).length() < 1e-12);
+        assert!((t.compose(&t.inverse()).translation).length() < 1e-12);
+    }
+
+    #[test]
+    fn rejects_non_rotation_and_nan() {
+        let mut m = Isometry3::IDENTITY.to_matrix_rows();
+        m[0][0] = 2.0;
+        assert!(matches!(Isometry3::from_matrix_rows("body_from_camera", &m), Err(Error::InvalidInput { argument, .. }) if argument == "body_from_camera"));
+        let mut m = Isometry3::IDENTITY.to_matrix_rows();
+        m[1][3] = f64::NAN;
+        assert!(Isometry3::from_matrix_rows("m", &m).is_err());
+        // A reflection is orthogonal but not a rotation.
+        let mut m = Isometry3::IDENTITY.to_matrix_rows();
+        m[2][2] = -1.0;
+        assert!(Isometry3::from_matrix_rows("m", &m).is_err());
+    }
+}

@@ -1,0 +1,26 @@
+//! # subterra
+//!
+//! Onboard perception and planning for robots in cluttered, GPS-denied places.
+//!
+//! - [`depth`]: APF-PF, a particle filter over a 2.5D voxel grid of a depth image
+//!   (Ahmad, Sunberg, Humbert, ACC 2021), and [`apf`], the potential fields it weights.
+//! - [`camera`], [`frames`], [`config`]: the shared vocabulary.
+//!
+//! No I/O, no printing, no global state: every stage takes arrays and returns values,
+//! and every random stream is seeded by the caller.
+
+#![warn(missing_docs)]
+
+pub mod apf;
+pub mod camera;
+pub mod config;
+pub mod depth;
+pub mod error;
+pub mod frames;
+
+pub use apf::{ApfController, Command};
+pub use camera::PinholeCamera;
+pub use config::PerceptionConfig;
+pub use depth::{DepthImage, DepthPerception, PerceptionOutput};
+pub use error::{Error, Result};
+pub use frames::Isometry3;

@@ -1,0 +1,1 @@
+"""Benchmarks of subterra against straightforward NumPy reference implementations."""
