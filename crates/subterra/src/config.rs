@@ -86,6 +86,12 @@ pub struct FilterConfig {
     pub particles: usize,
     /// Resampling scheme.
     pub resampling: Resampling,
+    /// Smallest probability with which the particle filter *proposes* the free state
+    /// (subterra; 0 = the paper's plain bootstrap proposal). Under the model a particle
+    /// reaches `s_free` with probability ~3e-5 per frame at `flight`, so 20000 particles
+    /// put 0 or 1 particle there and P(free) flips between 0 and 1 on an empty frame.
+    /// Proposing it more often and weighting by `T/q` keeps the estimate unbiased.
+    pub free_proposal_min: f64,
 }
 
 /// How the net force becomes a velocity command.
@@ -159,7 +165,7 @@ impl PerceptionConfig {
             },
             transition: TransitionConfig { sigma_s_voxels: 8.0, sigma_z_m: 0.4 },
             observation: ObservationConfig { sigma_o_points: 170.0, sigma_n_points: 60.0 },
-            filter: FilterConfig { mode: FilterMode::Particle, particles: 20_000, resampling: Resampling::Systematic },
+            filter: FilterConfig { mode: FilterMode::Particle, particles: 20_000, resampling: Resampling::Systematic, free_proposal_min: 0.05 },
             apf: ApfConfig {
                 rho_0_m: 1.4,
                 eta: 1.1,
@@ -239,6 +245,10 @@ impl PerceptionConfig {
         let n = self.filter.particles;
         if n == 0 || n > MAX_PARTICLES {
             return Err(Error::config("filter.particles", format!("must be in 1..={MAX_PARTICLES}"), n));
+        }
+        let q = self.filter.free_proposal_min;
+        if !(0.0..1.0).contains(&q) {
+            return Err(Error::config("filter.free_proposal_min", "must be in [0, 1)", q));
         }
         let a = &self.apf;
         require_positive("apf.rho_0_m", a.rho_0_m)?;

@@ -2,10 +2,17 @@
 //! histogram filter over the same model.
 //!
 //! Particles carry nothing but their state, so the particle set is kept as a count per
-//! state: propagating each of the `c` particles in state `s` by one draw from `T(s, ·)`,
-//! weighting every particle by its new state's likelihood and resampling with pointers
-//! over the particles ordered by state is the textbook filter, step for step, in
-//! O(N + S) time and memory.
+//! state: propagating each of the `c` particles in state `s` by one draw, weighting every
+//! particle by its new state's likelihood and resampling with pointers over the particles
+//! ordered by state is the textbook filter, step for step, in O(N + S) time and memory.
+//!
+//! The draw uses a defensive proposal for the free state: from `s` a particle goes to
+//! `s_free` with `q(s) = max(T(s -> s_free), q_min)` and otherwise to a voxel drawn from
+//! `T(s, ·)` restricted to the grid; its weight carries the ratio `T/q` of the branch
+//! taken (`T(s->free)/q(s)` or `(1 - T(s->free))/(1 - q(s))`). With `q_min = 0` this is the
+//! paper's bootstrap filter exactly; with `q_min > 0` the estimate is still unbiased, but
+//! the free state, which the model reaches with probability ~3e-5 per frame, is no longer
+//! missed by chance on an empty frame.
 
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
@@ -19,25 +26,50 @@ fn unit_f64<R: Rng + ?Sized>(rng: &mut R) -> f64 {
     (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
+/// The proposal of one source state: the 32-bit threshold below which a particle goes to
+/// `s_free`, and the importance ratios `T/q` of the two branches.
+#[derive(Debug, Clone, Copy)]
+struct Proposal {
+    free_threshold: u32,
+    always_free: bool,
+    free_ratio: f64,
+    voxel_ratio: f64,
+}
+
 /// Particle filter with `N` particles kept as counts per state.
 #[derive(Debug, Clone)]
 pub struct ParticleFilter {
     particles: usize,
     resampling: Resampling,
     counts: Vec<u32>,
-    propagated: Vec<u32>,
+    /// Importance weight per state after propagation (Σ of `T/q` of the particles there).
     mass: Vec<f64>,
+    proposals: Vec<Proposal>,
     rng: Pcg64Mcg,
 }
 
 impl ParticleFilter {
-    /// `particles` spread evenly over `states` (particle `p` starts in state `p mod S`).
-    pub fn new(states: usize, particles: usize, resampling: Resampling, rng: Pcg64Mcg) -> Self {
+    /// `particles` spread evenly over the model's states (particle `p` starts in state
+    /// `p mod S`); `free_proposal_min` is `q_min` of the module docs, in `[0, 1)`.
+    pub fn new(model: &TransitionModel, particles: usize, resampling: Resampling, free_proposal_min: f64, rng: Pcg64Mcg) -> Self {
+        let states = model.state_count();
         let mut counts = vec![0u32; states];
         for p in 0..particles {
             counts[p % states] += 1;
         }
-        Self { particles, resampling, counts, propagated: vec![0; states], mass: vec![0.0; states], rng }
+        let proposals = (0..states)
+            .map(|s| {
+                let t = model.p_free(s);
+                let q = t.max(free_proposal_min);
+                Proposal {
+                    free_threshold: (q * 4_294_967_296.0).min(u32::MAX as f64) as u32,
+                    always_free: q >= 1.0,
+                    free_ratio: if q > 0.0 { t / q } else { 0.0 },
+                    voxel_ratio: if q < 1.0 { (1.0 - t) / (1.0 - q) } else { 0.0 },
+                }
+            })
+            .collect();
+        Self { particles, resampling, counts, mass: vec![0.0; states], proposals, rng }
     }
 
     /// Number of particles.
@@ -50,12 +82,18 @@ impl ParticleFilter {
         &self.counts
     }
 
-    /// Moves every particle by one draw from the transition model.
+    /// Moves every particle by one draw from the proposal, accumulating its weight `T/q`.
     pub fn propagate(&mut self, model: &TransitionModel) {
-        self.propagated.fill(0);
+        self.mass.fill(0.0);
+        let free = self.counts.len() - 1;
         for (s, &c) in self.counts.iter().enumerate() {
+            let p = self.proposals[s];
             for _ in 0..c {
-                self.propagated[model.sample(s, &mut self.rng)] += 1;
+                if p.always_free || ((self.rng.next_u64() >> 32) as u32) < p.free_threshold {
+                    self.mass[free] += p.free_ratio;
+                } else {
+                    self.mass[model.sample_voxel(s, &mut self.rng)] += p.voxel_ratio;
+                }
             }
         }
     }
@@ -63,15 +101,17 @@ impl ParticleFilter {
     /// Weights the propagated particles by `log_likelihood` (per state) and resamples.
     pub fn weight_and_resample(&mut self, log_likelihood: &[f64]) {
         let max = self
-            .propagated
+            .mass
             .iter()
             .zip(log_likelihood)
-            .filter(|(&c, _)| c > 0)
+            .filter(|(&m, _)| m > 0.0)
             .map(|(_, &l)| l)
             .fold(f64::NEG_INFINITY, f64::max);
         let mut total = 0.0;
-        for ((m, &c), &l) in self.mass.iter_mut().zip(&self.propagated).zip(log_likelihood) {
-            *m = if c > 0 { c as f64 * (l - max).exp() } else { 0.0 };
+        for (m, &l) in self.mass.iter_mut().zip(log_likelihood) {
+            if *m > 0.0 {
+                *m *= (l - max).exp();
+            }
             total += *m;
         }
         self.counts.fill(0);
@@ -174,11 +214,32 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
 
+    use crate::camera::PinholeCamera;
+    use crate::config::{GridConfig, TransitionConfig};
+    use crate::depth::grid::DepthVoxelGrid;
+
+    /// A model with `states` states (a 1x1-pixel image, `states - 1` depth bins).
+    fn model(states: usize) -> TransitionModel {
+        let camera = PinholeCamera::new(1.0, 1.0, 0.0, 0.0, 1, 1).unwrap();
+        let grid = DepthVoxelGrid::new(
+            camera,
+            GridConfig { block_width_px: 1, block_height_px: 1, depth_bin_m: 1.0, depth_min_m: 0.0, depth_max_m: (states - 1) as f64 },
+        )
+        .unwrap();
+        TransitionModel::new(&grid, &TransitionConfig { sigma_s_voxels: 1.0, sigma_z_m: 1.0 }).unwrap()
+    }
+
+    fn filter(states: usize, n: usize, resampling: Resampling, seed: u64) -> ParticleFilter {
+        let mut f = ParticleFilter::new(&model(states), n, resampling, 0.0, Pcg64Mcg::seed_from_u64(seed));
+        // No transition: the propagated weights are the particle counts.
+        f.mass = f.counts.iter().map(|&c| c as f64).collect();
+        f
+    }
+
     #[test]
     fn systematic_resampling_keeps_proportions() {
-        // No transition: weight four states 1:1:2:0 with equal particle counts.
-        let mut f = ParticleFilter::new(4, 400, Resampling::Systematic, Pcg64Mcg::seed_from_u64(1));
-        f.propagated = f.counts.clone();
+        // Weight four states 1:1:2:0 with equal particle counts.
+        let mut f = filter(4, 400, Resampling::Systematic, 1);
         f.weight_and_resample(&[0.0, 0.0, 2f64.ln(), f64::NEG_INFINITY]);
         // Systematic resampling gives each state floor or ceil of its expected count.
         assert_eq!(f.counts(), &[100, 100, 200, 0]);
@@ -188,8 +249,7 @@ mod tests {
     fn multinomial_resampling_is_unbiased() {
         let mut totals = [0u64; 3];
         for seed in 0..50 {
-            let mut f = ParticleFilter::new(3, 1000, Resampling::Multinomial, Pcg64Mcg::seed_from_u64(seed));
-            f.propagated = f.counts.clone();
+            let mut f = filter(3, 1000, Resampling::Multinomial, seed);
             f.weight_and_resample(&[0.0, 3f64.ln(), f64::NEG_INFINITY]);
             assert_eq!(f.counts().iter().sum::<u32>(), 1000);
             assert_eq!(f.counts()[2], 0);
@@ -200,6 +260,25 @@ mod tests {
         // The middle state starts with one more particle (1000 = 334 + 333 + 333).
         let expected = 50_000.0 * 333.0 * 3.0 / (334.0 + 999.0);
         assert!((totals[1] as f64 - expected).abs() < 0.02 * expected, "{totals:?}");
+    }
+
+    #[test]
+    fn defensive_proposal_is_unbiased() {
+        // The expected weight reaching each state after one propagation equals N·Σ_s b(s)T(s, ·),
+        // whatever q_min is.
+        let m = model(4);
+        let n = 200_000;
+        for q_min in [0.0, 0.3] {
+            let mut f = ParticleFilter::new(&m, n, Resampling::Systematic, q_min, Pcg64Mcg::seed_from_u64(1));
+            f.propagate(&m);
+            for to in 0..4 {
+                let expected: f64 = (0..4)
+                    .map(|s| f.counts[s] as f64 * m.probability(crate::depth::StateId(s as u32), crate::depth::StateId(to as u32)))
+                    .sum();
+                // Five standard deviations of a Poisson count (the weights are near 1).
+                assert!((f.mass[to] - expected).abs() < 5.0 * expected.sqrt() + 1.0, "q_min {q_min}, state {to}: {} vs {expected}", f.mass[to]);
+            }
+        }
     }
 
     #[test]

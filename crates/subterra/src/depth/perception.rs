@@ -115,9 +115,10 @@ impl DepthPerception {
         let states = grid.state_count();
         let filter = match config.filter.mode {
             FilterMode::Particle => Filter::Particle(ParticleFilter::new(
-                states,
+                &transition,
                 config.filter.particles,
                 config.filter.resampling,
+                config.filter.free_proposal_min,
                 Pcg64Mcg::seed_from_u64(seed),
             )),
             FilterMode::Histogram => Filter::Histogram(HistogramFilter::new(states)),

@@ -227,6 +227,15 @@ impl TransitionModel {
         (0..self.state_count()).map(|to| self.probability(from, StateId(to as u32))).collect()
     }
 
+    /// `T(from -> s_free)`.
+    pub fn p_free(&self, from: usize) -> f64 {
+        if from == self.free_state() {
+            self.free_row[from]
+        } else {
+            self.p_free[from]
+        }
+    }
+
     /// Draws a successor of state `from`.
     #[inline]
     pub fn sample<R: Rng + ?Sized>(&self, from: usize, rng: &mut R) -> usize {
@@ -236,6 +245,23 @@ impl TransitionModel {
         }
         if ((rng.next_u64() >> 32) as u32) < self.free_threshold[from] {
             return free;
+        }
+        self.sample_voxel(from, rng)
+    }
+
+    /// Draws a successor of `from` conditioned on it being a voxel (not `s_free`).
+    #[inline]
+    pub fn sample_voxel<R: Rng + ?Sized>(&self, from: usize, rng: &mut R) -> usize {
+        let free = self.free_state();
+        if from == free {
+            // T(free -> free) is tiny for any sensible grid: rejection costs almost nothing.
+            for _ in 0..MAX_OFFSET_REDRAWS {
+                let to = self.free_table.sample(rng);
+                if to != free {
+                    return to;
+                }
+            }
+            return self.free_row[..free].iter().enumerate().fold((0, 0.0), |best, (s, &p)| if p > best.1 { (s, p) } else { best }).0;
         }
         let (i, j, k) = self.voxel(from);
         let (table, offsets) = &self.offset_tables[k];

@@ -1,0 +1,531 @@
+//! `subterra._core`: the Python face of the `subterra` crate.
+//!
+//! Conversions, error mapping and GIL release only; every algorithm lives in the core crate.
+
+mod convert;
+mod errors;
+
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+use subterra::config::{PerceptionConfig, PRESET_NAMES};
+use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, VoxelIndex};
+use subterra::{ApfController, Command, Isometry3, PinholeCamera};
+
+use crate::convert::{isometry, vec3, with_depth};
+use crate::errors::{config_error, input_error, IntoPyResult};
+
+fn array3<'py>(py: Python<'py>, v: glam::DVec3) -> Bound<'py, PyArray1<f64>> {
+    vec![v.x, v.y, v.z].into_pyarray(py)
+}
+
+/// Pinhole intrinsics of a depth camera (optical frame: x right, y down, z forward).
+#[pyclass(name = "PinholeCamera", module = "subterra._core", frozen, eq)]
+#[derive(Clone, PartialEq)]
+struct PyPinholeCamera {
+    inner: PinholeCamera,
+}
+
+#[pymethods]
+impl PyPinholeCamera {
+    #[new]
+    #[pyo3(signature = (fx, fy, cx, cy, width, height))]
+    fn new(py: Python<'_>, fx: f64, fy: f64, cx: f64, cy: f64, width: i64, height: i64) -> PyResult<Self> {
+        let side = |name: &str, v: i64| {
+            u32::try_from(v).map_err(|_| config_error(py, format!("config field `camera.{name}` is invalid: must be in 1..=16384 px (got {v})")))
+        };
+        let inner = PinholeCamera::new(fx, fy, cx, cy, side("width", width)?, side("height", height)?).py_err(py)?;
+        Ok(Self { inner })
+    }
+
+    /// The simulated RealSense D435 depth stream: 640x480, fx = fy = 385 px.
+    #[staticmethod]
+    fn d435() -> Self {
+        Self { inner: PinholeCamera::d435() }
+    }
+
+    #[getter]
+    fn fx(&self) -> f64 {
+        self.inner.fx
+    }
+    #[getter]
+    fn fy(&self) -> f64 {
+        self.inner.fy
+    }
+    #[getter]
+    fn cx(&self) -> f64 {
+        self.inner.cx
+    }
+    #[getter]
+    fn cy(&self) -> f64 {
+        self.inner.cy
+    }
+    #[getter]
+    fn width(&self) -> u32 {
+        self.inner.width
+    }
+    #[getter]
+    fn height(&self) -> u32 {
+        self.inner.height
+    }
+
+    fn __repr__(&self) -> String {
+        let c = &self.inner;
+        format!("PinholeCamera(fx={}, fy={}, cx={}, cy={}, width={}, height={})", c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+    }
+}
+
+/// The APF-PF configuration: grid, transition, observation, filter and APF settings.
+#[pyclass(name = "PerceptionConfig", module = "subterra._core", frozen, eq)]
+#[derive(Clone, PartialEq)]
+struct PyPerceptionConfig {
+    inner: PerceptionConfig,
+}
+
+#[pymethods]
+impl PyPerceptionConfig {
+    /// A named preset (`flight`, `cable`).
+    #[staticmethod]
+    fn preset(py: Python<'_>, name: &str) -> PyResult<Self> {
+        Ok(Self { inner: PerceptionConfig::preset(name).py_err(py)? })
+    }
+
+    /// Parses and validates a TOML document laid out like `configs/flight.toml`.
+    #[staticmethod]
+    fn from_toml(py: Python<'_>, text: &str) -> PyResult<Self> {
+        Ok(Self { inner: PerceptionConfig::from_toml_str(text).py_err(py)? })
+    }
+
+    /// Parses and validates a JSON document with the same layout.
+    #[staticmethod]
+    fn from_json(py: Python<'_>, text: &str) -> PyResult<Self> {
+        let inner: PerceptionConfig =
+            serde_json::from_str(text).map_err(|e| config_error(py, format!("config could not be parsed: {e}")))?;
+        inner.validate().py_err(py)?;
+        Ok(Self { inner })
+    }
+
+    /// The config as TOML text.
+    fn to_toml(&self) -> String {
+        self.inner.to_toml_string()
+    }
+
+    /// The config as JSON text.
+    fn to_json(&self) -> String {
+        serde_json::to_string(&self.inner).unwrap_or_default()
+    }
+
+    /// Number of depth bins N_d.
+    #[getter]
+    fn depth_bins(&self) -> usize {
+        self.inner.depth_bins()
+    }
+
+    fn __repr__(&self) -> String {
+        format!("PerceptionConfig.from_json({:?})", self.to_json())
+    }
+}
+
+/// The most probable voxel of a belief.
+#[pyclass(name = "MostProbableVoxel", module = "subterra._core", frozen)]
+struct PyMostProbableVoxel {
+    inner: MostProbableVoxel,
+}
+
+#[pymethods]
+impl PyMostProbableVoxel {
+    /// `(i, j, k)`: column block, row block, depth bin.
+    #[getter]
+    fn voxel(&self) -> (u32, u32, u32) {
+        let v = self.inner.voxel;
+        (v.i, v.j, v.k)
+    }
+    /// Flat state id.
+    #[getter]
+    fn state(&self) -> u32 {
+        self.inner.state.0
+    }
+    /// Belief of this voxel.
+    #[getter]
+    fn probability(&self) -> f64 {
+        self.inner.probability
+    }
+    /// Depth of the voxel's centre along the optical axis [m].
+    #[getter]
+    fn depth_m(&self) -> f64 {
+        self.inner.centre_camera.z
+    }
+    /// Centre in the camera optical frame [m].
+    #[getter]
+    fn centre_camera<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.centre_camera)
+    }
+    /// Centre in the body frame [m].
+    #[getter]
+    fn centre_body<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.centre_body)
+    }
+    fn __repr__(&self) -> String {
+        let v = self.inner.voxel;
+        format!("MostProbableVoxel(voxel=({}, {}, {}), probability={:.4}, depth_m={:.3})", v.i, v.j, v.k, self.inner.probability, self.inner.centre_camera.z)
+    }
+}
+
+/// What one depth frame gives: belief, P(free), most probable voxel, forces, timings.
+#[pyclass(name = "PerceptionOutput", module = "subterra._core", frozen)]
+struct PyPerceptionOutput {
+    inner: PerceptionOutput,
+}
+
+#[pymethods]
+impl PyPerceptionOutput {
+    /// State ids with belief (ascending; the free state is the last id).
+    #[getter]
+    fn belief_states<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u32>> {
+        self.inner.belief_states.iter().map(|s| s.0).collect::<Vec<_>>().into_pyarray(py)
+    }
+    /// Their probabilities.
+    #[getter]
+    fn belief_probabilities<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.belief_probabilities.clone().into_pyarray(py)
+    }
+    /// Belief that no obstacle is inside the sensing horizon.
+    #[getter]
+    fn p_free(&self) -> f64 {
+        self.inner.p_free
+    }
+    /// The most probable voxel, or None.
+    #[getter]
+    fn most_probable(&self) -> Option<PyMostProbableVoxel> {
+        self.inner.most_probable.map(|inner| PyMostProbableVoxel { inner })
+    }
+    /// Smallest valid raw depth of the frame [m], or None.
+    #[getter]
+    fn closest_depth_m(&self) -> Option<f64> {
+        self.inner.closest_depth_m
+    }
+    /// Pixels with a valid depth.
+    #[getter]
+    fn valid_pixels(&self) -> u64 {
+        self.inner.valid_pixels
+    }
+    /// Pixels with a valid depth inside the horizon.
+    #[getter]
+    fn in_range_pixels(&self) -> u64 {
+        self.inner.in_range_pixels
+    }
+    /// Largest per-voxel count.
+    #[getter]
+    fn max_count(&self) -> u32 {
+        self.inner.max_count
+    }
+    /// Belief-weighted repulsive force in the body frame [N].
+    #[getter]
+    fn repulsive_body<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.repulsive_body)
+    }
+    /// Seconds per stage: count, predict, update, apf, total.
+    #[getter]
+    fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let t = self.inner.timings;
+        let d = PyDict::new(py);
+        d.set_item("count_s", t.count_s)?;
+        d.set_item("predict_s", t.predict_s)?;
+        d.set_item("update_s", t.update_s)?;
+        d.set_item("apf_s", t.apf_s)?;
+        d.set_item("total_s", t.total_s)?;
+        Ok(d)
+    }
+    fn __repr__(&self) -> String {
+        let o = &self.inner;
+        let map = o.most_probable.map_or("None".to_owned(), |m| format!("{:.3} m (p={:.3})", m.centre_camera.z, m.probability));
+        format!("PerceptionOutput(p_free={:.4}, most_probable={map}, closest_depth_m={:?}, in_range_pixels={})", o.p_free, o.closest_depth_m, o.in_range_pixels)
+    }
+}
+
+fn resolve_config(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConfig>) -> PyResult<PerceptionConfig> {
+    match config {
+        Some(c) => Ok(c.inner),
+        None => PerceptionConfig::preset(preset).py_err(py),
+    }
+}
+
+/// APF-PF perception of one depth camera: `update(depth)` per frame.
+#[pyclass(name = "DepthPerception", module = "subterra._core")]
+struct PyDepthPerception {
+    inner: DepthPerception,
+    camera: PinholeCamera,
+}
+
+#[pymethods]
+impl PyDepthPerception {
+    #[new]
+    #[pyo3(signature = (camera, preset = "flight", *, config = None, body_from_camera = None, seed = 0))]
+    fn new(
+        py: Python<'_>,
+        camera: &PyPinholeCamera,
+        preset: &str,
+        config: Option<&PyPerceptionConfig>,
+        body_from_camera: Option<&Bound<'_, PyAny>>,
+        seed: i64,
+    ) -> PyResult<Self> {
+        let config = resolve_config(py, preset, config)?;
+        let body_from_camera = match body_from_camera {
+            Some(m) => isometry(py, "body_from_camera", m)?,
+            None => Isometry3::body_from_forward_optical(),
+        };
+        let seed = u64::try_from(seed).map_err(|_| input_error(py, format!("argument `seed` must be >= 0, got {seed}")))?;
+        let cam = camera.inner;
+        let inner = py.detach(move || DepthPerception::new(cam, body_from_camera, config, seed)).py_err(py)?;
+        Ok(Self { inner, camera: cam })
+    }
+
+    /// Processes one `(H, W)` depth frame (`uint16` with `scale` metres per unit, default
+    /// 0.001, or `float32` metres). Releases the GIL while it runs.
+    #[pyo3(signature = (depth, scale = None))]
+    fn update(&mut self, py: Python<'_>, depth: &Bound<'_, PyAny>, scale: Option<f64>) -> PyResult<PyPerceptionOutput> {
+        let inner = &mut self.inner;
+        let result = with_depth(py, depth, scale, |pixels, w, h| py.detach(|| inner.update(pixels.image(), w, h)))?;
+        Ok(PyPerceptionOutput { inner: result.py_err(py)? })
+    }
+
+    /// The camera.
+    #[getter]
+    fn camera(&self) -> PyPinholeCamera {
+        PyPinholeCamera { inner: self.camera }
+    }
+    /// The config.
+    #[getter]
+    fn config(&self) -> PyPerceptionConfig {
+        PyPerceptionConfig { inner: *self.inner.config() }
+    }
+    /// `body_from_camera` as a 4x4 matrix.
+    #[getter]
+    fn body_from_camera<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let rows: Vec<Vec<f64>> = self.inner.body_from_camera().to_matrix_rows().iter().map(|r| r.to_vec()).collect();
+        PyArray2::from_vec2(py, &rows).map_err(|e| input_error(py, e.to_string()))
+    }
+    /// `(N_w, N_h, N_d)`: column blocks, row blocks, depth bins.
+    #[getter]
+    fn grid_shape(&self) -> (usize, usize, usize) {
+        self.inner.grid().shape()
+    }
+    /// Number of states (voxels + free).
+    #[getter]
+    fn state_count(&self) -> usize {
+        self.inner.grid().state_count()
+    }
+    /// The free state's id (the last).
+    #[getter]
+    fn free_state(&self) -> u32 {
+        self.inner.grid().free_state().0
+    }
+    /// Frames processed.
+    #[getter]
+    fn frames(&self) -> u64 {
+        self.inner.frames()
+    }
+    /// Seconds spent building the transition model.
+    #[getter]
+    fn transition_build_s(&self) -> f64 {
+        self.inner.transition_build_s()
+    }
+    /// Bytes held by the transition model.
+    #[getter]
+    fn transition_memory_bytes(&self) -> usize {
+        self.inner.transition().memory_bytes()
+    }
+    /// The dense belief over all states, shape `(S,)`.
+    fn belief<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.belief().to_vec().into_pyarray(py)
+    }
+    /// Per-voxel counts of the last frame, shape `(N_h, N_w, N_d)`, or None before the first.
+    fn counts<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray3<u32>>>> {
+        let (n_w, n_h, n_d) = self.inner.grid().shape();
+        let Some(c) = self.inner.last_counts() else { return Ok(None) };
+        Ok(Some(c.counts.clone().into_pyarray(py).reshape([n_h, n_w, n_d])?))
+    }
+    /// Centres of all voxels, shape `(S-1, 3)` [m], in the `frame` "camera" or "body".
+    #[pyo3(signature = (frame = "camera"))]
+    fn voxel_centres<'py>(&self, py: Python<'py>, frame: &str) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let body = match frame {
+            "camera" => false,
+            "body" => true,
+            _ => return Err(input_error(py, format!("argument `frame` must be \"camera\" or \"body\", got {frame:?}"))),
+        };
+        let g = self.inner.grid();
+        let mut flat = Vec::with_capacity(g.voxel_count() * 3);
+        for s in 0..g.voxel_count() as u32 {
+            let Some(v) = g.voxel_of(StateId(s)) else { continue };
+            let mut p = g.voxel_centre_camera(v);
+            if body {
+                p = self.inner.body_from_camera().transform_point(p);
+            }
+            flat.extend([p.x, p.y, p.z]);
+        }
+        Ok(flat.into_pyarray(py).reshape([g.voxel_count(), 3])?)
+    }
+    /// Per-state repulsive force in the body frame, shape `(S, 3)` [N].
+    fn forces_body<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let f: Vec<f64> = self.inner.forces_body().iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        let n = f.len() / 3;
+        Ok(f.into_pyarray(py).reshape([n, 3])?)
+    }
+    /// The transition row `T(state -> ·)`, shape `(S,)`.
+    fn transition_row<'py>(&self, py: Python<'py>, state: i64) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let s = self.check_state(py, state)?;
+        Ok(self.inner.transition().row(StateId(s)).into_pyarray(py))
+    }
+    /// Flat id of voxel `(i, j, k)`.
+    fn state_of(&self, py: Python<'_>, i: i64, j: i64, k: i64) -> PyResult<u32> {
+        let (n_w, n_h, n_d) = self.inner.grid().shape();
+        let inside = |x: i64, n: usize| x >= 0 && (x as usize) < n;
+        if !(inside(i, n_w) && inside(j, n_h) && inside(k, n_d)) {
+            return Err(input_error(py, format!("voxel ({i}, {j}, {k}) is outside the grid of shape (N_w, N_h, N_d) = ({n_w}, {n_h}, {n_d})")));
+        }
+        Ok(self.inner.grid().state_of(VoxelIndex { i: i as u32, j: j as u32, k: k as u32 }).0)
+    }
+    /// `(i, j, k)` of a state, or None for the free state.
+    fn voxel_of(&self, py: Python<'_>, state: i64) -> PyResult<Option<(u32, u32, u32)>> {
+        let s = self.check_state(py, state)?;
+        Ok(self.inner.grid().voxel_of(StateId(s)).map(|v| (v.i, v.j, v.k)))
+    }
+    fn __repr__(&self) -> String {
+        let (w, h, d) = self.inner.grid().shape();
+        format!("DepthPerception(grid=({w}, {h}, {d}), states={}, frames={})", w * h * d + 1, self.inner.frames())
+    }
+}
+
+impl PyDepthPerception {
+    fn check_state(&self, py: Python<'_>, state: i64) -> PyResult<u32> {
+        let n = self.inner.grid().state_count() as i64;
+        if !(0..n).contains(&state) {
+            return Err(input_error(py, format!("argument `state` must be in 0..{n}, got {state}")));
+        }
+        Ok(state as u32)
+    }
+}
+
+/// A velocity command in the body frame (FLU).
+#[pyclass(name = "Command", module = "subterra._core", frozen)]
+struct PyCommand {
+    inner: Command,
+}
+
+#[pymethods]
+impl PyCommand {
+    /// Forward speed [m/s].
+    #[getter]
+    fn v_x(&self) -> f64 {
+        self.inner.v_x_m_s
+    }
+    /// Lateral speed [m/s] (holonomic mode only).
+    #[getter]
+    fn v_y(&self) -> f64 {
+        self.inner.v_y_m_s
+    }
+    /// Vertical speed [m/s].
+    #[getter]
+    fn v_z(&self) -> f64 {
+        self.inner.v_z_m_s
+    }
+    /// Yaw rate [rad/s].
+    #[getter]
+    fn yaw_rate(&self) -> f64 {
+        self.inner.yaw_rate_rad_s
+    }
+    /// The goal is within the success radius.
+    #[getter]
+    fn reached(&self) -> bool {
+        self.inner.reached
+    }
+    /// Attractive force used [N], body frame.
+    #[getter]
+    fn attractive_body<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.attractive_body)
+    }
+    /// Summed repulsive force used [N], body frame.
+    #[getter]
+    fn repulsive_body<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.repulsive_body)
+    }
+    /// `[v_x, v_y, v_z, yaw_rate]`.
+    fn as_array<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let c = &self.inner;
+        vec![c.v_x_m_s, c.v_y_m_s, c.v_z_m_s, c.yaw_rate_rad_s].into_pyarray(py)
+    }
+    fn __repr__(&self) -> String {
+        let c = &self.inner;
+        format!("Command(v_x={:.3}, v_y={:.3}, v_z={:.3}, yaw_rate={:.3}, reached={})", c.v_x_m_s, c.v_y_m_s, c.v_z_m_s, c.yaw_rate_rad_s, if c.reached { "True" } else { "False" })
+    }
+}
+
+/// Potential-field controller: attraction to the goal plus the cameras' repulsion.
+#[pyclass(name = "ApfController", module = "subterra._core", frozen)]
+struct PyApfController {
+    inner: ApfController,
+}
+
+#[pymethods]
+impl PyApfController {
+    #[new]
+    #[pyo3(signature = (preset = "flight", *, config = None))]
+    fn new(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
+        let config = resolve_config(py, preset, config)?;
+        config.validate().py_err(py)?;
+        Ok(Self { inner: ApfController::new(config.apf) })
+    }
+
+    /// The command toward `goal_body` (3 numbers, body frame [m]) under the repulsion of
+    /// `perception` (one `PerceptionOutput` or a list, one per camera) plus an optional
+    /// extra `repulsive_body` force.
+    #[pyo3(signature = (goal_body, perception = None, *, repulsive_body = None))]
+    fn command(
+        &self,
+        py: Python<'_>,
+        goal_body: &Bound<'_, PyAny>,
+        perception: Option<&Bound<'_, PyAny>>,
+        repulsive_body: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<PyCommand> {
+        let goal = vec3(py, "goal_body", goal_body)?;
+        let mut repulsion = match repulsive_body {
+            Some(r) => vec3(py, "repulsive_body", r)?,
+            None => glam::DVec3::ZERO,
+        };
+        if let Some(p) = perception {
+            if let Ok(one) = p.cast::<PyPerceptionOutput>() {
+                repulsion += one.get().inner.repulsive_body;
+            } else if let Ok(list) = p.cast::<PyList>() {
+                for (n, item) in list.iter().enumerate() {
+                    let out = item.cast::<PyPerceptionOutput>().map_err(|_| {
+                        input_error(py, format!("argument `perception[{n}]` must be a PerceptionOutput, got {}", convert::type_name(&item)))
+                    })?;
+                    repulsion += out.get().inner.repulsive_body;
+                }
+            } else {
+                return Err(input_error(py, format!("argument `perception` must be a PerceptionOutput or a list of them, got {}", convert::type_name(p))));
+            }
+        }
+        Ok(PyCommand { inner: self.inner.command(goal, repulsion).py_err(py)? })
+    }
+}
+
+/// Names of the built-in presets, the default first.
+#[pyfunction]
+fn preset_names() -> Vec<&'static str> {
+    PRESET_NAMES.to_vec()
+}
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_class::<PyPinholeCamera>()?;
+    m.add_class::<PyPerceptionConfig>()?;
+    m.add_class::<PyDepthPerception>()?;
+    m.add_class::<PyPerceptionOutput>()?;
+    m.add_class::<PyMostProbableVoxel>()?;
+    m.add_class::<PyApfController>()?;
+    m.add_class::<PyCommand>()?;
+    m.add_function(wrap_pyfunction!(preset_names, m)?)?;
+    Ok(())
+}
