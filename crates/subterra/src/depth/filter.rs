@@ -87,12 +87,26 @@ impl ParticleFilter {
         self.mass.fill(0.0);
         let free = self.counts.len() - 1;
         for (s, &c) in self.counts.iter().enumerate() {
+            if c == 0 {
+                continue;
+            }
             let p = self.proposals[s];
+            if s == free {
+                for _ in 0..c {
+                    if p.always_free || ((self.rng.next_u64() >> 32) as u32) < p.free_threshold {
+                        self.mass[free] += p.free_ratio;
+                    } else {
+                        self.mass[model.sample_voxel(s, &mut self.rng)] += p.voxel_ratio;
+                    }
+                }
+                continue;
+            }
+            let sampler = model.voxel_sampler(s);
             for _ in 0..c {
                 if p.always_free || ((self.rng.next_u64() >> 32) as u32) < p.free_threshold {
                     self.mass[free] += p.free_ratio;
                 } else {
-                    self.mass[model.sample_voxel(s, &mut self.rng)] += p.voxel_ratio;
+                    self.mass[sampler.sample(&mut self.rng)] += p.voxel_ratio;
                 }
             }
         }

@@ -17,7 +17,7 @@ pub const BIN_EPSILON: f64 = 1e-9;
 
 /// Interleaved sub-histograms while counting: consecutive pixels of one block usually fall
 /// in the same bin, and separate counters keep the increments from waiting on each other.
-const COUNT_LANES: usize = 4;
+const COUNT_LANES: usize = 4; // the counting loop below is written out for four
 
 /// A voxel of the grid: column block `i`, row block `j`, depth bin `k`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -251,27 +251,30 @@ impl DepthVoxelGrid {
             DepthImage::U16 { pixels, scale_m_per_unit } => {
                 self.ensure_lut(scale_m_per_unit)?;
                 let lut = &self.lut[..];
-                let mut smallest_minus_one = u16::MAX; // raw - 1 wraps 0 (no return) to the top
-                let mut zeros = 0u64;
                 for (v, row) in pixels.chunks_exact(w).enumerate() {
                     let row_base = (v / kh) * self.n_w * slots;
                     for (i, segment) in row.chunks(kw).enumerate() {
                         let base = row_base + i * slots;
-                        let mut lanes = segment.chunks_exact(COUNT_LANES);
-                        for quad in &mut lanes {
-                            for (lane, &raw) in quad.iter().enumerate() {
-                                self.scratch[lane * lane_stride + base + lut[raw as usize] as usize] += 1;
-                                smallest_minus_one = smallest_minus_one.min(raw.wrapping_sub(1));
-                                zeros += (raw == 0) as u64;
-                            }
+                        let (l0, rest) = self.scratch[base..].split_at_mut(lane_stride);
+                        let (l1, rest) = rest.split_at_mut(lane_stride);
+                        let (l2, l3) = rest.split_at_mut(lane_stride);
+                        let (l0, l1, l2, l3) = (&mut l0[..slots], &mut l1[..slots], &mut l2[..slots], &mut l3[..slots]);
+                        let mut quads = segment.chunks_exact(COUNT_LANES);
+                        for q in &mut quads {
+                            l0[lut[q[0] as usize] as usize] += 1;
+                            l1[lut[q[1] as usize] as usize] += 1;
+                            l2[lut[q[2] as usize] as usize] += 1;
+                            l3[lut[q[3] as usize] as usize] += 1;
                         }
-                        for &raw in lanes.remainder() {
-                            self.scratch[base + lut[raw as usize] as usize] += 1;
-                            smallest_minus_one = smallest_minus_one.min(raw.wrapping_sub(1));
-                            zeros += (raw == 0) as u64;
+                        for &raw in quads.remainder() {
+                            l0[lut[raw as usize] as usize] += 1;
                         }
                     }
                 }
+                // raw - 1 wraps 0 (no return) to the top, so the minimum is the nearest return;
+                // a separate pass, which the compiler vectorises.
+                let smallest_minus_one = pixels.iter().map(|&raw| raw.wrapping_sub(1)).min().unwrap_or(u16::MAX);
+                let zeros = pixels.iter().filter(|&&raw| raw == 0).count() as u64;
                 let valid = pixels.len() as u64 - zeros;
                 let closest = (valid > 0).then(|| (smallest_minus_one as f64 + 1.0) * scale_m_per_unit);
                 (valid, closest)

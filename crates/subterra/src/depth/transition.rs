@@ -31,6 +31,35 @@ struct Offset {
     k: u16,
 }
 
+/// Draws voxel successors of one source voxel (see [`TransitionModel::voxel_sampler`]).
+#[derive(Debug, Clone, Copy)]
+pub struct VoxelSampler<'a> {
+    model: &'a TransitionModel,
+    from: usize,
+    i: i32,
+    j: i32,
+    table: &'a AliasTable,
+    offsets: &'a [Offset],
+}
+
+impl VoxelSampler<'_> {
+    /// One draw from `T(from, ·)` restricted to the grid: an offset from the source bin's
+    /// table, redrawn while it leaves the grid.
+    #[inline]
+    pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> usize {
+        let m = self.model;
+        for _ in 0..MAX_OFFSET_REDRAWS {
+            let o = self.offsets[self.table.sample(rng)];
+            let it = self.i + o.di as i32;
+            let jt = self.j + o.dj as i32;
+            if it >= 0 && jt >= 0 && (it as usize) < m.n_w && (jt as usize) < m.n_h {
+                return (jt as usize * m.n_w + it as usize) * m.n_d + o.k as usize;
+            }
+        }
+        m.sample_in_grid_exactly(self.from, rng)
+    }
+}
+
 /// The precomputed transition model of one grid.
 #[derive(Debug, Clone)]
 pub struct TransitionModel {
@@ -263,17 +292,15 @@ impl TransitionModel {
             }
             return self.free_row[..free].iter().enumerate().fold((0, 0.0), |best, (s, &p)| if p > best.1 { (s, p) } else { best }).0;
         }
+        self.voxel_sampler(from).sample(rng)
+    }
+
+    /// A sampler of the voxel successors of voxel `from`, for drawing many particles of
+    /// one state without decoding the state each time. `from` must be a voxel.
+    pub fn voxel_sampler(&self, from: usize) -> VoxelSampler<'_> {
         let (i, j, k) = self.voxel(from);
-        let (table, offsets) = &self.offset_tables[k];
-        for _ in 0..MAX_OFFSET_REDRAWS {
-            let o = offsets[table.sample(rng)];
-            let it = i as i64 + o.di as i64;
-            let jt = j as i64 + o.dj as i64;
-            if (0..self.n_w as i64).contains(&it) && (0..self.n_h as i64).contains(&jt) {
-                return (jt as usize * self.n_w + it as usize) * self.n_d + o.k as usize;
-            }
-        }
-        self.sample_in_grid_exactly(from, rng)
+        let (table, offsets) = &self.offset_tables[k.min(self.n_d - 1)];
+        VoxelSampler { model: self, from, i: i as i32, j: j as i32, table, offsets }
     }
 
     /// Inverse-CDF draw over the in-grid targets of `from`: O(S), for degenerate cases only.

@@ -1,0 +1,42 @@
+# subterra: `make demo` runs the main job, `make test` the whole test suite.
+# Needs only Python 3.11+, a Rust toolchain and a C compiler.
+
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+# maturin gets its own target dir so `cargo test` and the extension build don't rebuild pyo3 for each other.
+MATURIN_TARGET := target/maturin
+STAMP  := $(VENV)/.subterra-built
+SOURCES := $(shell find crates python -name '*.rs' -o -name '*.py' -o -name '*.pyi' -o -name 'Cargo.toml' 2>/dev/null) pyproject.toml Cargo.toml
+
+.PHONY: demo test test-rust test-python build bench clean
+
+$(VENV)/.deps: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet "maturin>=1.9,<2" numpy pillow pyyaml matplotlib tqdm pytest hypothesis
+	touch $@
+
+$(STAMP): $(VENV)/.deps $(SOURCES)
+	VIRTUAL_ENV=$(abspath $(VENV)) CARGO_TARGET_DIR=$(MATURIN_TARGET) $(VENV)/bin/maturin develop --release --quiet
+	touch $@
+
+build: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/subterra demo
+
+test: test-rust test-python
+
+test-rust:
+	cargo test --workspace --exclude subterra-py
+
+test-python: $(STAMP)
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	cargo bench -p subterra --bench perception
+	$(VENV)/bin/subterra bench perception
+
+clean:
+	rm -rf $(VENV) target runs

@@ -1,0 +1,64 @@
+"""subterra: perception and planning for robots in caves, mines, tunnels and warehouses.
+
+APF-PF (Ahmad, Sunberg, Humbert, ACC 2021): a particle filter over a 2.5D voxel grid of
+a depth image estimates where the nearest obstacle probably is; the belief weights
+artificial potential fields that command an aerial robot.
+
+>>> import numpy as np, subterra
+>>> camera = subterra.PinholeCamera.d435()
+>>> perception = subterra.DepthPerception(camera, preset="flight", seed=0)
+>>> out = perception.update(np.zeros((480, 640), np.uint16))
+>>> cmd = subterra.ApfController("flight").command(goal_body=[5.0, 0.0, 0.0], perception=[out])
+
+Frames and units follow ROS REP 103/105: body FLU, camera optical (x right, y down,
+z forward), metres, seconds, radians. Every error is a :class:`subterra.errors.SubterraError`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from subterra import errors
+from subterra._core import (
+    ApfController,
+    Command,
+    DepthPerception,
+    MostProbableVoxel,
+    PerceptionConfig,
+    PerceptionOutput,
+    PinholeCamera,
+    __version__,
+    preset_names,
+)
+
+__all__ = [
+    "ApfController",
+    "Command",
+    "DepthPerception",
+    "MostProbableVoxel",
+    "PerceptionConfig",
+    "PerceptionOutput",
+    "PinholeCamera",
+    "__version__",
+    "errors",
+    "load_config",
+    "preset_names",
+]
+
+
+def load_config(path: str | os.PathLike[str]) -> PerceptionConfig:
+    """Reads a perception config from a TOML file laid out like ``configs/flight.toml``.
+
+    Raises :class:`~subterra.errors.FileFormatError` if the file cannot be read and
+    :class:`~subterra.errors.ConfigError` if a value is invalid (the message names it).
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise errors.FileFormatError(f"cannot read config file: {exc.strerror or exc}: {p}") from exc
+    try:
+        return PerceptionConfig.from_toml(text)
+    except errors.ConfigError as exc:
+        raise errors.ConfigError(f"{exc}: {p}") from exc
