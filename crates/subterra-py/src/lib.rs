@@ -105,6 +105,22 @@ impl PyPerceptionConfig {
         Ok(Self { inner })
     }
 
+    /// Builds and validates a config from a nested dict laid out like the TOML file.
+    #[staticmethod]
+    fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let text: String = py
+            .import("json")?
+            .call_method1("dumps", (d,))
+            .map_err(|e| config_error(py, format!("config dict cannot be serialised: {e}")))?
+            .extract()?;
+        Self::from_json(py, &text)
+    }
+
+    /// The config as a nested dict laid out like the TOML file.
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        py.import("json")?.call_method1("loads", (self.to_json(),))
+    }
+
     /// The config as TOML text.
     fn to_toml(&self) -> String {
         self.inner.to_toml_string()
@@ -239,7 +255,8 @@ impl PyPerceptionOutput {
     fn __repr__(&self) -> String {
         let o = &self.inner;
         let map = o.most_probable.map_or("None".to_owned(), |m| format!("{:.3} m (p={:.3})", m.centre_camera.z, m.probability));
-        format!("PerceptionOutput(p_free={:.4}, most_probable={map}, closest_depth_m={:?}, in_range_pixels={})", o.p_free, o.closest_depth_m, o.in_range_pixels)
+        let closest = o.closest_depth_m.map_or("None".to_owned(), |d| format!("{d:.3}"));
+        format!("PerceptionOutput(p_free={:.4}, most_probable={map}, closest_depth_m={closest}, in_range_pixels={})", o.p_free, o.in_range_pixels)
     }
 }
 

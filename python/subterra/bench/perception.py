@@ -1,0 +1,112 @@
+"""`subterra bench perception`: APF-PF per-frame time, Rust against the NumPy reference.
+
+Both run the same frames, one after the other, in the same process: a 640x480 ``uint16``
+frame in, the command out (count -> filter -> belief -> repulsion -> command).
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from typing import Any
+
+import numpy as np
+
+from subterra._core import ApfController, DepthPerception, PerceptionConfig, PinholeCamera, __version__
+from subterra.bench.reference import apf_pf as reference
+from subterra.perceive import timing_summary
+from subterra.scenarios.synthetic import approaching_box_frames
+
+__all__ = ["bench_perception"]
+
+GOAL_BODY = (5.0, 0.0, 0.0)
+
+
+def _camera_dict(camera: PinholeCamera) -> dict[str, float]:
+    return {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
+            "width": camera.width, "height": camera.height}
+
+
+def bench_perception(
+    *,
+    frames: int = 200,
+    reference_frames: int = 30,
+    preset: str = "flight",
+    mode: str = "particle",
+    seed: int = 0,
+    warmup: int = 5,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Times ``frames`` Rust updates and ``reference_frames`` NumPy reference updates on the
+    same synthetic sequence (a box approaching the D435 camera). Returns the JSON report."""
+    if frames < 1 or reference_frames < 0 or warmup < 0:
+        raise ValueError("frames must be >= 1, reference_frames and warmup >= 0")
+    camera = PinholeCamera.d435()
+    cfg_dict = reference.preset(preset)
+    cfg_dict["filter"]["mode"] = mode
+    import json
+
+    config = PerceptionConfig.from_json(json.dumps(cfg_dict))
+    depth, _ = approaching_box_frames(camera, frames=max(frames, reference_frames) + warmup, seed=seed)
+
+    perception = DepthPerception(camera, preset, config=config, seed=seed)
+    controller = ApfController(preset, config=config)
+    for n in range(warmup):
+        controller.command(GOAL_BODY, perception=[perception.update(depth[n])])
+    wall, inner = [], []
+    stages: dict[str, list[float]] = {"count_s": [], "predict_s": [], "update_s": [], "apf_s": []}
+    iterator = range(frames)
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc="rust", unit="frame", leave=False, disable=None)
+    for n in iterator:
+        frame = depth[warmup + n]
+        t0 = time.perf_counter()
+        out = perception.update(frame)
+        controller.command(GOAL_BODY, perception=[out])
+        wall.append(time.perf_counter() - t0)
+        inner.append(out.timings["total_s"])
+        for k in stages:
+            stages[k].append(out.timings[k])
+
+    ref_wall: list[float] = []
+    if reference_frames:
+        pipeline = reference.ReferencePipeline(_camera_dict(camera), cfg_dict, seed=seed)
+        for n in range(min(warmup, 2)):
+            pipeline.command(GOAL_BODY, pipeline.update(depth[n]))
+        iterator = range(reference_frames)
+        if progress:
+            from tqdm import tqdm
+
+            iterator = tqdm(iterator, desc="numpy reference", unit="frame", leave=False, disable=None)
+        for n in iterator:
+            frame = depth[warmup + n]
+            t0 = time.perf_counter()
+            pipeline.command(GOAL_BODY, pipeline.update(frame))
+            ref_wall.append(time.perf_counter() - t0)
+
+    rust = timing_summary(wall)
+    ref = timing_summary(ref_wall) if ref_wall else None
+    return {
+        "benchmark": "perception",
+        "subterra_version": __version__,
+        "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine()},
+        "preset": preset,
+        "mode": mode,
+        "image": {"width": camera.width, "height": camera.height, "dtype": "uint16"},
+        "frames": frames,
+        "transition": {
+            "build_ms": perception.transition_build_s * 1e3,
+            "memory_bytes": perception.transition_memory_bytes,
+            "states": perception.state_count,
+        },
+        "rust": {
+            "frame_wall": rust,
+            "frame_inside_rust": timing_summary(inner),
+            "stage_median_ms": {k.removesuffix("_s"): timing_summary(v)["median_ms"] for k, v in stages.items()},
+        },
+        "numpy_reference": None if ref is None else {"frames": len(ref_wall), "frame_wall": ref},
+        "speedup_vs_numpy_median": None if ref is None else ref["median_ms"] / rust["median_ms"],
+        "target_median_ms": 0.5,
+    }
