@@ -1,0 +1,97 @@
+"""The `subterra` command line: outputs, progress, and one-line errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import subterra
+from subterra.cli import main
+from subterra.io import write_depth_png
+from subterra.scenarios import approaching_box_frames
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture()
+def box_folder(tmp_path):
+    camera = subterra.PinholeCamera.d435()
+    depth, truth = approaching_box_frames(camera, frames=8, start_m=1.0, end_m=0.6, seed=1)
+    folder = tmp_path / "depth"
+    folder.mkdir()
+    for n, d in enumerate(depth):
+        write_depth_png(folder / f"{n:04d}.png", d)
+    intrinsics = tmp_path / "camera.json"
+    intrinsics.write_text(json.dumps({"fx": 385.0, "fy": 385.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480}))
+    return folder, intrinsics, truth
+
+
+def test_perceive_writes_summary_and_plot(box_folder, tmp_path, capsys):
+    folder, intrinsics, truth = box_folder
+    out = tmp_path / "run"
+    assert main(["perceive", str(folder), "--intrinsics", str(intrinsics), "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 8
+    assert summary["grid_shape"] == [13, 10, 11]
+    assert (out / "perception.png").stat().st_size > 10_000
+    last = summary["records"][-1]
+    # The box is 0.6 m ahead in the last frame: the most probable voxel is within a bin of it.
+    assert abs(last["map_depth_m"] - truth[-1]) <= 0.1
+    assert last["p_free"] < 0.05
+    assert summary["timing"]["median_ms"] > 0
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_perceive_bad_inputs_are_one_line_errors(box_folder, tmp_path):
+    folder, intrinsics, _ = box_folder
+    bad = tmp_path / "bad.json"
+    bad.write_text("{\"fx\": 1}")
+    for argv in (
+        ["perceive", str(tmp_path / "nowhere"), "--intrinsics", str(intrinsics)],
+        ["perceive", str(folder), "--intrinsics", str(bad)],
+        ["perceive", str(folder), "--intrinsics", str(intrinsics), "--preset", "hover"],
+        ["perceive", str(folder), "--intrinsics", str(intrinsics), "--scale", "-1"],
+    ):
+        result = subprocess.run([sys.executable, "-m", "subterra.cli", *argv, "--out", str(tmp_path / "o")],
+                                capture_output=True, text=True, cwd=tmp_path)
+        assert result.returncode == 2, (argv, result.stderr)
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+        assert "Traceback" not in result.stderr
+
+
+def test_perceive_rejects_images_that_do_not_match_the_intrinsics(tmp_path):
+    folder = tmp_path / "d"
+    folder.mkdir()
+    write_depth_png(folder / "0.png", np.full((240, 320), 500, np.uint16))
+    intrinsics = tmp_path / "c.json"
+    intrinsics.write_text(json.dumps({"fx": 385.0, "fy": 385.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480}))
+    with pytest.raises(subterra.errors.InputError, match="320x240.*640x480"):
+        main(["--debug", "perceive", str(folder), "--intrinsics", str(intrinsics), "--out", str(tmp_path / "o")])
+
+
+def test_bench_perception_reports_rust_and_reference(tmp_path):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "perception", "--frames", "20", "--reference-frames", "3", "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["frames"] == 20 and report["numpy_reference"]["frames"] == 3
+    assert report["rust"]["frame_wall"]["median_ms"] > 0
+    assert report["speedup_vs_numpy_median"] == pytest.approx(
+        report["numpy_reference"]["frame_wall"]["median_ms"] / report["rust"]["frame_wall"]["median_ms"])
+    assert report["transition"]["states"] == 1431
+    assert set(report["rust"]["stage_median_ms"]) == {"count", "predict", "update", "apf"}
+
+
+def test_demo_writes_an_index_and_a_table(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
+    index = (tmp_path / "demo" / "index.md").read_text()
+    assert "approaching-box.png" in index and "noise-only.png" in index
+    printed = capsys.readouterr().out
+    assert "mean P(free)" in printed
+    noise = json.loads((tmp_path / "demo" / "noise-only.json").read_text())
+    assert noise["p_free_mean"] > 0.9
