@@ -285,9 +285,13 @@ def test_histogram_filter_map_at_box_depth(flight):
         out = pipe.update(box_frame(800), 0.001)
     assert out["counts"][4, 6, 7] == 2500  # 0.8 m -> bin floor(0.7/0.1 + 1e-9) = 7
     assert out["counts"].sum() == 150 * 150
-    i, j, k = apf_pf.voxel_of_state(out["map_state"], cfg, CAM)
+    mp = out["most_probable"]
+    i, j, k = mp["voxel"]
+    assert apf_pf.voxel_of_state(mp["state"], cfg, CAM) == (i, j, k)
     assert k == 7 and 5 <= i <= 7 and 3 <= j <= 5
-    assert out["map_prob"] == pytest.approx(out["belief"].max())
+    assert mp["depth_m"] == pytest.approx(0.85) and mp["centre_camera"][2] == pytest.approx(0.85)
+    np.testing.assert_allclose(mp["centre_body"], pipe.centres_body[mp["state"]])
+    assert mp["probability"] == out["belief"][:-1].max() == pytest.approx(out["belief"].max())
     assert out["belief"].sum() == pytest.approx(1.0)
     assert out["p_free"] < 1e-6
     assert out["closest_depth_m"] == pytest.approx(0.8)
@@ -301,22 +305,38 @@ def test_empty_frame_drives_p_free_up(flight):
     for _ in range(3):
         out = pipe.update(blank(), 0.001)
         assert out["p_free"] > 0.99
-        assert out["map_state"] == 1430
+        # The most probable voxel excludes the free state (as in Rust): some voxel, barely.
+        assert out["most_probable"]["state"] < 1430
+        assert out["most_probable"]["probability"] == out["belief"][:-1].max() < 0.01
         assert out["closest_depth_m"] is None
         np.testing.assert_allclose(out["repulsive_body"], 0.0, atol=1e-3)
 
 
-def test_empty_frame_drives_p_free_up_particle(flight):
-    # With the flight model a particle stays in / reaches the free state with probability
-    # ~2e-5..8e-5 per frame (T[free, free] = 2.25e-5), so with N = 20000 the particle
-    # filter's P(free) on empty frames is 0 or 1 by chance. With 10^6 particles ~20+ reach it.
-    cfg = with_changes(flight, filter={"mode": "particle", "particles": 1_000_000})
-    pipe = apf_pf.ReferencePipeline(CAM, cfg, seed=3)
-    assert pipe.filter.belief[-1] == pytest.approx(1 / 1431, abs=1e-5)
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_empty_frame_drives_p_free_up_particle(flight, seed):
+    # With the flight model a particle reaches the free state with probability ~2e-5..8e-5
+    # per frame (T[free, free] = 2.25e-5); the defensive proposal (filter.free_proposal_min
+    # = 0.05 in the preset) sends ~1000 of the 20000 particles there, weighted by T/q.
+    assert flight["filter"]["free_proposal_min"] == 0.05
+    pipe = apf_pf.ReferencePipeline(CAM, flight, seed=seed)
+    assert pipe.filter.free_proposal_min == 0.05
+    assert pipe.filter.belief[-1] == 13 / 20000  # 20000 = 13 * 1431 + 1397: particle p in state p % S
     for _ in range(3):
         out = pipe.update(blank(), 0.001)
         assert out["p_free"] > 0.99
+        assert out["most_probable"] is None  # every particle sits in the free state
         np.testing.assert_allclose(out["repulsive_body"], 0.0, atol=1e-3)
+
+
+def test_empty_frame_bootstrap_misses_free_state(flight):
+    """Regression (why filter.free_proposal_min exists): with q_min = 0, the paper's bootstrap,
+    about one of N = 20000 particles reaches the free state per frame, so P(free) after an
+    empty frame is 0 or 1 by chance; the defensive proposal makes it ~1 for every seed."""
+    bootstrap = with_changes(flight, filter={"free_proposal_min": 0.0})
+    p_free = [apf_pf.ReferencePipeline(CAM, bootstrap, seed=s).update(blank(), 0.001)["p_free"] for s in range(10)]
+    assert min(p_free) < 0.01 and max(p_free) > 0.99
+    defensive = [apf_pf.ReferencePipeline(CAM, flight, seed=s).update(blank(), 0.001)["p_free"] for s in range(10)]
+    assert min(defensive) > 0.99
 
 
 def test_histogram_update_by_hand():
@@ -343,19 +363,41 @@ def test_particle_filter_seeded_and_initial_spread(flight_T):
         apf_pf.ParticleFilter(flight_T, 100, resampling="stratified")
 
 
-def test_particle_propagation_matches_transition_row(flight_T):
-    pf = apf_pf.ParticleFilter(flight_T, 100000, seed=1)
+@pytest.mark.parametrize("q_min", [0.0, 0.05, 0.3])
+def test_particle_propagation_matches_transition_row(flight_T, q_min):
+    """The weighted frequencies of the successors (weights T/q) estimate T's row, whatever q_min."""
+    n = 100000
+    pf = apf_pf.ParticleFilter(flight_T, n, seed=1, free_proposal_min=q_min)
     for s0 in (0, 645, 1430):
         pf.states[:] = s0
         pf.propagate()
-        freq = np.bincount(pf.states, minlength=1431) / 100000
-        # 5 sigma of a binomial proportion, per state
-        tol = 5 * np.sqrt(flight_T[s0] * (1 - flight_T[s0]) / 100000) + 1e-4
-        assert np.all(np.abs(freq - flight_T[s0]) <= tol)
+        t_free = flight_T[s0, -1]
+        q = max(t_free, q_min)
+        # The free branch is taken w.p. q; the voxel branch carries weight (1 - T)/(1 - q).
+        free_share = np.mean(pf.states == 1430)
+        assert abs(free_share - q) <= 5 * math.sqrt(q * (1 - q) / n) + 1e-4
+        assert np.all(pf.ratios[pf.states == 1430] == pytest.approx(t_free / q, rel=1e-12))
+        assert np.all(pf.ratios[pf.states != 1430] == pytest.approx((1 - t_free) / (1 - q), rel=1e-12))
+        est = np.bincount(pf.states, weights=pf.ratios, minlength=1431) / n
+        # 5 sigma of a binomial proportion, per state (the ratios are near 1 on voxels)
+        p = flight_T[s0]
+        tol = 5 * np.sqrt(p * (1 - p) / n) * (1 - t_free) / (1 - q) + 1e-4
+        assert np.all(np.abs(est[:-1] - p[:-1]) <= tol[:-1])
+        # Free: the estimate is exactly (T/q) * (free count)/n.
+        assert est[-1] == pytest.approx(free_share * t_free / q if q > 0 else 0.0, rel=1e-12, abs=1e-300)
+        assert abs(est[-1] - t_free) <= 5 * math.sqrt(q * (1 - q) / n) * t_free / max(q, 1e-300) + 1e-6
 
 
-@pytest.mark.parametrize("resampling", ["systematic", "multinomial"])
-def test_particle_matches_histogram_soft_model(flight, resampling):
+def test_particle_filter_rejects_bad_free_proposal_min(flight_T):
+    for bad in (-0.1, 1.0, 2.0, float("nan")):
+        with pytest.raises(ValueError, match="free_proposal_min"):
+            apf_pf.ParticleFilter(flight_T, 100, free_proposal_min=bad)
+
+
+@pytest.mark.parametrize(
+    ("resampling", "q_min"), [("systematic", 0.0), ("multinomial", 0.0), ("systematic", 0.05), ("multinomial", 0.3)]
+)
+def test_particle_matches_histogram_soft_model(flight, resampling, q_min):
     """A 200x150 camera (4x3x11 voxels, S = 133) with broad noise: full beliefs agree.
 
     sigma_z = 1 m and sigma_n = 100 points make P(free) ~ 0.2 on empty frames (tolerances:
@@ -370,7 +412,7 @@ def test_particle_matches_histogram_soft_model(flight, resampling):
     )
     T = apf_pf.transition_matrix(cfg, cam)
     hist = apf_pf.HistogramFilter(T)
-    part = apf_pf.ParticleFilter(T, 20000, seed=11, resampling=resampling)
+    part = apf_pf.ParticleFilter(T, 20000, seed=11, resampling=resampling, free_proposal_min=q_min)
     for z in (800, 800, 500, 0, 0, 300):
         d = np.zeros((150, 200), np.uint16)
         d[40:110, 60:160] = z
@@ -401,8 +443,8 @@ def test_particle_matches_histogram_flight(flight):
     ]
     for d, k in frames:
         ho, po = h.update(d), p.update(d)
-        assert apf_pf.voxel_of_state(ho["map_state"], flight, CAM)[2] == k
-        assert apf_pf.voxel_of_state(po["map_state"], flight, CAM)[2] == k
+        assert ho["most_probable"]["voxel"][2] == k
+        assert po["most_probable"]["voxel"][2] == k
         assert ho["p_free"] < 1e-6 and po["p_free"] == 0.0
         hk = ho["belief"][:-1].reshape(10, 13, 11).sum(axis=(0, 1))
         pk = po["belief"][:-1].reshape(10, 13, 11).sum(axis=(0, 1))

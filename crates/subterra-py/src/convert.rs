@@ -90,9 +90,11 @@ pub fn with_depth<T>(
     if let Ok(array) = depth.cast::<PyArray2<u16>>() {
         let view = array.readonly();
         let (h, w) = (view.shape()[0], view.shape()[1]);
-        let pixels = match view.as_slice() {
-            Ok(s) => Cow::Borrowed(s),
-            Err(_) => Cow::Owned(view.as_array().iter().copied().collect()),
+        // Borrow only a C-ordered buffer; anything else (Fortran order, transposed, strided)
+        // is copied in logical row-major order.
+        let pixels = match view.as_array().to_slice() {
+            Some(s) => Cow::Borrowed(s),
+            None => Cow::Owned(view.as_array().iter().copied().collect()),
         };
         let scale = scale.unwrap_or(0.001);
         return Ok(f(&DepthPixels::U16(pixels, scale), dim(py, w)?, dim(py, h)?));
@@ -103,9 +105,11 @@ pub fn with_depth<T>(
         }
         let view = array.readonly();
         let (h, w) = (view.shape()[0], view.shape()[1]);
-        let pixels = match view.as_slice() {
-            Ok(s) => Cow::Borrowed(s),
-            Err(_) => Cow::Owned(view.as_array().iter().copied().collect()),
+        // Borrow only a C-ordered buffer; anything else (Fortran order, transposed, strided)
+        // is copied in logical row-major order.
+        let pixels = match view.as_array().to_slice() {
+            Some(s) => Cow::Borrowed(s),
+            None => Cow::Owned(view.as_array().iter().copied().collect()),
         };
         return Ok(f(&DepthPixels::F32(pixels), dim(py, w)?, dim(py, h)?));
     }

@@ -7,7 +7,7 @@ mod errors;
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList};
+use pyo3::types::PyDict;
 use subterra::config::{PerceptionConfig, PRESET_NAMES};
 use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, VoxelIndex};
 use subterra::{ApfController, Command, Isometry3, PinholeCamera};
@@ -277,21 +277,26 @@ struct PyDepthPerception {
 #[pymethods]
 impl PyDepthPerception {
     #[new]
-    #[pyo3(signature = (camera, preset = "flight", *, config = None, body_from_camera = None, seed = 0))]
+    #[pyo3(signature = (camera, preset = "flight", *, config = None, body_from_camera = None, seed = None))]
     fn new(
         py: Python<'_>,
         camera: &PyPinholeCamera,
         preset: &str,
         config: Option<&PyPerceptionConfig>,
         body_from_camera: Option<&Bound<'_, PyAny>>,
-        seed: i64,
+        seed: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let config = resolve_config(py, preset, config)?;
         let body_from_camera = match body_from_camera {
             Some(m) => isometry(py, "body_from_camera", m)?,
             None => Isometry3::body_from_forward_optical(),
         };
-        let seed = u64::try_from(seed).map_err(|_| input_error(py, format!("argument `seed` must be >= 0, got {seed}")))?;
+        let seed: u64 = match seed {
+            None => 0,
+            Some(s) => s.extract().map_err(|_| {
+                input_error(py, format!("argument `seed` must be an integer in 0..2**64, got {}", s.repr().map(|r| r.to_string()).unwrap_or_default()))
+            })?,
+        };
         let cam = camera.inner;
         let inner = py.detach(move || DepthPerception::new(cam, body_from_camera, config, seed)).py_err(py)?;
         Ok(Self { inner, camera: cam })
@@ -512,15 +517,16 @@ impl PyApfController {
         if let Some(p) = perception {
             if let Ok(one) = p.cast::<PyPerceptionOutput>() {
                 repulsion += one.get().inner.repulsive_body;
-            } else if let Ok(list) = p.cast::<PyList>() {
-                for (n, item) in list.iter().enumerate() {
+            } else if let Ok(items) = p.try_iter() {
+                for (n, item) in items.enumerate() {
+                    let item = item?;
                     let out = item.cast::<PyPerceptionOutput>().map_err(|_| {
                         input_error(py, format!("argument `perception[{n}]` must be a PerceptionOutput, got {}", convert::type_name(&item)))
                     })?;
                     repulsion += out.get().inner.repulsive_body;
                 }
             } else {
-                return Err(input_error(py, format!("argument `perception` must be a PerceptionOutput or a list of them, got {}", convert::type_name(p))));
+                return Err(input_error(py, format!("argument `perception` must be a PerceptionOutput or a sequence of them, got {}", convert::type_name(p))));
             }
         }
         Ok(PyCommand { inner: self.inner.command(goal, repulsion).py_err(py)? })

@@ -17,6 +17,11 @@ const MAX_STATES: usize = 4_000_000;
 const MAX_PARTICLES: usize = 50_000_000;
 /// Largest block side [px].
 const MAX_BLOCK_PX: u32 = 4096;
+/// Largest number of depth bins accepted.
+const MAX_DEPTH_BINS: f64 = 10_000.0;
+/// Largest repulsive force magnitude a config may produce [N]; past this forces overflow
+/// to infinity once weighted and summed.
+const MAX_REPULSION: f64 = 1e12;
 /// How close `(d_max - d_min) / k_d` must be to a whole number of bins.
 const BIN_COUNT_TOLERANCE: f64 = 1e-6;
 
@@ -231,7 +236,14 @@ impl PerceptionConfig {
             return Err(Error::config("grid.depth_max_m", format!("must exceed grid.depth_min_m = {}", g.depth_min_m), g.depth_max_m));
         }
         let bins = (g.depth_max_m - g.depth_min_m) / g.depth_bin_m;
-        if (bins - bins.round()).abs() > BIN_COUNT_TOLERANCE * bins.max(1.0) || bins.round() < 1.0 {
+        if !(1.0..=MAX_DEPTH_BINS).contains(&bins.round()) {
+            return Err(Error::config(
+                "grid.depth_bin_m",
+                format!("gives {bins:.0} depth bins over [{}, {}] m; must give 1..={MAX_DEPTH_BINS}", g.depth_min_m, g.depth_max_m),
+                g.depth_bin_m,
+            ));
+        }
+        if (bins - bins.round()).abs() > BIN_COUNT_TOLERANCE * bins.max(1.0) {
             return Err(Error::config(
                 "grid.depth_bin_m",
                 format!("must divide the depth range [{}, {}] m into a whole number of bins", g.depth_min_m, g.depth_max_m),
@@ -260,6 +272,14 @@ impl PerceptionConfig {
         require_non_negative("apf.yaw_rate_max_rad_s", a.yaw_rate_max_rad_s)?;
         require_non_negative("apf.success_radius_m", a.success_radius_m)?;
         require_positive("apf.min_distance_m", a.min_distance_m)?;
+        let strongest = a.eta * (1.0 / a.min_distance_m - 1.0 / a.rho_0_m).max(0.0) / (a.min_distance_m * a.min_distance_m);
+        if !(strongest.is_finite() && strongest <= MAX_REPULSION) {
+            return Err(Error::config(
+                "apf.eta",
+                format!("with apf.min_distance_m = {} the repulsion reaches {strongest:.3e} N; at most {MAX_REPULSION:.0e}", a.min_distance_m),
+                a.eta,
+            ));
+        }
         Ok(())
     }
 
@@ -267,9 +287,9 @@ impl PerceptionConfig {
     pub fn validate_for_image(&self, width: u32, height: u32) -> Result<()> {
         self.validate()?;
         let states = (width.div_ceil(self.grid.block_width_px) as usize)
-            * (height.div_ceil(self.grid.block_height_px) as usize)
-            * self.depth_bins()
-            + 1;
+            .checked_mul(height.div_ceil(self.grid.block_height_px) as usize)
+            .and_then(|blocks| blocks.checked_mul(self.depth_bins()))
+            .map_or(usize::MAX, |voxels| voxels.saturating_add(1));
         if states > MAX_STATES {
             return Err(Error::config("grid", format!("gives {states} states for a {width}x{height} image; at most {MAX_STATES}"), states));
         }
@@ -329,6 +349,12 @@ mod tests {
         assert!(matches!(PerceptionConfig::preset("hover"), Err(Error::UnknownPreset { .. })));
         let err = PerceptionConfig::from_toml_str("[grid]\nblock_width_px = 'x'").unwrap_err();
         assert!(matches!(err, Error::ConfigParse { .. }));
+        let mut c = PerceptionConfig::flight();
+        c.grid.depth_max_m = 1e300;
+        assert!(c.validate().unwrap_err().to_string().contains("grid.depth_bin_m"));
+        let mut c = PerceptionConfig::flight();
+        c.apf.eta = 1e308;
+        assert!(c.validate().unwrap_err().to_string().contains("apf.eta"));
         let mut c = PerceptionConfig::flight();
         c.grid.block_width_px = 1;
         c.grid.block_height_px = 1;

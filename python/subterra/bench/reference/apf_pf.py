@@ -199,7 +199,8 @@ def voxel_counts(depth: np.ndarray, scale: float, cfg: dict, camera: dict) -> np
     ``depth`` is an (H, W) image matching the camera: ``uint16`` raw units (``z = raw *
     scale`` metres, in float64) or ``float32`` metres (``scale`` ignored). A pixel is valid
     iff ``z`` is finite and ``> 0``; its depth bin is ``k = floor((z - d_min)/k_d + 1e-9)``
-    and it is counted iff ``0 <= k < n_d``.
+    and it is counted iff ``0 <= k < n_d`` and ``z < d_max`` (the second test matters only
+    for a range that is a hair short of whole bins, which validation tolerates).
     """
     w, h = _camera_size(camera)
     z = _depth_metres(depth, scale)
@@ -207,9 +208,10 @@ def voxel_counts(depth: np.ndarray, scale: float, cfg: dict, camera: dict) -> np
         raise ValueError(f"depth has shape {z.shape}, the camera is {h}x{w} (H x W)")
     g = cfg["grid"]
     n_w, n_h, n_d = grid_shape(cfg, camera)
-    d_min, k_d = float(g["depth_min_m"]), float(g["depth_bin_m"])
-    kf = np.floor((z - d_min) / k_d + _BIN_EPS)  # NaN / inf propagate and fail the tests below
-    keep = np.isfinite(z) & (z > 0) & (kf >= 0) & (kf < n_d)
+    d_min, k_d, d_max = float(g["depth_min_m"]), float(g["depth_bin_m"]), float(g["depth_max_m"])
+    with np.errstate(invalid="ignore"):
+        kf = np.floor((z - d_min) / k_d + _BIN_EPS)  # NaN / inf propagate and fail the tests below
+        keep = np.isfinite(z) & (z > 0) & (z < d_max) & (kf >= 0) & (kf < n_d)
     blocks = _pixel_block_ids(w, h, int(g["block_width_px"]), int(g["block_height_px"]))
     ids = blocks[keep] * n_d + kf[keep].astype(np.int64)
     return np.bincount(ids, minlength=n_w * n_h * n_d).reshape(n_h, n_w, n_d)
@@ -339,33 +341,66 @@ class HistogramFilter:
 
 
 class ParticleFilter:
-    """Bootstrap particle filter over the ``S`` states.
+    """Particle filter over the ``S`` states with the defensive free-state proposal.
 
     ``particles`` particles, particle ``p`` starting in state ``p % S``; random numbers
-    from ``numpy.random.default_rng(seed)``. Per frame: propagate every particle by
-    sampling its row of ``T`` (inverse CDF, one uniform per particle), weight by
-    ``exp(loglik[state] - max over particles)``, normalise, and resample
-    (``"systematic"``: one ``u0 ~ U[0, 1/N)`` and positions ``u0 + i/N``;
-    ``"multinomial"``: ``N`` independent uniforms). The belief is the particle histogram.
+    from ``numpy.random.default_rng(seed)``. Per frame:
+
+    1. propagate: a particle in state ``s`` goes to the free state (the last) with
+       ``q(s) = max(T(s, free), q_min)`` and otherwise to a voxel drawn from ``T(s, .)``
+       restricted to the voxels (inverse CDF); its importance weight is ``T(s, free)/q(s)``
+       or ``(1 - T(s, free))/(1 - q(s))``, the branch taken. ``q_min = free_proposal_min``
+       (config ``filter.free_proposal_min``); ``q_min = 0`` is the paper's bootstrap filter;
+    2. weight: ``w = ratio * exp(loglik[state] - max over particles of loglik[state])``;
+    3. resample in proportion to ``w`` (``"systematic"``: one ``u0 ~ U[0, 1/N)`` and positions
+       ``u0 + i/N``; ``"multinomial"``: ``N`` independent uniforms).
+
+    The belief is the particle histogram. The draws differ from the Rust filter's (another
+    generator), so the two agree in distribution, not bit for bit.
     """
 
-    def __init__(self, transition: np.ndarray, particles: int, seed: int = 0, resampling: str = "systematic"):
+    def __init__(
+        self,
+        transition: np.ndarray,
+        particles: int,
+        seed: int = 0,
+        resampling: str = "systematic",
+        free_proposal_min: float = 0.0,
+    ):
         if resampling not in ("systematic", "multinomial"):
             raise ValueError(f"resampling must be 'systematic' or 'multinomial', got {resampling!r}")
         particles = int(particles)
         if particles < 1:
             raise ValueError(f"particles must be >= 1, got {particles}")
+        q_min = float(free_proposal_min)
+        if not 0.0 <= q_min < 1.0:
+            raise ValueError(f"free_proposal_min must be in [0, 1), got {q_min}")
         transition = np.asarray(transition, dtype=np.float64)
         s = transition.shape[0]
+        if s < 2 or transition.shape != (s, s):
+            raise ValueError(f"transition must be a square matrix with >= 2 states, got shape {transition.shape}")
         self.num_states = s
         self.resampling = resampling
+        self.free_proposal_min = q_min
         self.rng = np.random.default_rng(seed)
         self.states = np.arange(particles, dtype=np.int64) % s
-        # Inverse-CDF sampling of every particle with one searchsorted: row r of the
-        # cumulative table is shifted by r, so the flattened table is non-decreasing and
-        # a particle in state r with uniform u is found by searching for r + u.
+        #: Importance weight ``T/q`` of each particle's last propagation (1 before the first).
+        self.ratios = np.ones(particles)
+        # The proposal of every source state: P(free) and the ratios of both branches.
+        t_free = transition[:, -1]
+        q = np.maximum(t_free, q_min)
+        self._q_free = q
+        with np.errstate(divide="ignore", invalid="ignore"):
+            self._free_ratio = np.where(q > 0, t_free / q, 0.0)
+            self._voxel_ratio = np.where(q < 1, (1.0 - t_free) / (1.0 - q), 0.0)
+        # Inverse-CDF sampling of the voxel successors with one searchsorted: row r of the
+        # cumulative table over the S - 1 voxels (normalised, i.e. T(r, .) restricted to the
+        # voxels) is shifted by r, so the flattened table is non-decreasing and a particle in
+        # state r with uniform u is found by searching for r + u.
         # (Resolution ~S * 2e-16 in probability, far below 1/N.)
-        cum = np.minimum(np.cumsum(transition, axis=1), 1.0)
+        cum = np.cumsum(transition[:, :-1], axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cum = np.minimum(cum / cum[:, -1:], 1.0)
         cum[:, -1] = 1.0
         self._cum_flat = (cum + np.arange(s)[:, None]).reshape(-1)
 
@@ -375,18 +410,24 @@ class ParticleFilter:
         return np.bincount(self.states, minlength=self.num_states) / self.states.size
 
     def propagate(self) -> None:
-        """Move every particle to a state drawn from its row of ``T``."""
+        """Move every particle by one draw from the proposal and set its ``ratios`` entry."""
         s, n = self.num_states, self.states.size
+        voxels = s - 1
+        src = self.states
+        branch = self.rng.random(n)
         u = self.rng.random(n)
-        idx = np.searchsorted(self._cum_flat, self.states + u, side="right")
-        self.states = np.minimum(idx - self.states * s, s - 1)
+        to_free = branch < self._q_free[src]
+        idx = np.searchsorted(self._cum_flat, src + u, side="right")
+        voxel = np.minimum(idx - src * voxels, voxels - 1)
+        self.states = np.where(to_free, voxels, voxel)
+        self.ratios = np.where(to_free, self._free_ratio[src], self._voxel_ratio[src])
 
     def step(self, loglik: np.ndarray) -> np.ndarray:
         """Propagate, weight by ``loglik`` ``(S,)``, resample; return the belief ``(S,)``."""
         self.propagate()
         n = self.states.size
         logw = np.asarray(loglik, dtype=np.float64)[self.states]
-        w = np.exp(logw - logw.max())
+        w = self.ratios * np.exp(logw - logw.max())
         cw = np.cumsum(w)
         cw /= cw[-1]
         cw[-1] = 1.0
@@ -396,6 +437,7 @@ class ParticleFilter:
             positions = self.rng.random(n)
         picked = np.minimum(np.searchsorted(cw, positions, side="right"), n - 1)
         self.states = self.states[picked]
+        self.ratios = np.ones(n)
         return self.belief
 
 
@@ -520,12 +562,20 @@ class ReferencePipeline:
         self.shape = grid_shape(cfg, camera)  # (n_w, n_h, n_d)
         self.transition = transition_matrix(cfg, camera)
         self.forces = repulsive_forces(cfg, camera, self.body_from_camera)
+        self.centres_camera = voxel_centers_body(cfg, camera, np.eye(4))  # (S - 1, 3), optical frame
+        self.centres_body = voxel_centers_body(cfg, camera, self.body_from_camera)
         f = cfg["filter"]
         mode = f["mode"]
         if mode == "histogram":
             self.filter = HistogramFilter(self.transition)
         elif mode == "particle":
-            self.filter = ParticleFilter(self.transition, f["particles"], seed, f.get("resampling", "systematic"))
+            self.filter = ParticleFilter(
+                self.transition,
+                f["particles"],
+                seed,
+                f.get("resampling", "systematic"),
+                f.get("free_proposal_min", 0.0),
+            )
         else:
             raise ValueError(f"filter.mode must be 'particle' or 'histogram', got {mode!r}")
 
@@ -537,20 +587,33 @@ class ReferencePipeline:
         """Process one depth frame (uint16 with ``scale`` m/unit, or float32 metres).
 
         Returns a dict: ``counts`` (int64 ``(n_h, n_w, n_d)``), ``belief`` (``(S,)``),
-        ``p_free`` (belief of the free state), ``map_state`` (argmax of the belief over
-        all ``S`` states, lowest id on ties; ``S - 1`` is the free state), ``map_prob``,
-        ``closest_depth_m`` (m, or ``None``) and ``repulsive_body`` (``(3,)``, belief-weighted
-        repulsive force in the body frame).
+        ``p_free`` (belief of the free state), ``most_probable`` (the most probable *voxel*,
+        the free state excluded, as in Rust: ``None`` if no voxel has belief > 0, else a dict
+        with ``state`` (id, lowest on ties), ``voxel`` ``(i, j, k)``, ``probability``,
+        ``depth_m`` (depth of its centre along the optical axis, m), ``centre_camera`` and
+        ``centre_body`` (m)), ``closest_depth_m`` (m, or ``None``) and ``repulsive_body``
+        (``(3,)``, belief-weighted repulsive force in the body frame).
         """
         counts = voxel_counts(depth, scale, self.cfg, self.camera)
         belief = self.filter.step(log_likelihood(counts, self.cfg, self.camera))
-        map_state = int(np.argmax(belief))
+        voxel_belief = belief[:-1]
+        best = int(np.argmax(voxel_belief))
+        most_probable = None
+        if voxel_belief[best] > 0:
+            i, j, k = voxel_of_state(best, self.cfg, self.camera)
+            most_probable = {
+                "state": best,
+                "voxel": (i, j, k),
+                "probability": float(voxel_belief[best]),
+                "depth_m": float(self.centres_camera[best, 2]),
+                "centre_camera": self.centres_camera[best].copy(),
+                "centre_body": self.centres_body[best].copy(),
+            }
         return {
             "counts": counts,
             "belief": belief,
             "p_free": float(belief[-1]),
-            "map_state": map_state,
-            "map_prob": float(belief[map_state]),
+            "most_probable": most_probable,
             "closest_depth_m": closest_depth(depth, scale),
             "repulsive_body": belief @ self.forces,
         }
