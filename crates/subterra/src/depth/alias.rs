@@ -41,6 +41,11 @@ impl AliasTable {
         Some(Self { slots })
     }
 
+    /// The slots as `(keep, alias)`: keep slot `i` if a uniform 32-bit coin is below `keep`.
+    pub(crate) fn slots(&self) -> impl Iterator<Item = (u32, u32)> + '_ {
+        self.slots.iter().map(|s| (s.keep, s.alias))
+    }
+
     /// Bytes held.
     pub(crate) fn memory_bytes(&self) -> usize {
         self.slots.capacity() * std::mem::size_of::<AliasSlot>()
@@ -50,10 +55,17 @@ impl AliasTable {
     /// bias below `len / 2³²`), the low half is the coin.
     #[inline]
     pub(crate) fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> usize {
-        let r = rng.next_u64();
+        self.pick(rng.next_u64())
+    }
+
+    /// The draw that the 64 random bits `r` give (see [`AliasTable::sample`]). Branch-free:
+    /// a slot that always keeps itself is its own alias, so the coin's rare failure on
+    /// `keep = u32::MAX` (coin `u32::MAX`) still yields the slot.
+    #[inline]
+    pub(crate) fn pick(&self, r: u64) -> usize {
         let slot = (((r >> 32) * self.slots.len() as u64) >> 32) as usize;
         let AliasSlot { keep, alias } = self.slots[slot];
-        if (r as u32) < keep || alias as usize == slot {
+        if (r as u32) < keep {
             slot
         } else {
             alias as usize

@@ -17,13 +17,49 @@
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
-use super::transition::TransitionModel;
+use super::transition::{TransitionModel, MAX_OFFSET_REDRAWS as MAX_OFFSET_ATTEMPTS};
 use crate::config::Resampling;
 
 /// A uniform f64 in `[0, 1)` from 53 random bits.
 #[inline]
-fn unit_f64<R: Rng + ?Sized>(rng: &mut R) -> f64 {
-    (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+fn unit_f64(r: u64) -> f64 {
+    (r >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+}
+
+/// The filter's random stream: wyrand (Wang Yi's 64-bit generator: a Weyl sequence mixed
+/// by one 64x64->128-bit multiply; passes BigCrush and PractRand). The state advances by an
+/// addition, so successive draws do not wait on each other as a multiplicative
+/// generator's do; it is seeded from the caller's seeded generator.
+#[derive(Debug, Clone)]
+struct WyRand(u64);
+
+impl WyRand {
+    #[inline]
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0xa076_1d64_78bd_642f);
+        let t = u128::from(self.0) * u128::from(self.0 ^ 0xe703_7ed1_a0b4_28db);
+        (t >> 64) as u64 ^ t as u64
+    }
+}
+
+impl rand::TryRng for WyRand {
+    type Error = std::convert::Infallible;
+
+    fn try_next_u32(&mut self) -> Result<u32, Self::Error> {
+        Ok((self.next_u64() >> 32) as u32)
+    }
+
+    fn try_next_u64(&mut self) -> Result<u64, Self::Error> {
+        Ok(self.next_u64())
+    }
+
+    fn try_fill_bytes(&mut self, dst: &mut [u8]) -> Result<(), Self::Error> {
+        for chunk in dst.chunks_mut(8) {
+            let r = self.next_u64().to_le_bytes();
+            chunk.copy_from_slice(&r[..chunk.len()]);
+        }
+        Ok(())
+    }
 }
 
 /// The proposal of one source state: the 32-bit threshold below which a particle goes to
@@ -45,7 +81,7 @@ pub struct ParticleFilter {
     /// Importance weight per state after propagation (Σ of `T/q` of the particles there).
     mass: Vec<f64>,
     proposals: Vec<Proposal>,
-    rng: Pcg64Mcg,
+    rng: WyRand,
 }
 
 impl ParticleFilter {
@@ -69,6 +105,8 @@ impl ParticleFilter {
                 }
             })
             .collect();
+        let mut rng = rng;
+        let rng = WyRand(rng.next_u64());
         Self { particles, resampling, counts, mass: vec![0.0; states], proposals, rng }
     }
 
@@ -102,12 +140,32 @@ impl ParticleFilter {
                 continue;
             }
             let sampler = model.voxel_sampler(s);
-            for _ in 0..c {
-                if p.always_free || ((self.rng.next_u64() >> 32) as u32) < p.free_threshold {
-                    self.mass[free] += p.free_ratio;
+            let mass = &mut self.mass[..];
+            let rng = &mut self.rng;
+            // Free-or-voxel coins are 32-bit halves of one random word, two particles a word.
+            let mut coins = 0u64;
+            for n in 0..c {
+                if n % 2 == 0 {
+                    coins = rng.next_u64();
                 } else {
-                    self.mass[sampler.sample(&mut self.rng)] += p.voxel_ratio;
+                    coins <<= 32;
                 }
+                if p.always_free || ((coins >> 32) as u32) < p.free_threshold {
+                    mass[free] += p.free_ratio;
+                    continue;
+                }
+                let mut to = None;
+                for _ in 0..MAX_OFFSET_ATTEMPTS {
+                    to = sampler.try_offset(rng.next_u64());
+                    if to.is_some() {
+                        break;
+                    }
+                }
+                let to = match to {
+                    Some(to) => to,
+                    None => sampler.sample_exactly(rng),
+                };
+                mass[to] += p.voxel_ratio;
             }
         }
     }
@@ -134,7 +192,7 @@ impl ParticleFilter {
             Resampling::Systematic => {
                 // Pointers (u0 + p)/N of the total weight, p = 0..N, walked in state order.
                 let step = total / n as f64;
-                let u0 = unit_f64(&mut self.rng);
+                let u0 = unit_f64(self.rng.next_u64());
                 let mut s = 0;
                 let mut cumulative = self.mass[0];
                 let last = self.mass.len() - 1;
@@ -155,7 +213,7 @@ impl ParticleFilter {
                     cumulative.push(acc);
                 }
                 for _ in 0..n {
-                    let u = unit_f64(&mut self.rng) * total;
+                    let u = unit_f64(self.rng.next_u64()) * total;
                     let s = cumulative.partition_point(|&c| c <= u).min(cumulative.len() - 1);
                     self.counts[s] += 1;
                 }

@@ -15,10 +15,6 @@ use crate::error::{Error, Result};
 /// the bin it starts: in floating point `(0.3 - 0.1)/0.1 = 1.9999999999999998`.
 pub const BIN_EPSILON: f64 = 1e-9;
 
-/// Interleaved sub-histograms while counting: consecutive pixels of one block usually fall
-/// in the same bin, and separate counters keep the increments from waiting on each other.
-const COUNT_LANES: usize = 4; // the counting loop below is written out for four
-
 /// A voxel of the grid: column block `i`, row block `j`, depth bin `k`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct VoxelIndex {
@@ -85,11 +81,11 @@ pub struct DepthVoxelGrid {
     n_d: usize,
     /// Pixels in each block `(j·N_w + i)`; smaller at the right and bottom edges.
     block_pixels: Vec<u32>,
-    /// Depth bin of every `u16` value for the current scale; `N_d` = not counted.
-    lut: Vec<u16>,
-    lut_scale: f64,
-    /// Lanes x blocks x (N_d + 1) counters, the last slot per block the "not counted" bin.
-    scratch: Vec<u32>,
+    /// How raw `u16` values fall into bins at `binning_scale`.
+    binning: RawBinning,
+    binning_scale: f64,
+    /// Per-column counters of one block row while counting by edges.
+    scratch: Vec<u16>,
 }
 
 impl DepthVoxelGrid {
@@ -117,9 +113,9 @@ impl DepthVoxelGrid {
             n_h,
             n_d,
             block_pixels,
-            lut: Vec::new(),
-            lut_scale: f64::NAN,
-            scratch: vec![0; COUNT_LANES * n_w * n_h * (n_d + 1)],
+            binning: RawBinning::Lut(Vec::new()), // built on the first u16 frame
+            binning_scale: f64::NAN,
+            scratch: Vec::new(),
         })
     }
 
@@ -224,58 +220,54 @@ impl DepthVoxelGrid {
         Ok(())
     }
 
-    fn ensure_lut(&mut self, scale: f64) -> Result<()> {
+    fn ensure_binning(&mut self, scale: f64) -> Result<()> {
         if !(scale.is_finite() && scale > 0.0) {
             return Err(Error::input("scale", format!("metres per unit must be finite and > 0, got {scale}")));
         }
-        if self.lut_scale == scale {
+        if self.binning_scale == scale {
             return Ok(());
         }
         let none = self.n_d as u16;
-        self.lut = (0..=u16::MAX as u32)
+        let lut: Vec<u16> = (0..=u16::MAX as u32)
             .map(|raw| if raw == 0 { none } else { self.bin_of_depth(raw as f64 * scale).map_or(none, |k| k as u16) })
             .collect();
-        self.lut_scale = scale;
+        self.binning = RawBinning::from_lut(&lut, self.n_d);
+        self.binning_scale = scale;
         Ok(())
     }
 
     /// Counts the valid in-range pixels of `image` (`width x height`) per voxel.
     pub fn count(&mut self, image: DepthImage<'_>, width: u32, height: u32) -> Result<VoxelCounts> {
         self.check_shape("depth", width, height, image.len())?;
-        self.scratch.fill(0);
-        let slots = self.n_d + 1;
-        let lane_stride = self.n_w * self.n_h * slots;
+        let mut counts = vec![0u32; self.voxel_count()];
         let (kw, kh) = (self.config.block_width_px as usize, self.config.block_height_px as usize);
         let w = width as usize;
+        let n_d = self.n_d;
         let (valid, closest_depth_m) = match image {
             DepthImage::U16 { pixels, scale_m_per_unit } => {
-                self.ensure_lut(scale_m_per_unit)?;
-                let lut = &self.lut[..];
-                for (v, row) in pixels.chunks_exact(w).enumerate() {
-                    let row_base = (v / kh) * self.n_w * slots;
-                    for (i, segment) in row.chunks(kw).enumerate() {
-                        let base = row_base + i * slots;
-                        let (l0, rest) = self.scratch[base..].split_at_mut(lane_stride);
-                        let (l1, rest) = rest.split_at_mut(lane_stride);
-                        let (l2, l3) = rest.split_at_mut(lane_stride);
-                        let (l0, l1, l2, l3) = (&mut l0[..slots], &mut l1[..slots], &mut l2[..slots], &mut l3[..slots]);
-                        let mut quads = segment.chunks_exact(COUNT_LANES);
-                        for q in &mut quads {
-                            l0[lut[q[0] as usize] as usize] += 1;
-                            l1[lut[q[1] as usize] as usize] += 1;
-                            l2[lut[q[2] as usize] as usize] += 1;
-                            l3[lut[q[3] as usize] as usize] += 1;
-                        }
-                        for &raw in quads.remainder() {
-                            l0[lut[raw as usize] as usize] += 1;
-                        }
+                self.ensure_binning(scale_m_per_unit)?;
+                let valid = match &self.binning {
+                    RawBinning::Edges(edges) => {
+                        count_by_edges(pixels, w, kw, kh, self.n_w, n_d, edges, &mut self.scratch, &mut counts)
                     }
-                }
+                    RawBinning::Lut(lut) => {
+                        let mut valid = 0u64;
+                        for (v, row) in pixels.chunks_exact(w).enumerate() {
+                            let row_base = (v / kh) * self.n_w * n_d;
+                            for (u, &raw) in row.iter().enumerate() {
+                                valid += (raw != 0) as u64;
+                                let k = lut[raw as usize] as usize;
+                                if k < n_d {
+                                    counts[row_base + (u / kw) * n_d + k] += 1;
+                                }
+                            }
+                        }
+                        valid
+                    }
+                };
                 // raw - 1 wraps 0 (no return) to the top, so the minimum is the nearest return;
                 // a separate pass, which the compiler vectorises.
                 let smallest_minus_one = pixels.iter().map(|&raw| raw.wrapping_sub(1)).min().unwrap_or(u16::MAX);
-                let zeros = pixels.iter().filter(|&&raw| raw == 0).count() as u64;
-                let valid = pixels.len() as u64 - zeros;
                 let closest = (valid > 0).then(|| (smallest_minus_one as f64 + 1.0) * scale_m_per_unit);
                 (valid, closest)
             }
@@ -283,39 +275,185 @@ impl DepthVoxelGrid {
                 let mut closest = f64::INFINITY;
                 let mut valid = 0u64;
                 for (v, row) in pixels.chunks_exact(w).enumerate() {
-                    let row_base = (v / kh) * self.n_w * slots;
+                    let row_base = (v / kh) * self.n_w * n_d;
                     for (u, &z) in row.iter().enumerate() {
                         let z = z as f64;
                         if z.is_finite() && z > 0.0 {
                             valid += 1;
                             closest = closest.min(z);
                         }
-                        let k = self.bin_of_depth(z).map_or(self.n_d, |k| k as usize);
-                        self.scratch[row_base + (u / kw) * slots + k] += 1;
+                        if let Some(k) = self.bin_of_depth(z) {
+                            counts[row_base + (u / kw) * n_d + k as usize] += 1;
+                        }
                     }
                 }
                 (valid, (valid > 0).then_some(closest))
             }
         };
-        let mut counts = vec![0u32; self.voxel_count()];
-        for (block, out) in counts.chunks_exact_mut(self.n_d).enumerate() {
-            for lane in 0..COUNT_LANES {
-                let src = &self.scratch[lane * lane_stride + block * slots..][..self.n_d];
-                for (o, s) in out.iter_mut().zip(src) {
-                    *o += s;
-                }
-            }
-        }
         let max_count = counts.iter().copied().max().unwrap_or(0);
         let in_range = counts.iter().map(|&c| c as u64).sum();
         Ok(VoxelCounts { counts, max_count, in_range, valid, closest_depth_m })
     }
 }
 
+/// How raw `u16` values map to depth bins for one scale.
+#[derive(Debug, Clone)]
+enum RawBinning {
+    /// The bins are consecutive runs of raw values (always the case: the bin is a monotone
+    /// function of the raw value inside one interval of valid values). `edges[0] = 0`, and
+    /// `edges[1 + k]` is one less than the first raw value of bin `k` (`k = 0..=N_d`, bin
+    /// `N_d` meaning "past the last bin"), so a pixel lies in bin `k` exactly when
+    /// `edges[1 + k] < raw <= edges[2 + k]`, and it has a return when `raw > edges[0]`.
+    Edges(Vec<u16>),
+    /// Depth bin of every raw value, `N_d` = not counted (the general fallback).
+    Lut(Vec<u16>),
+}
+
+impl RawBinning {
+    /// The edges if the look-up table is a non-decreasing run of bins between two
+    /// not-counted stretches, else the table itself.
+    fn from_lut(lut: &[u16], n_d: usize) -> Self {
+        let none = n_d as u16;
+        let first = lut.iter().position(|&k| k != none);
+        let Some(first) = first else {
+            // Nothing is ever counted: every bin starts past the last raw value.
+            return Self::Edges(std::iter::once(0).chain(std::iter::repeat_n(u16::MAX, n_d + 1)).collect());
+        };
+        let end = lut[first..].iter().position(|&k| k == none).map_or(lut.len(), |p| first + p);
+        let run = &lut[first..end];
+        let monotone = run.windows(2).all(|p| p[0] <= p[1]) && lut[end..].iter().all(|&k| k == none);
+        if !monotone || first == 0 {
+            return Self::Lut(lut.to_vec());
+        }
+        // starts[k] = first raw value whose bin is >= k, or `end`.
+        let mut edges = Vec::with_capacity(n_d + 2);
+        edges.push(0u16);
+        for k in 0..n_d {
+            let start = first + run.partition_point(|&b| (b as usize) < k);
+            edges.push((start - 1) as u16);
+        }
+        edges.push((end - 1) as u16);
+        Self::Edges(edges)
+    }
+}
+
+/// Columns counted side by side in one pass of [`count_by_edges`].
+const EDGE_CHUNK: usize = 32;
+
+/// Exact counting by bin edges: for every image column and edge `e`, the number of pixels
+/// of a block row with `raw > e`; a block's count in bin `k` is then the number above bin
+/// `k`'s lower edge minus the number above its upper edge. Branch-free and vectorisable
+/// (no per-pixel scatter). Returns the number of pixels with a return.
+#[allow(clippy::too_many_arguments)]
+fn count_by_edges(
+    pixels: &[u16],
+    w: usize,
+    kw: usize,
+    kh: usize,
+    n_w: usize,
+    n_d: usize,
+    edges: &[u16],
+    scratch: &mut Vec<u16>,
+    counts: &mut [u32],
+) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+        // calling a function compiled with `target_feature(enable = "avx2")`.
+        return unsafe { count_by_edges_avx2(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts) };
+    }
+    count_by_edges_impl(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+fn count_by_edges_avx2(
+    pixels: &[u16],
+    w: usize,
+    kw: usize,
+    kh: usize,
+    n_w: usize,
+    n_d: usize,
+    edges: &[u16],
+    scratch: &mut Vec<u16>,
+    counts: &mut [u32],
+) -> u64 {
+    count_by_edges_impl(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts)
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn count_by_edges_impl(
+    pixels: &[u16],
+    w: usize,
+    kw: usize,
+    kh: usize,
+    n_w: usize,
+    n_d: usize,
+    edges: &[u16],
+    scratch: &mut Vec<u16>,
+    counts: &mut [u32],
+) -> u64 {
+    let n_e = edges.len();
+    scratch.clear();
+    scratch.resize(n_e * w, 0);
+    let acc = &mut scratch[..];
+    let mut valid = 0u64;
+    let mut above = vec![0u32; n_e];
+    // Rows are taken at most u16::MAX at a time so the column counters cannot overflow.
+    let rows_total = pixels.len() / w.max(1);
+    let mut v0 = 0;
+    while v0 < rows_total {
+        let j = v0 / kh;
+        let v1 = ((j + 1) * kh).min(rows_total).min(v0 + u16::MAX as usize);
+        let rows = &pixels[v0 * w..v1 * w];
+        let chunks = w / EDGE_CHUNK;
+        for c in 0..chunks {
+            let c0 = c * EDGE_CHUNK;
+            for (k, &e) in edges.iter().enumerate() {
+                let mut a = [0u16; EDGE_CHUNK];
+                for row in rows.chunks_exact(w) {
+                    let x: &[u16; EDGE_CHUNK] = row[c0..c0 + EDGE_CHUNK].try_into().unwrap_or(&[0; EDGE_CHUNK]);
+                    for l in 0..EDGE_CHUNK {
+                        a[l] += (x[l] > e) as u16;
+                    }
+                }
+                acc[k * w + c0..k * w + c0 + EDGE_CHUNK].copy_from_slice(&a);
+            }
+        }
+        let c0 = chunks * EDGE_CHUNK;
+        if c0 < w {
+            for (k, &e) in edges.iter().enumerate() {
+                let a = &mut acc[k * w + c0..(k + 1) * w];
+                a.fill(0);
+                for row in rows.chunks_exact(w) {
+                    for (a, &x) in a.iter_mut().zip(&row[c0..]) {
+                        *a += (x > e) as u16;
+                    }
+                }
+            }
+        }
+        for i in 0..n_w {
+            let (u0, u1) = (i * kw, ((i + 1) * kw).min(w));
+            for (k, g) in above.iter_mut().enumerate() {
+                *g = acc[k * w + u0..k * w + u1].iter().map(|&x| x as u32).sum();
+            }
+            valid += above[0] as u64;
+            let out = &mut counts[(j * n_w + i) * n_d..][..n_d];
+            for (k, o) in out.iter_mut().enumerate() {
+                *o += above[1 + k] - above[2 + k];
+            }
+        }
+        v0 = v1;
+    }
+    valid
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::PerceptionConfig;
+    use crate::config::{GridConfig, PerceptionConfig};
 
     fn flight_grid() -> DepthVoxelGrid {
         DepthVoxelGrid::new(PinholeCamera::d435(), PerceptionConfig::flight().grid).unwrap()
@@ -380,6 +518,50 @@ mod tests {
         assert!(differing <= 2 * 640 * 480 / 1500 * 12, "{differing}");
         let in_range = raw.iter().filter(|&&r| (100..1200).contains(&r)).count() as u64;
         assert_eq!(a.in_range, in_range);
+    }
+
+    /// Per-pixel reference counting straight from the definition.
+    fn reference_counts(g: &DepthVoxelGrid, img: &[u16], scale: f64) -> (Vec<u32>, u64) {
+        let (n_w, _, n_d) = g.shape();
+        let (kw, kh) = (g.config().block_width_px as usize, g.config().block_height_px as usize);
+        let w = g.camera().width as usize;
+        let mut counts = vec![0u32; g.voxel_count()];
+        for (p, &raw) in img.iter().enumerate() {
+            if raw == 0 {
+                continue;
+            }
+            if let Some(k) = g.bin_of_depth(raw as f64 * scale) {
+                counts[((p / w / kh) * n_w + (p % w) / kw) * n_d + k as usize] += 1;
+            }
+        }
+        (counts, img.iter().filter(|&&r| r != 0).count() as u64)
+    }
+
+    #[test]
+    fn counting_by_edges_equals_per_pixel_binning() {
+        // Odd sizes (columns not a multiple of the vector chunk, partial edge blocks), scales
+        // that put bin edges between raw values, and values across the whole u16 range.
+        for (width, height, kw, kh, bin, lo, hi) in
+            [(640u32, 480u32, 50u32, 50u32, 0.1, 0.1, 1.2), (97, 61, 7, 13, 0.07, 0.05, 3.0), (33, 5, 33, 2, 0.3, 0.0, 60.0)]
+        {
+            let camera = PinholeCamera::new(100.0, 100.0, width as f64 / 2.0, height as f64 / 2.0, width, height).unwrap();
+            let config = GridConfig { block_width_px: kw, block_height_px: kh, depth_bin_m: bin, depth_min_m: lo, depth_max_m: hi };
+            let mut g = DepthVoxelGrid::new(camera, config).unwrap();
+            let n = (width * height) as u64;
+            for (seed, scale) in [(1u64, 0.001), (2, 0.00025), (3, 0.0013), (4, 0.001)] {
+                let img: Vec<u16> = (0..n)
+                    .map(|p| {
+                        let x = (p ^ seed).wrapping_mul(0x9e37_79b9_7f4a_7c15).rotate_left(29).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+                        if seed == 4 { (x >> 48) as u16 } else { ((x >> 40) % 1700) as u16 }
+                    })
+                    .collect();
+                let c = g.count(DepthImage::U16 { pixels: &img, scale_m_per_unit: scale }, width, height).unwrap();
+                let (counts, valid) = reference_counts(&g, &img, scale);
+                assert_eq!(c.counts, counts, "{width}x{height}, scale {scale}");
+                assert_eq!(c.valid, valid);
+                assert_eq!(c.in_range, counts.iter().map(|&x| x as u64).sum::<u64>());
+            }
+        }
     }
 
     #[test]

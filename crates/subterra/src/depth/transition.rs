@@ -9,7 +9,9 @@
 //! source voxel at that depth. A draw from voxel `v` first picks "free or grid" with
 //! `v`'s own probability of going free, then an offset from its depth bin's table,
 //! redrawing offsets that leave the grid — which is exactly the conditional over the
-//! in-grid targets. The free state's row is one alias table over all states.
+//! in-grid targets. The kernel is symmetric in `di` and `dj`, so the table holds
+//! `(|di|, |dj|, k')` (weights doubled for non-zero values: N_w·N_h·N_d entries per bin)
+//! and a draw adds two random signs. The free state's row is one alias table over all states.
 
 use rand::Rng;
 
@@ -21,14 +23,23 @@ use crate::error::{Error, Result};
 /// Redraws of an out-of-grid offset before the exact (slow) fallback draw is used. The
 /// acceptance rate is at least about 1/8 (a corner voxel), so this is never reached in
 /// practice; it only guards against degenerate parameters.
-const MAX_OFFSET_REDRAWS: usize = 4096;
+pub(crate) const MAX_OFFSET_REDRAWS: usize = 4096;
 
-/// A target of an offset table: a voxel offset in the image plane and an absolute target bin.
-#[derive(Debug, Clone, Copy)]
-struct Offset {
-    di: i16,
-    dj: i16,
+/// An offset up to sign: `|di|`, `|dj|` and the absolute target bin.
+#[derive(Debug, Clone, Copy, Default)]
+struct FoldedOffset {
+    a: u16,
+    b: u16,
     k: u16,
+}
+
+/// One alias slot over folded offsets: keep `own` if the 30-bit coin is below `keep`, else
+/// take `alias`. Slot and both outcomes sit in one 16-byte record, so a draw is one load.
+#[derive(Debug, Clone, Copy)]
+struct OffsetSlot {
+    keep: u32,
+    own: FoldedOffset,
+    alias: FoldedOffset,
 }
 
 /// Draws voxel successors of one source voxel (see [`TransitionModel::voxel_sampler`]).
@@ -38,8 +49,7 @@ pub struct VoxelSampler<'a> {
     from: usize,
     i: i32,
     j: i32,
-    table: &'a AliasTable,
-    offsets: &'a [Offset],
+    slots: &'a [OffsetSlot],
 }
 
 impl VoxelSampler<'_> {
@@ -47,16 +57,46 @@ impl VoxelSampler<'_> {
     /// table, redrawn while it leaves the grid.
     #[inline]
     pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> usize {
-        let m = self.model;
         for _ in 0..MAX_OFFSET_REDRAWS {
-            let o = self.offsets[self.table.sample(rng)];
-            let it = self.i + o.di as i32;
-            let jt = self.j + o.dj as i32;
-            if it >= 0 && jt >= 0 && (it as usize) < m.n_w && (jt as usize) < m.n_h {
-                return (jt as usize * m.n_w + it as usize) * m.n_d + o.k as usize;
+            if let Some(to) = self.try_offset(rng.next_u64()) {
+                return to;
             }
         }
-        m.sample_in_grid_exactly(self.from, rng)
+        self.sample_exactly(rng)
+    }
+
+    /// One rejection-sampling attempt with the 64 random bits `r`: the target if the offset
+    /// they draw stays in the grid. Repeating until `Some` is one draw of [`Self::sample`].
+    ///
+    /// Bits 63..32 pick the slot (multiply-shift), bits 31..2 are the alias coin, bits 0
+    /// and 1 the signs of `di` and `dj` (the table holds `|di|, |dj|` with weight doubled
+    /// for non-zero values, so a uniform sign makes it the table over signed offsets).
+    #[inline]
+    pub fn try_offset(&self, r: u64) -> Option<usize> {
+        let (inside, to) = self.candidate(r);
+        inside.then_some(to)
+    }
+
+    /// [`Self::try_offset`] without the branch: whether the drawn target is in the grid, and
+    /// the target (meaningless when it is not).
+    #[inline]
+    pub fn candidate(&self, r: u64) -> (bool, usize) {
+        let m = self.model;
+        let slot = (((r >> 32) * self.slots.len() as u64) >> 32) as usize;
+        let s = self.slots[slot];
+        let o = if ((r as u32) >> 2) < s.keep { s.own } else { s.alias };
+        let sign_i = -((r & 1) as i32);
+        let sign_j = -(((r >> 1) & 1) as i32);
+        let it = self.i + ((o.a as i32 ^ sign_i) - sign_i);
+        let jt = self.j + ((o.b as i32 ^ sign_j) - sign_j);
+        // Negative coordinates wrap to huge unsigned values and fail the same test.
+        let inside = ((it as u32 as usize) < m.n_w) & ((jt as u32 as usize) < m.n_h);
+        (inside, (jt as usize).wrapping_mul(m.n_w).wrapping_add(it as usize).wrapping_mul(m.n_d).wrapping_add(o.k as usize))
+    }
+
+    /// The exact O(S) draw, the fallback after [`MAX_OFFSET_REDRAWS`] failed attempts.
+    pub fn sample_exactly<R: Rng + ?Sized>(&self, rng: &mut R) -> usize {
+        self.model.sample_in_grid_exactly(self.from, rng)
     }
 }
 
@@ -76,8 +116,8 @@ pub struct TransitionModel {
     free_threshold: Vec<u32>,
     /// Per voxel: `1 / Σ_all targets` (the row normaliser).
     inv_row_sum: Vec<f64>,
-    /// Per source bin: alias table over [`Offset`]s and the offsets.
-    offset_tables: Vec<(AliasTable, Vec<Offset>)>,
+    /// Per source bin: alias slots over folded offsets `(|di|, |dj|, k')` (O(S) each).
+    offset_tables: Vec<Vec<OffsetSlot>>,
     /// `T(s_free -> ·)`, dense over all states.
     free_row: Vec<f64>,
     free_table: AliasTable,
@@ -161,22 +201,34 @@ impl TransitionModel {
             .ok_or_else(|| Error::config("transition", "the free state's row has no mass", free_total))?;
         let free_threshold = p_free.iter().map(|&p| (p * 4_294_967_296.0).min(u32::MAX as f64) as u32).collect();
 
+        if n_w > u16::MAX as usize || n_h > u16::MAX as usize {
+            return Err(Error::config("grid", "has more than 65535 blocks across or down", n_w.max(n_h)));
+        }
         let mut offset_tables = Vec::with_capacity(n_d);
+        let mut folded = Vec::with_capacity(n_w * n_h * n_d);
+        let mut weights = Vec::with_capacity(folded.capacity());
         for k in 0..n_d {
-            let mut offsets = Vec::with_capacity((2 * n_w - 1) * (2 * n_h - 1) * n_d);
-            let mut weights = Vec::with_capacity(offsets.capacity());
-            for di in -(n_w as i64 - 1)..=(n_w as i64 - 1) {
-                for dj in -(n_h as i64 - 1)..=(n_h as i64 - 1) {
+            folded.clear();
+            weights.clear();
+            for a in 0..n_w {
+                for b in 0..n_h {
+                    // Offsets ±a, ±b: 1 or 2 signed values each.
+                    let multiplicity = (1 + (a > 0) as usize) * (1 + (b > 0) as usize);
                     for kt in 0..n_d {
-                        let l1 = di.unsigned_abs() as usize + dj.unsigned_abs() as usize + k.abs_diff(kt);
-                        offsets.push(Offset { di: di as i16, dj: dj as i16, k: kt as u16 });
-                        weights.push(kernel[l1] * depth_weight[kt]);
+                        folded.push(FoldedOffset { a: a as u16, b: b as u16, k: kt as u16 });
+                        weights.push(multiplicity as f64 * kernel[a + b + k.abs_diff(kt)] * depth_weight[kt]);
                     }
                 }
             }
             let table = AliasTable::new(&weights)
                 .ok_or_else(|| Error::config("transition", format!("depth bin {k} has no in-grid transition mass"), 0))?;
-            offset_tables.push((table, offsets));
+            // 30-bit coins: floor(keep / 4) = floor(p·2^30) exactly.
+            let slots = table
+                .slots()
+                .zip(&folded)
+                .map(|((keep, alias), &own)| OffsetSlot { keep: keep >> 2, own, alias: folded[alias as usize] })
+                .collect();
+            offset_tables.push(slots);
         }
 
         let mut kernel_rows = vec![0.0; n_d * (max_plane_l1 + 1) * n_d];
@@ -225,7 +277,7 @@ impl TransitionModel {
         let tables: usize = self
             .offset_tables
             .iter()
-            .map(|(t, o)| t.memory_bytes() + o.capacity() * std::mem::size_of::<Offset>())
+            .map(|t| t.capacity() * std::mem::size_of::<OffsetSlot>())
             .sum();
         (self.kernel.capacity() + self.depth_weight.capacity() + self.p_free.capacity() + self.inv_row_sum.capacity()
             + self.free_row.capacity() + self.kernel_rows.capacity())
@@ -299,8 +351,8 @@ impl TransitionModel {
     /// one state without decoding the state each time. `from` must be a voxel.
     pub fn voxel_sampler(&self, from: usize) -> VoxelSampler<'_> {
         let (i, j, k) = self.voxel(from);
-        let (table, offsets) = &self.offset_tables[k.min(self.n_d - 1)];
-        VoxelSampler { model: self, from, i: i as i32, j: j as i32, table, offsets }
+        let slots = &self.offset_tables[k.min(self.n_d - 1)];
+        VoxelSampler { model: self, from, i: i as i32, j: j as i32, slots }
     }
 
     /// Inverse-CDF draw over the in-grid targets of `from`: O(S), for degenerate cases only.
@@ -434,6 +486,31 @@ mod tests {
             for (h, p) in hist.iter().zip(&row) {
                 let sd = (p * (1.0 - p) / n as f64).sqrt();
                 assert!((*h as f64 / n as f64 - p).abs() < 5.0 * sd + 1e-9, "from {from}: {hist:?} vs {row:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn flight_sampling_matches_the_rows() {
+        // The folded offset tables (|di|, |dj| and random signs) on a grid where offsets
+        // leave it often: a corner, an edge and a central voxel.
+        let grid = DepthVoxelGrid::new(PinholeCamera::d435(), PerceptionConfig::flight().grid).unwrap();
+        let model = TransitionModel::new(&grid, &PerceptionConfig::flight().transition).unwrap();
+        let mut rng = Pcg64Mcg::seed_from_u64(11);
+        for from in [0usize, 12 * 11 + 10, 700] {
+            let row = model.row(StateId(from as u32));
+            let n = 300_000;
+            let mut hist = vec![0u32; grid.state_count()];
+            let sampler = model.voxel_sampler(from);
+            for _ in 0..n {
+                hist[sampler.sample(&mut rng)] += 1;
+            }
+            let in_grid = 1.0 - row[grid.free_state().0 as usize];
+            for (to, (h, p)) in hist.iter().zip(&row).enumerate().take(grid.voxel_count()) {
+                let p = p / in_grid;
+                let sd = (p * (1.0 - p) / n as f64).sqrt();
+                // Rare targets: allow a few stray counts (Poisson tail) on top of five sd.
+                assert!((*h as f64 / n as f64 - p).abs() < 5.0 * sd + 4.0 / n as f64, "from {from} to {to}: {h} vs {p}");
             }
         }
     }
