@@ -370,31 +370,51 @@ impl TransitionModel {
     }
 
     /// Exact prediction `out(s') = Σ_s belief(s)·T(s -> s')`. O(S²) time, O(S) memory.
+    ///
+    /// The in-grid kernel between two blocks depends only on their in-plane distance `m`, so
+    /// per source block the contribution to a target block at distance `m` is one vector
+    /// over target bins, `Σ_k c(k)·hn(m + |k - k'|)`: computed once per distinct `m` (an
+    /// `N_d x N_d` product) and added to every target block at that distance.
     pub fn predict(&self, belief: &[f64], out: &mut [f64]) {
         let free = self.free_state();
         let n_d = self.n_d;
         let stride = self.max_plane_l1 + 1;
         out.fill(0.0);
         let mut to_free = belief[free] * self.free_row[free];
+        let mut scaled = vec![0.0; n_d];
+        let mut at_distance = vec![0.0; stride * n_d];
         for block in 0..self.n_w * self.n_h {
             let (i, j) = (block % self.n_w, block / self.n_w);
-            for k in 0..n_d {
+            let mut any = false;
+            for (k, c) in scaled.iter_mut().enumerate() {
                 let s = block * n_d + k;
                 let b = belief[s];
-                if b == 0.0 {
+                to_free += b * self.p_free[s];
+                *c = b * self.inv_row_sum[s];
+                any |= b != 0.0;
+            }
+            if !any {
+                continue;
+            }
+            let m_max = i.max(self.n_w - 1 - i) + j.max(self.n_h - 1 - j);
+            let vectors = &mut at_distance[..(m_max + 1) * n_d];
+            vectors.fill(0.0);
+            for (k, &c) in scaled.iter().enumerate() {
+                if c == 0.0 {
                     continue;
                 }
-                to_free += b * self.p_free[s];
-                let c = b * self.inv_row_sum[s];
-                let rows = &self.kernel_rows[k * stride * n_d..(k + 1) * stride * n_d];
-                for jt in 0..self.n_h {
-                    let dj = j.abs_diff(jt);
-                    for it in 0..self.n_w {
-                        let m = i.abs_diff(it) + dj;
-                        let target = &mut out[(jt * self.n_w + it) * n_d..][..n_d];
-                        for (o, w) in target.iter_mut().zip(&rows[m * n_d..(m + 1) * n_d]) {
-                            *o += c * w;
-                        }
+                let rows = &self.kernel_rows[k * stride * n_d..][..(m_max + 1) * n_d];
+                for (v, w) in vectors.iter_mut().zip(rows) {
+                    *v += c * w;
+                }
+            }
+            for jt in 0..self.n_h {
+                let dj = j.abs_diff(jt);
+                for it in 0..self.n_w {
+                    let m = i.abs_diff(it) + dj;
+                    let target = &mut out[(jt * self.n_w + it) * n_d..][..n_d];
+                    for (o, v) in target.iter_mut().zip(&vectors[m * n_d..(m + 1) * n_d]) {
+                        *o += v;
                     }
                 }
             }
