@@ -190,20 +190,23 @@ impl ParticleFilter {
         let n = self.particles;
         match self.resampling {
             Resampling::Systematic => {
-                // Pointers (u0 + p)/N of the total weight, p = 0..N, walked in state order.
+                // Pointers (u0 + p)·step, p = 0..N, walked in state order: the pointers below a
+                // cumulative weight C are the p < C/step - u0, so each state's share follows
+                // from its cumulative weight alone (O(S), no per-pointer loop).
                 let step = total / n as f64;
                 let u0 = unit_f64(self.rng.next_u64());
-                let mut s = 0;
-                let mut cumulative = self.mass[0];
+                let inv_step = 1.0 / step;
+                let below = |cumulative: f64| -> usize { ((cumulative * inv_step - u0).ceil().max(0.0) as usize).min(n) };
+                let mut cumulative = 0.0;
+                let mut taken = 0;
                 let last = self.mass.len() - 1;
-                for p in 0..n {
-                    let pointer = (u0 + p as f64) * step;
-                    while pointer >= cumulative && s < last {
-                        s += 1;
-                        cumulative += self.mass[s];
-                    }
-                    self.counts[s] += 1;
+                for (c, &m) in self.counts[..last].iter_mut().zip(&self.mass) {
+                    cumulative += m;
+                    let upto = below(cumulative);
+                    *c = (upto - taken) as u32;
+                    taken = upto;
                 }
+                self.counts[last] = (n - taken) as u32;
             }
             Resampling::Multinomial => {
                 let mut cumulative = Vec::with_capacity(self.mass.len());
