@@ -15,7 +15,9 @@
 //! missed by chance on an empty frame.
 
 use rand::Rng;
+use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
+use rand_xoshiro::Xoshiro256PlusPlus;
 
 use super::transition::{TransitionModel, MAX_OFFSET_REDRAWS as MAX_OFFSET_ATTEMPTS};
 use crate::config::Resampling;
@@ -26,41 +28,10 @@ fn unit_f64(r: u64) -> f64 {
     (r >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
-/// The filter's random stream: wyrand (Wang Yi's 64-bit generator: a Weyl sequence mixed
-/// by one 64x64->128-bit multiply; passes BigCrush and PractRand). The state advances by an
-/// addition, so successive draws do not wait on each other as a multiplicative
-/// generator's do; it is seeded from the caller's seeded generator.
-#[derive(Debug, Clone)]
-struct WyRand(u64);
-
-impl WyRand {
-    #[inline]
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0xa076_1d64_78bd_642f);
-        let t = u128::from(self.0) * u128::from(self.0 ^ 0xe703_7ed1_a0b4_28db);
-        (t >> 64) as u64 ^ t as u64
-    }
-}
-
-impl rand::TryRng for WyRand {
-    type Error = std::convert::Infallible;
-
-    fn try_next_u32(&mut self) -> Result<u32, Self::Error> {
-        Ok((self.next_u64() >> 32) as u32)
-    }
-
-    fn try_next_u64(&mut self) -> Result<u64, Self::Error> {
-        Ok(self.next_u64())
-    }
-
-    fn try_fill_bytes(&mut self, dst: &mut [u8]) -> Result<(), Self::Error> {
-        for chunk in dst.chunks_mut(8) {
-            let r = self.next_u64().to_le_bytes();
-            chunk.copy_from_slice(&r[..chunk.len()]);
-        }
-        Ok(())
-    }
-}
+/// The filter's random stream: xoshiro256++ (rust-random's `rand_xoshiro`), seeded from the
+/// caller's seeded generator. Its state advances without a multiply, so successive draws
+/// do not wait on each other as a multiplicative generator's do.
+type FilterRng = Xoshiro256PlusPlus;
 
 /// The proposal of one source state: the 32-bit threshold below which a particle goes to
 /// `s_free`, and the importance ratios `T/q` of the two branches.
@@ -81,7 +52,7 @@ pub struct ParticleFilter {
     /// Importance weight per state after propagation (Σ of `T/q` of the particles there).
     mass: Vec<f64>,
     proposals: Vec<Proposal>,
-    rng: WyRand,
+    rng: FilterRng,
 }
 
 impl ParticleFilter {
@@ -106,7 +77,7 @@ impl ParticleFilter {
             })
             .collect();
         let mut rng = rng;
-        let rng = WyRand(rng.next_u64());
+        let rng = FilterRng::seed_from_u64(rng.next_u64());
         Self { particles, resampling, counts, mass: vec![0.0; states], proposals, rng }
     }
 
