@@ -16,10 +16,11 @@
 
 use rand::Rng;
 use rand::SeedableRng;
+use rand_distr::{Binomial, Distribution};
 use rand_pcg::Pcg64Mcg;
 use rand_xoshiro::Xoshiro256PlusPlus;
 
-use super::transition::{TransitionModel, MAX_OFFSET_REDRAWS as MAX_OFFSET_ATTEMPTS};
+use super::transition::TransitionModel;
 use crate::config::Resampling;
 
 /// A uniform f64 in `[0, 1)` from 53 random bits.
@@ -37,6 +38,8 @@ type FilterRng = Xoshiro256PlusPlus;
 /// `s_free`, and the importance ratios `T/q` of the two branches.
 #[derive(Debug, Clone, Copy)]
 struct Proposal {
+    /// `q(s)`, the probability of proposing `s_free`.
+    q: f64,
     free_threshold: u32,
     always_free: bool,
     free_ratio: f64,
@@ -53,6 +56,8 @@ pub struct ParticleFilter {
     mass: Vec<f64>,
     proposals: Vec<Proposal>,
     rng: FilterRng,
+    /// Scratch: the voxel targets drawn for one source state.
+    targets: Vec<u32>,
 }
 
 impl ParticleFilter {
@@ -69,6 +74,7 @@ impl ParticleFilter {
                 let t = model.p_free(s);
                 let q = t.max(free_proposal_min);
                 Proposal {
+                    q,
                     free_threshold: (q * 4_294_967_296.0).min(u32::MAX as f64) as u32,
                     always_free: q >= 1.0,
                     free_ratio: if q > 0.0 { t / q } else { 0.0 },
@@ -78,7 +84,7 @@ impl ParticleFilter {
             .collect();
         let mut rng = rng;
         let rng = FilterRng::seed_from_u64(rng.next_u64());
-        Self { particles, resampling, counts, mass: vec![0.0; states], proposals, rng }
+        Self { particles, resampling, counts, mass: vec![0.0; states], proposals, rng, targets: Vec::new() }
     }
 
     /// Number of particles.
@@ -92,9 +98,14 @@ impl ParticleFilter {
     }
 
     /// Moves every particle by one draw from the proposal, accumulating its weight `T/q`.
+    ///
+    /// The particles of one state are exchangeable, so instead of one free-or-voxel coin per
+    /// particle the number that goes free is one `Binomial(c, q)` draw, and the rest draw
+    /// voxel targets in a batch: the same joint distribution of where they land.
     pub fn propagate(&mut self, model: &TransitionModel) {
         self.mass.fill(0.0);
         let free = self.counts.len() - 1;
+        let mut targets = std::mem::take(&mut self.targets);
         for (s, &c) in self.counts.iter().enumerate() {
             if c == 0 {
                 continue;
@@ -110,35 +121,26 @@ impl ParticleFilter {
                 }
                 continue;
             }
-            let sampler = model.voxel_sampler(s);
-            let mass = &mut self.mass[..];
-            let rng = &mut self.rng;
-            // Free-or-voxel coins are 32-bit halves of one random word, two particles a word.
-            let mut coins = 0u64;
-            for n in 0..c {
-                if n % 2 == 0 {
-                    coins = rng.next_u64();
-                } else {
-                    coins <<= 32;
-                }
-                if p.always_free || ((coins >> 32) as u32) < p.free_threshold {
-                    mass[free] += p.free_ratio;
-                    continue;
-                }
-                let mut to = None;
-                for _ in 0..MAX_OFFSET_ATTEMPTS {
-                    to = sampler.try_offset(rng.next_u64());
-                    if to.is_some() {
-                        break;
-                    }
-                }
-                let to = match to {
-                    Some(to) => to,
-                    None => sampler.sample_exactly(rng),
-                };
-                mass[to] += p.voxel_ratio;
+            let going_free = if p.always_free {
+                c as u64
+            } else if p.q > 0.0 {
+                // q is in (0, 1) here, so the distribution exists; 0 would only lose mass.
+                Binomial::new(c as u64, p.q).map_or(0, |b| b.sample(&mut self.rng))
+            } else {
+                0
+            };
+            self.mass[free] += going_free as f64 * p.free_ratio;
+            let to_voxels = c as usize - going_free as usize;
+            if to_voxels == 0 {
+                continue;
+            }
+            targets.resize(to_voxels, 0);
+            model.voxel_sampler(s).fill(&mut self.rng, &mut targets);
+            for &to in &targets {
+                self.mass[to as usize] += p.voxel_ratio;
             }
         }
+        self.targets = targets;
     }
 
     /// Weights the propagated particles by `log_likelihood` (per state) and resamples.
@@ -324,6 +326,35 @@ mod tests {
                 // Five standard deviations of a Poisson count (the weights are near 1).
                 assert!((f.mass[to] - expected).abs() < 5.0 * expected.sqrt() + 1.0, "q_min {q_min}, state {to}: {} vs {expected}", f.mass[to]);
             }
+        }
+    }
+
+    #[test]
+    fn flight_propagation_follows_the_rows() {
+        // The batch path (binomial free count, branch-free class-table draws) on the flight
+        // grid: all particles in one voxel, the propagated weight per target against N·T(s, ·).
+        use crate::config::PerceptionConfig;
+        let grid = DepthVoxelGrid::new(PinholeCamera::d435(), PerceptionConfig::flight().grid).unwrap();
+        let m = TransitionModel::new(&grid, &PerceptionConfig::flight().transition).unwrap();
+        let n = 400_000;
+        for (from, q_min) in [(0usize, 0.05), (700, 0.05), (1429, 0.0), (12 * 11 + 3, 0.3)] {
+            let mut f = ParticleFilter::new(&m, n, Resampling::Systematic, q_min, Pcg64Mcg::seed_from_u64(from as u64));
+            f.counts.fill(0);
+            f.counts[from] = n as u32;
+            f.propagate(&m);
+            let p = f.proposals[from];
+            let free = grid.free_state().0 as usize;
+            for (to, &mass) in f.mass.iter().enumerate() {
+                let t = m.probability(crate::depth::StateId(from as u32), crate::depth::StateId(to as u32));
+                let expected = n as f64 * t;
+                // Each particle reaching `to` carries the ratio of its branch; the number that
+                // does is binomial with mean expected / ratio.
+                let ratio = if to == free { p.free_ratio } else { p.voxel_ratio };
+                let sd = ratio * (expected / ratio).sqrt();
+                assert!((mass - expected).abs() < 5.0 * sd + 4.0 * ratio, "from {from}, q_min {q_min}, to {to}: {mass} vs {expected}");
+            }
+            let total: f64 = f.mass.iter().sum();
+            assert!((total / n as f64 - 1.0).abs() < 0.01, "{total}");
         }
     }
 
