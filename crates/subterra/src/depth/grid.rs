@@ -246,7 +246,7 @@ impl DepthVoxelGrid {
         let (valid, closest_depth_m) = match image {
             DepthImage::U16 { pixels, scale_m_per_unit } => {
                 self.ensure_binning(scale_m_per_unit)?;
-                let valid = match &self.binning {
+                let (valid, smallest_minus_one) = match &self.binning {
                     RawBinning::Edges(edges) => {
                         count_by_edges(pixels, w, kw, kh, self.n_w, n_d, edges, &mut self.scratch, &mut counts)
                     }
@@ -262,13 +262,12 @@ impl DepthVoxelGrid {
                                 }
                             }
                         }
-                        valid
+                        // raw - 1 wraps 0 (no return) to the top, so the minimum is the nearest
+                        // return; a separate pass, which the compiler vectorises.
+                        (valid, pixels.iter().map(|&raw| raw.wrapping_sub(1)).min().unwrap_or(u16::MAX))
                     }
                 };
-                // raw - 1 wraps 0 (no return) to the top, so the minimum is the nearest return;
-                // a separate pass, which the compiler vectorises.
-                let smallest_minus_one = pixels.iter().map(|&raw| raw.wrapping_sub(1)).min().unwrap_or(u16::MAX);
-                let closest = (valid > 0).then(|| (smallest_minus_one as f64 + 1.0) * scale_m_per_unit);
+                let closest = (valid > 0).then_some((smallest_minus_one as f64 + 1.0) * scale_m_per_unit);
                 (valid, closest)
             }
             DepthImage::F32 { pixels } => {
@@ -337,13 +336,16 @@ impl RawBinning {
     }
 }
 
-/// Columns counted side by side in one pass of [`count_by_edges`].
-const EDGE_CHUNK: usize = 32;
-
 /// Exact counting by bin edges: for every image column and edge `e`, the number of pixels
 /// of a block row with `raw > e`; a block's count in bin `k` is then the number above bin
 /// `k`'s lower edge minus the number above its upper edge. Branch-free and vectorisable
-/// (no per-pixel scatter). Returns the number of pixels with a return.
+/// (no per-pixel scatter). Returns the number of pixels with a return and the smallest
+/// `raw - 1` (wrapping, so no return counts as the largest value).
+///
+/// Each vector of pixels is loaded once and compared with every edge, the per-edge column
+/// counters staying in registers down a block row (up to 16 edges, i.e. `N_d <= 14`; more
+/// take a loop per edge). Edges and pixels are biased by 2^15 so that one signed compare
+/// tests the unsigned order.
 #[allow(clippy::too_many_arguments)]
 fn count_by_edges(
     pixels: &[u16],
@@ -355,14 +357,38 @@ fn count_by_edges(
     edges: &[u16],
     scratch: &mut Vec<u16>,
     counts: &mut [u32],
-) -> u64 {
+) -> (u64, u16) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
-        // calling a function compiled with `target_feature(enable = "avx2")`.
-        return unsafe { count_by_edges_avx2(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts) };
+    {
+        if std::arch::is_x86_feature_detected!("avx512bw") {
+            // SAFETY: the CPU supports AVX-512BW (and so AVX-512F, checked just above), the
+            // only requirement of calling a function compiled with those target features.
+            return unsafe { count_by_edges_avx512(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts) };
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+            // calling a function compiled with `target_feature(enable = "avx2")`.
+            return unsafe { count_by_edges_avx2(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts) };
+        }
     }
-    count_by_edges_impl(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts)
+    count_by_edges_impl::<16>(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw")]
+#[allow(clippy::too_many_arguments)]
+fn count_by_edges_avx512(
+    pixels: &[u16],
+    w: usize,
+    kw: usize,
+    kh: usize,
+    n_w: usize,
+    n_d: usize,
+    edges: &[u16],
+    scratch: &mut Vec<u16>,
+    counts: &mut [u32],
+) -> (u64, u16) {
+    count_by_edges_impl::<32>(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -378,13 +404,67 @@ fn count_by_edges_avx2(
     edges: &[u16],
     scratch: &mut Vec<u16>,
     counts: &mut [u32],
-) -> u64 {
-    count_by_edges_impl(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts)
+) -> (u64, u16) {
+    count_by_edges_impl::<16>(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts)
 }
+
+/// Column counters of one strip of `L` columns down `rows` (a block row), for `NE` edges
+/// biased by 2^15: `acc[k][l]` = pixels of column `l` above edge `k`. Also lowers `low` to
+/// the smallest `raw - 1` seen (wrapping).
+#[inline(always)]
+fn strip_counts<const L: usize, const NE: usize>(
+    rows: &[u16],
+    w: usize,
+    c0: usize,
+    biased_edges: &[i16],
+    low: &mut [u16; L],
+) -> [[u16; L]; NE] {
+    let mut e = [i16::MAX; NE];
+    e.copy_from_slice(&biased_edges[..NE]);
+    let mut acc = [[0u16; L]; NE];
+    let mut lo = *low;
+    for row in rows.chunks_exact(w) {
+        let Some(x) = row.get(c0..c0 + L) else { break };
+        let mut xs = [0i16; L];
+        for l in 0..L {
+            xs[l] = (x[l] ^ 0x8000) as i16;
+            lo[l] = lo[l].min(x[l].wrapping_sub(1));
+        }
+        for k in 0..NE {
+            for l in 0..L {
+                acc[k][l] += (xs[l] > e[k]) as u16;
+            }
+        }
+    }
+    *low = lo;
+    acc
+}
+
+/// The same for any number of edges, one edge at a time (the counters of one edge stay in
+/// registers; the strip is read once per edge).
+#[inline(always)]
+fn strip_counts_any<const L: usize>(rows: &[u16], w: usize, c0: usize, biased_edges: &[i16], acc: &mut [u16], low: &mut [u16; L]) {
+    for (k, &e) in biased_edges.iter().enumerate() {
+        let mut a = [0u16; L];
+        for row in rows.chunks_exact(w) {
+            let Some(x) = row.get(c0..c0 + L) else { break };
+            for l in 0..L {
+                a[l] += (((x[l] ^ 0x8000) as i16) > e) as u16;
+            }
+        }
+        acc[k * w + c0..k * w + c0 + L].copy_from_slice(&a);
+    }
+    for row in rows.chunks_exact(w) {
+        for (lo, &x) in low.iter_mut().zip(&row[c0..c0 + L]) {
+            *lo = (*lo).min(x.wrapping_sub(1));
+        }
+    }
+}
+
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn count_by_edges_impl(
+fn count_by_edges_impl<const L: usize>(
     pixels: &[u16],
     w: usize,
     kw: usize,
@@ -394,12 +474,15 @@ fn count_by_edges_impl(
     edges: &[u16],
     scratch: &mut Vec<u16>,
     counts: &mut [u32],
-) -> u64 {
+) -> (u64, u16) {
     let n_e = edges.len();
     scratch.clear();
     scratch.resize(n_e * w, 0);
     let acc = &mut scratch[..];
+    let biased: Vec<i16> = edges.iter().map(|&e| (e ^ 0x8000) as i16).collect();
     let mut valid = 0u64;
+    let mut low = [u16::MAX; L];
+    let mut low_tail = u16::MAX;
     let mut above = vec![0u32; n_e];
     // Rows are taken at most u16::MAX at a time so the column counters cannot overflow.
     let rows_total = pixels.len() / w.max(1);
@@ -408,21 +491,25 @@ fn count_by_edges_impl(
         let j = v0 / kh;
         let v1 = ((j + 1) * kh).min(rows_total).min(v0 + u16::MAX as usize);
         let rows = &pixels[v0 * w..v1 * w];
-        let chunks = w / EDGE_CHUNK;
-        for c in 0..chunks {
-            let c0 = c * EDGE_CHUNK;
-            for (k, &e) in edges.iter().enumerate() {
-                let mut a = [0u16; EDGE_CHUNK];
-                for row in rows.chunks_exact(w) {
-                    let x: &[u16; EDGE_CHUNK] = row[c0..c0 + EDGE_CHUNK].try_into().unwrap_or(&[0; EDGE_CHUNK]);
-                    for l in 0..EDGE_CHUNK {
-                        a[l] += (x[l] > e) as u16;
+        let strips = w / L;
+        for c in 0..strips {
+            let c0 = c * L;
+            macro_rules! register_edges {
+                ($($ne:literal)*) => {
+                    match n_e {
+                        $($ne => {
+                            let a = strip_counts::<L, $ne>(rows, w, c0, &biased, &mut low);
+                            for (k, a) in a.iter().enumerate() {
+                                acc[k * w + c0..k * w + c0 + L].copy_from_slice(a);
+                            }
+                        })*
+                        _ => strip_counts_any::<L>(rows, w, c0, &biased, acc, &mut low),
                     }
-                }
-                acc[k * w + c0..k * w + c0 + EDGE_CHUNK].copy_from_slice(&a);
+                };
             }
+            register_edges!(2 3 4 5 6 7 8 9 10 11 12 13 14 15 16);
         }
-        let c0 = chunks * EDGE_CHUNK;
+        let c0 = strips * L;
         if c0 < w {
             for (k, &e) in edges.iter().enumerate() {
                 let a = &mut acc[k * w + c0..(k + 1) * w];
@@ -431,6 +518,11 @@ fn count_by_edges_impl(
                     for (a, &x) in a.iter_mut().zip(&row[c0..]) {
                         *a += (x > e) as u16;
                     }
+                }
+            }
+            for row in rows.chunks_exact(w) {
+                for &x in &row[c0..] {
+                    low_tail = low_tail.min(x.wrapping_sub(1));
                 }
             }
         }
@@ -447,7 +539,7 @@ fn count_by_edges_impl(
         }
         v0 = v1;
     }
-    valid
+    (valid, low.iter().copied().fold(low_tail, u16::min))
 }
 
 #[cfg(test)]
@@ -563,6 +655,53 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn every_instruction_set_counts_alike() {
+        // The portable loop and each x86 copy this CPU can run, for register-resident edges
+        // (flight: 13) and the per-edge loop (more than 16 edges), on odd widths.
+        for (width, height, kw, kh, bin, lo, hi) in
+            [(640u32, 480u32, 50u32, 50u32, 0.1, 0.1, 1.2), (97, 61, 7, 13, 0.07, 0.05, 3.0), (71, 9, 10, 4, 0.25, 0.2, 2.0)]
+        {
+            let camera = PinholeCamera::new(100.0, 100.0, width as f64 / 2.0, height as f64 / 2.0, width, height).unwrap();
+            let config = GridConfig { block_width_px: kw, block_height_px: kh, depth_bin_m: bin, depth_min_m: lo, depth_max_m: hi };
+            let mut g = DepthVoxelGrid::new(camera, config).unwrap();
+            let img: Vec<u16> = (0..(width * height) as u64)
+                .map(|p| ((p.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 40) % 3500) as u16)
+                .collect();
+            let c = g.count(DepthImage::U16 { pixels: &img, scale_m_per_unit: 0.001 }, width, height).unwrap();
+            let (counts, valid) = reference_counts(&g, &img, 0.001);
+            assert_eq!(c.counts, counts);
+            let RawBinning::Edges(edges) = g.binning.clone() else { panic!("u16 bins are runs of raw values") };
+            let (n_w, _, n_d) = g.shape();
+            let smallest = img.iter().map(|&r| r.wrapping_sub(1)).min().unwrap();
+            let mut variants: Vec<(&str, CountFn)> = vec![("portable", count_by_edges_impl::<16>)];
+            #[cfg(target_arch = "x86_64")]
+            {
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    variants.push(("avx2", |p, w, kw, kh, n_w, n_d, e, s, c| {
+                        // SAFETY: AVX2 support was checked before this variant was added.
+                        unsafe { count_by_edges_avx2(p, w, kw, kh, n_w, n_d, e, s, c) }
+                    }));
+                }
+                if std::arch::is_x86_feature_detected!("avx512bw") {
+                    variants.push(("avx512", |p, w, kw, kh, n_w, n_d, e, s, c| {
+                        // SAFETY: AVX-512BW support was checked before this variant was added.
+                        unsafe { count_by_edges_avx512(p, w, kw, kh, n_w, n_d, e, s, c) }
+                    }));
+                }
+            }
+            for (name, f) in variants {
+                let mut out = vec![0u32; g.voxel_count()];
+                let mut scratch = Vec::new();
+                let got = f(&img, width as usize, kw as usize, kh as usize, n_w, n_d, &edges, &mut scratch, &mut out);
+                assert_eq!(got, (valid, smallest), "{name}, {width}x{height}");
+                assert_eq!(out, counts, "{name}, {width}x{height}");
+            }
+        }
+    }
+
+    type CountFn = fn(&[u16], usize, usize, usize, usize, usize, &[u16], &mut Vec<u16>, &mut [u32]) -> (u64, u16);
 
     #[test]
     fn shape_mismatch_is_an_error() {
