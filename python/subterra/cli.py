@@ -48,6 +48,14 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--seed", type=int, default=0)
     bench.add_argument("--out", help="write the JSON report here too")
 
+    sim = sub.add_parser("sim", help="the simulator: look at the built-in scenes")
+    sim_sub = sim.add_subparsers(dest="sim_command", required=True)
+    render = sim_sub.add_parser("render", help="PNGs of a scenario: a depth frame and a top-down map with a lidar scan")
+    render.add_argument("scenario", help="highbay, cable, tunnel, mine or subway")
+    render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--noise", default="d435", help="depth noise preset (default d435)")
+    render.add_argument("--out", default="runs/render", help="output folder (default runs/render)")
+
     demo = sub.add_parser("demo", help="the main job: run the pipelines on built-in scenes and real data")
     demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
     demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")
@@ -85,6 +93,15 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sim(args: argparse.Namespace) -> int:
+    from subterra.sim.render import render_scenario
+
+    paths = render_scenario(args.scenario, args.out, seed=args.seed, noise=args.noise)
+    for kind, path in paths.items():
+        print(f"wrote {kind}: {path}")
+    return 0
+
+
 def _demo(args: argparse.Namespace) -> int:
     from subterra.demo import run_demo
 
@@ -94,7 +111,7 @@ def _demo(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `subterra` command."""
     args = _parser().parse_args(argv)
-    handlers = {"perceive": _perceive, "bench": _bench, "demo": _demo}
+    handlers = {"perceive": _perceive, "bench": _bench, "sim": _sim, "demo": _demo}
     try:
         return handlers[args.command](args)
     except (SubterraError, ValueError, OSError) as exc:

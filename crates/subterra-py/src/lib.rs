@@ -4,6 +4,7 @@
 
 mod convert;
 mod errors;
+mod sim;
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
@@ -22,8 +23,8 @@ fn array3<'py>(py: Python<'py>, v: glam::DVec3) -> Bound<'py, PyArray1<f64>> {
 /// Pinhole intrinsics of a depth camera (optical frame: x right, y down, z forward).
 #[pyclass(name = "PinholeCamera", module = "subterra._core", frozen, eq)]
 #[derive(Clone, PartialEq)]
-struct PyPinholeCamera {
-    inner: PinholeCamera,
+pub struct PyPinholeCamera {
+    pub inner: PinholeCamera,
 }
 
 #[pymethods]
@@ -550,5 +551,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyApfController>()?;
     m.add_class::<PyCommand>()?;
     m.add_function(wrap_pyfunction!(preset_names, m)?)?;
+    sim::register(m)?;
     Ok(())
 }

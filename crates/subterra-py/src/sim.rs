@@ -1,0 +1,457 @@
+//! Bindings of `subterra-sim`: worlds, sensors, the step loop. Conversions only.
+
+use glam::DVec3;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use subterra::Isometry3;
+use subterra_sim::noise::{DepthNoiseModel, LidarNoiseModel};
+use subterra_sim::scenarios;
+use subterra_sim::sensors::{DepthCamera, DepthCameraConfig, Lidar, LidarConfig};
+use subterra_sim::simulation::{Goal, RunStatus, Simulation, Vehicle};
+use subterra_sim::vehicles::{BodyVelocityCommand, GroundRobotConfig, GroundRobotState, QuadrotorConfig, QuadrotorState};
+use subterra_sim::world::World;
+use subterra_sim::SimError;
+use xoshiro::Xoshiro256PlusPlus;
+use rand::SeedableRng;
+
+use crate::convert::{isometry, vec3};
+use crate::errors::{input_error, raise, to_py};
+use crate::PyPinholeCamera;
+
+mod xoshiro {
+    pub use rand_xoshiro::Xoshiro256PlusPlus;
+}
+
+/// Maps a simulator error to `subterra.errors`.
+fn sim_err(py: Python<'_>, err: SimError) -> PyErr {
+    match err {
+        SimError::Core(e) => to_py(py, e),
+        SimError::InvalidConfig { .. } | SimError::Unknown { .. } => raise(py, "ConfigError", err.to_string()),
+        SimError::InvalidWorld { .. } => raise(py, "FileFormatError", err.to_string()),
+        _ => raise(py, "InputError", err.to_string()),
+    }
+}
+
+trait SimPyResult<T> {
+    fn sim_err(self, py: Python<'_>) -> PyResult<T>;
+}
+
+impl<T> SimPyResult<T> for Result<T, SimError> {
+    fn sim_err(self, py: Python<'_>) -> PyResult<T> {
+        self.map_err(|e| sim_err(py, e))
+    }
+}
+
+fn matrix<'py>(py: Python<'py>, t: &Isometry3) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let rows: Vec<Vec<f64>> = t.to_matrix_rows().iter().map(|r| r.to_vec()).collect();
+    PyArray2::from_vec2(py, &rows).map_err(|e| input_error(py, e.to_string()))
+}
+
+fn vec3_array<'py>(py: Python<'py>, v: DVec3) -> Bound<'py, PyArray1<f64>> {
+    vec![v.x, v.y, v.z].into_pyarray(py)
+}
+
+fn image<'py>(py: Python<'py>, data: Vec<f32>, width: u32, height: u32) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    Ok(data.into_pyarray(py).reshape([height as usize, width as usize])?)
+}
+
+fn points<'py>(py: Python<'py>, pts: &[[f32; 3]]) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let flat: Vec<f32> = pts.iter().flatten().copied().collect();
+    Ok(flat.into_pyarray(py).reshape([pts.len(), 3])?)
+}
+
+/// A simulated world: primitives, terrain, regions, routes.
+#[pyclass(name = "World", module = "subterra._core.sim", frozen)]
+pub struct PyWorld {
+    pub inner: World,
+}
+
+#[pymethods]
+impl PyWorld {
+    /// Parses a world file's text (TOML, see docs/world-format.md).
+    #[staticmethod]
+    fn from_toml(py: Python<'_>, text: &str) -> PyResult<Self> {
+        Ok(Self { inner: World::from_toml_str(text).sim_err(py)? })
+    }
+
+    /// A built-in scenario (`highbay`, `cable`, `tunnel`, `mine`, `subway`) generated with `seed`.
+    #[staticmethod]
+    #[pyo3(signature = (name, seed = 0))]
+    fn scenario(py: Python<'_>, name: &str, seed: u64) -> PyResult<Self> {
+        let spec = scenarios::generate(name, seed).sim_err(py)?;
+        Ok(Self { inner: py.detach(|| World::from_spec(spec)).sim_err(py)? })
+    }
+
+    /// Name of the world.
+    #[getter]
+    fn name(&self) -> String {
+        self.inner.spec().name.clone()
+    }
+
+    /// Regions: `{name: (centre [m], radius [m])}`.
+    #[getter]
+    fn regions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for r in &self.inner.spec().regions {
+            d.set_item(&r.name, (r.centre.to_vec(), r.radius))?;
+        }
+        Ok(d)
+    }
+
+    /// Routes: `[(name, from, to)]`.
+    #[getter]
+    fn routes(&self) -> Vec<(String, String, String)> {
+        self.inner.spec().routes.iter().map(|r| (r.name.clone(), r.from.clone(), r.to.clone())).collect()
+    }
+
+    /// Axis-aligned bounds of the bounded geometry `(min, max)` [m].
+    #[getter]
+    fn bounds<'py>(&self, py: Python<'py>) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>) {
+        let (lo, hi) = self.inner.bounds();
+        (vec3_array(py, lo), vec3_array(py, hi))
+    }
+
+    /// Number of primitives.
+    #[getter]
+    fn primitive_count(&self) -> usize {
+        self.inner.primitive_count()
+    }
+
+    /// Tag, kind and width of primitive `id`: `(tag, kind, width_m, dark)`.
+    fn primitive(&self, py: Python<'_>, id: u32) -> PyResult<(String, String, f64, bool)> {
+        let p = self.inner.primitive(id).ok_or_else(|| input_error(py, format!("argument `id` must be < {}, got {id}", self.inner.primitive_count())))?;
+        Ok((p.tag.clone(), format!("{:?}", p.kind).to_lowercase(), p.width_m, p.dark))
+    }
+
+    /// Nearest hit along a ray: `{"distance_m", "point", "normal", "primitive"}` or None.
+    #[pyo3(signature = (origin, direction, max_range_m = 100.0))]
+    fn cast_ray<'py>(&self, py: Python<'py>, origin: &Bound<'py, PyAny>, direction: &Bound<'py, PyAny>, max_range_m: f64) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let o = vec3(py, "origin", origin)?;
+        let d = vec3(py, "direction", direction)?;
+        if d.length() == 0.0 {
+            return Err(input_error(py, "argument `direction` must not be zero"));
+        }
+        if !(max_range_m.is_finite() && max_range_m > 0.0) {
+            return Err(input_error(py, format!("argument `max_range_m` must be finite and > 0, got {max_range_m}")));
+        }
+        let Some(hit) = self.inner.cast_ray(o, d.normalize(), max_range_m) else { return Ok(None) };
+        let out = PyDict::new(py);
+        out.set_item("distance_m", hit.distance_m)?;
+        out.set_item("point", vec3_array(py, hit.point))?;
+        out.set_item("normal", vec3_array(py, hit.normal))?;
+        out.set_item("primitive", hit.primitive)?;
+        Ok(Some(out))
+    }
+
+    /// Distance from `point` to the nearest solid surface [m] (<= 0 inside).
+    fn clearance(&self, py: Python<'_>, point: &Bound<'_, PyAny>) -> PyResult<f64> {
+        Ok(self.inner.clearance(vec3(py, "point", point)?))
+    }
+
+    /// Terrain height at `(x, y)` [m], None over a hole or where nothing is below.
+    fn ground_height(&self, py: Python<'_>, x: f64, y: f64) -> PyResult<Option<f64>> {
+        if !(x.is_finite() && y.is_finite()) {
+            return Err(input_error(py, format!("arguments `x`, `y` must be finite, got ({x}, {y})")));
+        }
+        Ok(self.inner.ground_height(x, y))
+    }
+
+    /// The world description as TOML text.
+    fn to_toml(&self, py: Python<'_>) -> PyResult<String> {
+        toml::to_string(self.inner.spec()).map_err(|e| input_error(py, format!("world cannot be written as TOML: {e}")))
+    }
+
+    fn __repr__(&self) -> String {
+        format!("World(name={:?}, primitives={}, regions={})", self.inner.spec().name, self.inner.primitive_count(), self.inner.spec().regions.len())
+    }
+}
+
+fn depth_noise(py: Python<'_>, name: &str) -> PyResult<DepthNoiseModel> {
+    DepthNoiseModel::preset(name).sim_err(py)
+}
+
+fn lidar_noise(py: Python<'_>, name: &str) -> PyResult<LidarNoiseModel> {
+    LidarNoiseModel::preset(name).sim_err(py)
+}
+
+/// A simulated pinhole depth camera.
+#[pyclass(name = "DepthCamera", module = "subterra._core.sim", frozen)]
+pub struct PyDepthCamera {
+    inner: DepthCamera,
+}
+
+#[pymethods]
+impl PyDepthCamera {
+    #[new]
+    #[pyo3(signature = (camera = None, min_range_m = 0.1, max_range_m = 10.0))]
+    fn new(py: Python<'_>, camera: Option<&PyPinholeCamera>, min_range_m: f64, max_range_m: f64) -> PyResult<Self> {
+        let mut config = DepthCameraConfig::d435();
+        if let Some(c) = camera {
+            config.camera = c.inner;
+        }
+        config.min_range_m = min_range_m;
+        config.max_range_m = max_range_m;
+        Ok(Self { inner: DepthCamera::new(config).sim_err(py)? })
+    }
+
+    /// The RealSense D435 preset: 640x480, fx = fy = 385 px, 0.1-10 m.
+    #[staticmethod]
+    fn d435(py: Python<'_>) -> PyResult<Self> {
+        Ok(Self { inner: DepthCamera::new(DepthCameraConfig::d435()).sim_err(py)? })
+    }
+
+    /// The intrinsics.
+    #[getter]
+    fn camera(&self) -> PyPinholeCamera {
+        PyPinholeCamera { inner: self.inner.config().camera }
+    }
+
+    /// Renders `(H, W)` float32 depth [m] (0 = no return) from `world_from_camera` (4x4,
+    /// optical frame), with the named noise preset seeded by `seed`. Releases the GIL.
+    #[pyo3(signature = (world, world_from_camera, noise = "none", seed = 0))]
+    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, noise: &str, seed: u64) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let pose = isometry(py, "world_from_camera", world_from_camera)?;
+        let model = depth_noise(py, noise)?;
+        let (cam, w) = (&self.inner, &world.inner);
+        let depth = py
+            .detach(|| {
+                let truth = cam.render(w, &pose);
+                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+                model.try_apply(&truth, w, cam.config(), &mut rng)
+            })
+            .sim_err(py)?;
+        let c = self.inner.config().camera;
+        image(py, depth, c.width, c.height)
+    }
+}
+
+/// A simulated spinning lidar.
+#[pyclass(name = "Lidar", module = "subterra._core.sim", frozen)]
+pub struct PyLidar {
+    inner: Lidar,
+}
+
+#[pymethods]
+impl PyLidar {
+    /// A preset: `vlp16` or `os1_64`.
+    #[new]
+    #[pyo3(signature = (preset = "os1_64"))]
+    fn new(py: Python<'_>, preset: &str) -> PyResult<Self> {
+        let config = match preset {
+            "vlp16" => LidarConfig::vlp16(),
+            "os1_64" => LidarConfig::os1_64(),
+            _ => return Err(sim_err(py, SimError::Unknown { what: "lidar preset".into(), name: preset.into(), known: "vlp16, os1_64".into() })),
+        };
+        Ok(Self { inner: Lidar::new(config).sim_err(py)? })
+    }
+
+    /// Rays per scan.
+    #[getter]
+    fn ray_count(&self) -> usize {
+        self.inner.config().ray_count()
+    }
+
+    /// One scan from `world_from_sensor` (4x4): `(points (N, 3) float32 in the sensor frame, ring (N,) uint16)`.
+    #[pyo3(signature = (world, world_from_sensor, noise = "none", seed = 0))]
+    fn scan<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_sensor: &Bound<'py, PyAny>, noise: &str, seed: u64) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<u16>>)> {
+        let pose = isometry(py, "world_from_sensor", world_from_sensor)?;
+        let model = lidar_noise(py, noise)?;
+        let (lidar, w) = (&self.inner, &world.inner);
+        let scan = py
+            .detach(|| {
+                let truth = lidar.scan(w, &pose);
+                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+                model.try_apply(&truth, &mut rng)
+            })
+            .sim_err(py)?;
+        Ok((points(py, &scan.points_sensor)?, scan.ring.into_pyarray(py)))
+    }
+}
+
+fn status_name(status: &RunStatus) -> &'static str {
+    match status {
+        RunStatus::Running => "running",
+        RunStatus::GoalReached => "goal_reached",
+        RunStatus::Failed(_) => "failed",
+        RunStatus::TimedOut => "timed_out",
+        RunStatus::Aborted(_) => "aborted",
+    }
+}
+
+/// A closed-loop simulation: one vehicle, its sensors, a goal, metrics.
+#[pyclass(name = "Simulation", module = "subterra._core.sim")]
+pub struct PySimulation {
+    inner: Simulation,
+}
+
+#[pymethods]
+impl PySimulation {
+    /// `vehicle`: "quadrotor" (start = x, y, z) or "ground" (start = x, y[, ignored z]);
+    /// `yaw` [rad]; every noise stream is seeded from `seed`.
+    #[new]
+    #[pyo3(signature = (world, vehicle = "quadrotor", start = None, yaw = 0.0, seed = 0))]
+    fn new(py: Python<'_>, world: &PyWorld, vehicle: &str, start: Option<&Bound<'_, PyAny>>, yaw: f64, seed: u64) -> PyResult<Self> {
+        let start = match start {
+            Some(s) => vec3(py, "start", s)?,
+            None => DVec3::ZERO,
+        };
+        if !yaw.is_finite() {
+            return Err(input_error(py, format!("argument `yaw` must be finite, got {yaw}")));
+        }
+        let v = match vehicle {
+            "quadrotor" => Vehicle::quadrotor(QuadrotorConfig::default(), QuadrotorState::at_rest(start, yaw)),
+            "ground" => Vehicle::ground(
+                GroundRobotConfig::default(),
+                GroundRobotState { x_m: start.x, y_m: start.y, yaw_rad: yaw, v_m_s: 0.0, yaw_rate_rad_s: 0.0 },
+            ),
+            _ => Err(SimError::Unknown { what: "vehicle".into(), name: vehicle.into(), known: "quadrotor, ground".into() }),
+        }
+        .sim_err(py)?;
+        let w = world.inner.clone();
+        Ok(Self { inner: Simulation::new(w, v, seed).sim_err(py)? })
+    }
+
+    /// Mounts a depth camera (default pose: looking forward from the body origin).
+    #[pyo3(signature = (name, camera, body_from_camera = None, noise = "none"))]
+    fn add_depth_camera(&mut self, py: Python<'_>, name: &str, camera: &PyDepthCamera, body_from_camera: Option<&Bound<'_, PyAny>>, noise: &str) -> PyResult<()> {
+        let pose = match body_from_camera {
+            Some(m) => isometry(py, "body_from_camera", m)?,
+            None => Isometry3::body_from_forward_optical(),
+        };
+        let model = depth_noise(py, noise)?;
+        self.inner.add_depth_camera(name, *camera.inner.config(), pose, model).sim_err(py)
+    }
+
+    /// Mounts a lidar (default pose: at the body origin, axes aligned).
+    #[pyo3(signature = (name, lidar, body_from_sensor = None, noise = "none"))]
+    fn add_lidar(&mut self, py: Python<'_>, name: &str, lidar: &PyLidar, body_from_sensor: Option<&Bound<'_, PyAny>>, noise: &str) -> PyResult<()> {
+        let pose = match body_from_sensor {
+            Some(m) => isometry(py, "body_from_sensor", m)?,
+            None => Isometry3::IDENTITY,
+        };
+        let model = lidar_noise(py, noise)?;
+        self.inner.add_lidar(name, lidar.inner.config().clone(), pose, model).sim_err(py)
+    }
+
+    /// The goal: a region of the world by name, or a point with a radius [m].
+    #[pyo3(signature = (region = None, point = None, radius_m = 0.5))]
+    fn set_goal(&mut self, py: Python<'_>, region: Option<String>, point: Option<&Bound<'_, PyAny>>, radius_m: f64) -> PyResult<()> {
+        let goal = match (region, point) {
+            (Some(r), None) => Goal::Region(r),
+            (None, Some(p)) => Goal::Point { centre: vec3(py, "point", p)?, radius_m },
+            _ => return Err(input_error(py, "give exactly one of `region` and `point`")),
+        };
+        self.inner.set_goal(goal).sim_err(py)
+    }
+
+    /// Ends the run as timed out after `limit_s` simulated seconds (None: no limit).
+    fn set_time_limit(&mut self, py: Python<'_>, limit_s: Option<f64>) -> PyResult<()> {
+        self.inner.set_time_limit(limit_s).sim_err(py)
+    }
+
+    /// Ends the run with the caller's cause (e.g. "local_minimum").
+    fn abort(&mut self, cause: &str) {
+        self.inner.abort(cause);
+    }
+
+    /// Renders every sensor at the true pose: a dict with `time_s`, `depth` and
+    /// `depth_truth` ({name: (H, W) float32 [m]}), `scans` ({name: (N, 3) float32}),
+    /// `world_from_body` and `odometry` (4x4), `velocity_world`, `world_from_sensor` ({name: 4x4}).
+    fn observe<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let sim = &mut self.inner;
+        let obs = py.detach(|| sim.observe());
+        let d = PyDict::new(py);
+        d.set_item("time_s", obs.time_s)?;
+        let depth = PyDict::new(py);
+        let truth = PyDict::new(py);
+        let poses = PyDict::new(py);
+        for o in obs.depth {
+            truth.set_item(&o.name, image(py, o.truth.depth_m, o.width, o.height)?)?;
+            poses.set_item(&o.name, matrix(py, &o.world_from_camera)?)?;
+            depth.set_item(o.name, image(py, o.depth_m, o.width, o.height)?)?;
+        }
+        let scans = PyDict::new(py);
+        for s in obs.scans {
+            poses.set_item(&s.name, matrix(py, &s.world_from_sensor)?)?;
+            scans.set_item(s.name, points(py, &s.scan.points_sensor)?)?;
+        }
+        d.set_item("depth", depth)?;
+        d.set_item("depth_truth", truth)?;
+        d.set_item("scans", scans)?;
+        d.set_item("world_from_sensor", poses)?;
+        d.set_item("world_from_body", matrix(py, &obs.world_from_body)?)?;
+        d.set_item("odometry", matrix(py, &obs.odometry.world_from_body)?)?;
+        d.set_item("velocity_world", vec3_array(py, obs.velocity_world))?;
+        Ok(d)
+    }
+
+    /// Advances by `dt` [s] under a body-frame command; `compute_time_s` is the controller's
+    /// time for this step (for the metrics). Returns `{time_s, status, collided, clearance_m, failure}`.
+    #[pyo3(signature = (v_x = 0.0, v_y = 0.0, v_z = 0.0, yaw_rate = 0.0, *, dt = 0.1, compute_time_s = 0.0))]
+    #[allow(clippy::too_many_arguments)]
+    fn step<'py>(&mut self, py: Python<'py>, v_x: f64, v_y: f64, v_z: f64, yaw_rate: f64, dt: f64, compute_time_s: f64) -> PyResult<Bound<'py, PyDict>> {
+        let cmd = BodyVelocityCommand::new(v_x, v_y, v_z, yaw_rate);
+        let sim = &mut self.inner;
+        let out = py.detach(|| sim.step(&cmd, dt, compute_time_s)).sim_err(py)?;
+        let d = PyDict::new(py);
+        d.set_item("time_s", out.time_s)?;
+        d.set_item("status", status_name(&out.status))?;
+        d.set_item("collided", out.collided)?;
+        d.set_item("clearance_m", out.clearance_m)?;
+        d.set_item("failure", out.status.failure_cause().or(out.failure.map(|f| f.as_str().to_owned())))?;
+        Ok(d)
+    }
+
+    /// Run metrics so far: success, failure, collisions, min clearance, path length, time, compute time.
+    fn metrics<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let m = self.inner.metrics();
+        let d = PyDict::new(py);
+        d.set_item("success", m.success)?;
+        d.set_item("failure", m.failure)?;
+        d.set_item("collisions", m.collisions)?;
+        d.set_item("min_clearance_m", m.min_clearance_m)?;
+        d.set_item("path_length_m", m.path_length_m)?;
+        d.set_item("time_s", m.time_s)?;
+        d.set_item("compute_ms_median", m.compute_ms_median)?;
+        d.set_item("compute_ms_p99", m.compute_ms_p99)?;
+        d.set_item("steps", m.steps)?;
+        Ok(d)
+    }
+
+    /// `running`, `goal_reached`, `failed`, `timed_out` or `aborted`.
+    #[getter]
+    fn status(&self) -> &'static str {
+        status_name(self.inner.status())
+    }
+
+    /// Simulation time [s].
+    #[getter]
+    fn time_s(&self) -> f64 {
+        self.inner.time_s()
+    }
+
+    /// True pose of the body (4x4).
+    #[getter]
+    fn world_from_body<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        matrix(py, &self.inner.vehicle().world_from_body())
+    }
+}
+
+/// Names of the built-in scenarios.
+#[pyfunction]
+pub fn scenario_names() -> Vec<&'static str> {
+    scenarios::SCENARIOS.to_vec()
+}
+
+/// Registers `subterra._core.sim`.
+pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
+    let m = PyModule::new(parent.py(), "sim")?;
+    m.add_class::<PyWorld>()?;
+    m.add_class::<PyDepthCamera>()?;
+    m.add_class::<PyLidar>()?;
+    m.add_class::<PySimulation>()?;
+    m.add_function(wrap_pyfunction!(scenario_names, &m)?)?;
+    parent.add_submodule(&m)?;
+    Ok(())
+}

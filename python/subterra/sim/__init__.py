@@ -1,0 +1,56 @@
+"""The simulator: worlds, ray-cast depth cameras and lidars with realistic noise, a
+quadrotor and a ground robot, and per-run metrics (crate `subterra-sim`).
+
+>>> from subterra import sim
+>>> world = sim.World.scenario("highbay", seed=0)
+>>> s = sim.Simulation(world, "quadrotor", start=world.regions["A"][0], seed=0)
+>>> s.add_depth_camera("front", sim.DepthCamera.d435(), noise="d435")
+>>> s.set_goal(region="B")
+>>> obs = s.observe()                        # obs["depth"]["front"]: (480, 640) float32 [m]
+>>> out = s.step(v_x=0.5, dt=0.1)            # {"status": "running", ...}
+
+World files are TOML (docs/world-format.md); `World.from_toml(text)` or :func:`load_world`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from subterra._core import sim as _sim
+from subterra.errors import FileFormatError
+
+World = _sim.World
+DepthCamera = _sim.DepthCamera
+Lidar = _sim.Lidar
+Simulation = _sim.Simulation
+scenario_names = _sim.scenario_names
+
+#: Depth noise presets of `DepthCamera.render(noise=...)` and `Simulation.add_depth_camera`.
+DEPTH_NOISE_PRESETS = ("none", "paper-every-pixel", "paper-every-2nd", "paper-every-10th", "d435", "d435-phantom")
+#: Lidar noise presets.
+LIDAR_NOISE_PRESETS = ("none", "vlp16", "os1_64")
+
+__all__ = [
+    "DEPTH_NOISE_PRESETS",
+    "LIDAR_NOISE_PRESETS",
+    "DepthCamera",
+    "Lidar",
+    "Simulation",
+    "World",
+    "load_world",
+    "scenario_names",
+]
+
+
+def load_world(path: str | os.PathLike[str]) -> World:
+    """Reads a world file (TOML). Errors name the field or the line, and end with the path."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FileFormatError(f"cannot read world file: {exc}: {p}") from exc
+    try:
+        return World.from_toml(text)
+    except FileFormatError as exc:
+        raise FileFormatError(f"{exc}: {p}") from exc
