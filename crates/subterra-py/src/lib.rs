@@ -431,8 +431,8 @@ impl PyDepthPerception {
 
 /// A velocity command in the body frame (FLU).
 #[pyclass(name = "Command", module = "subterra._core", frozen)]
-struct PyCommand {
-    inner: Command,
+pub struct PyCommand {
+    pub inner: Command,
 }
 
 #[pymethods]

@@ -287,11 +287,21 @@ pub struct PySimulation {
 
 #[pymethods]
 impl PySimulation {
-    /// `vehicle`: "quadrotor" (start = x, y, z) or "ground" (start = x, y[, ignored z]);
+    /// `vehicle`: "quadrotor" (start = x, y, z) or "ground" (start = x, y; z ignored);
+    /// `sensors`: `{name: sensor}` or `{name: (sensor, body_from_sensor, noise)}` with a
+    /// `DepthCamera` or `Lidar` (see `add_depth_camera` / `add_lidar` for the defaults);
     /// `yaw` [rad]; every noise stream is seeded from `seed`.
     #[new]
-    #[pyo3(signature = (world, vehicle = "quadrotor", start = None, yaw = 0.0, seed = 0))]
-    fn new(py: Python<'_>, world: &PyWorld, vehicle: &str, start: Option<&Bound<'_, PyAny>>, yaw: f64, seed: u64) -> PyResult<Self> {
+    #[pyo3(signature = (world, vehicle = "quadrotor", sensors = None, seed = 0, *, start = None, yaw = 0.0))]
+    fn new(
+        py: Python<'_>,
+        world: &PyWorld,
+        vehicle: &str,
+        sensors: Option<&Bound<'_, PyDict>>,
+        seed: u64,
+        start: Option<&Bound<'_, PyAny>>,
+        yaw: f64,
+    ) -> PyResult<Self> {
         let start = match start {
             Some(s) => vec3(py, "start", s)?,
             None => DVec3::ZERO,
@@ -309,7 +319,31 @@ impl PySimulation {
         }
         .sim_err(py)?;
         let w = world.inner.clone();
-        Ok(Self { inner: Simulation::new(w, v, seed).sim_err(py)? })
+        let mut sim = Self { inner: Simulation::new(w, v, seed).sim_err(py)? };
+        if let Some(sensors) = sensors {
+            for (name, mount) in sensors.iter() {
+                let name: String = name.extract().map_err(|_| input_error(py, "argument `sensors` must map names (str) to sensors"))?;
+                let (sensor, pose, noise) = if let Ok(t) = mount.cast::<pyo3::types::PyTuple>() {
+                    let get = |i: usize| t.get_item(i).ok();
+                    let noise: String = match get(2) {
+                        Some(n) => n.extract().map_err(|_| input_error(py, format!("argument `sensors[{name:?}]`: noise must be a preset name")))?,
+                        None => "none".into(),
+                    };
+                    let sensor = get(0).ok_or_else(|| input_error(py, format!("argument `sensors[{name:?}]` is an empty tuple")))?;
+                    (sensor, get(1).filter(|p| !p.is_none()), noise)
+                } else {
+                    (mount.clone(), None, "none".to_owned())
+                };
+                if let Ok(cam) = sensor.cast::<PyDepthCamera>() {
+                    sim.add_depth_camera(py, &name, &cam.borrow(), pose.as_ref(), &noise)?;
+                } else if let Ok(lidar) = sensor.cast::<PyLidar>() {
+                    sim.add_lidar(py, &name, &lidar.borrow(), pose.as_ref(), &noise)?;
+                } else {
+                    return Err(input_error(py, format!("argument `sensors[{name:?}]` must be a DepthCamera or a Lidar, or a tuple (sensor, body_from_sensor, noise)")));
+                }
+            }
+        }
+        Ok(sim)
     }
 
     /// Mounts a depth camera (default pose: looking forward from the body origin).
@@ -386,12 +420,24 @@ impl PySimulation {
         Ok(d)
     }
 
-    /// Advances by `dt` [s] under a body-frame command; `compute_time_s` is the controller's
-    /// time for this step (for the metrics). Returns `{time_s, status, collided, clearance_m, failure}`.
-    #[pyo3(signature = (v_x = 0.0, v_y = 0.0, v_z = 0.0, yaw_rate = 0.0, *, dt = 0.1, compute_time_s = 0.0))]
-    #[allow(clippy::too_many_arguments)]
-    fn step<'py>(&mut self, py: Python<'py>, v_x: f64, v_y: f64, v_z: f64, yaw_rate: f64, dt: f64, compute_time_s: f64) -> PyResult<Bound<'py, PyDict>> {
-        let cmd = BodyVelocityCommand::new(v_x, v_y, v_z, yaw_rate);
+    /// Advances by `dt` [s] under a body-frame `command`: a `subterra.Command` (from
+    /// `ApfController.command`) or `[v_x, v_y, v_z, yaw_rate]` (m/s, rad/s; a ground robot
+    /// uses v_x and yaw_rate). `compute_time_s` is the controller's time for this step (for
+    /// the metrics). Returns `{time_s, status, collided, clearance_m, failure}`.
+    #[pyo3(signature = (command, dt = 0.1, *, compute_time_s = 0.0))]
+    fn step<'py>(&mut self, py: Python<'py>, command: &Bound<'py, PyAny>, dt: f64, compute_time_s: f64) -> PyResult<Bound<'py, PyDict>> {
+        let cmd = if let Ok(c) = command.cast::<crate::PyCommand>() {
+            let c = c.get();
+            BodyVelocityCommand::new(c.inner.v_x_m_s, c.inner.v_y_m_s, c.inner.v_z_m_s, c.inner.yaw_rate_rad_s)
+        } else {
+            let v: Vec<f64> = command.extract().map_err(|_| {
+                input_error(py, format!("argument `command` must be a Command or [v_x, v_y, v_z, yaw_rate], got {}", crate::convert::type_name(command)))
+            })?;
+            if v.len() != 4 {
+                return Err(input_error(py, format!("argument `command` must have 4 numbers [v_x, v_y, v_z, yaw_rate], got {}", v.len())));
+            }
+            BodyVelocityCommand::new(v[0], v[1], v[2], v[3])
+        };
         let sim = &mut self.inner;
         let out = py.detach(|| sim.step(&cmd, dt, compute_time_s)).sim_err(py)?;
         let d = PyDict::new(py);

@@ -10,6 +10,8 @@
 //! sees, [`vehicles`] how it moves, [`metrics`] how a run went, [`simulation`] the step loop.
 
 #![warn(missing_docs)]
+// Units are written in brackets (`[m]`, `[rad]`) as in the core crate, not as doc links.
+#![allow(rustdoc::broken_intra_doc_links)]
 
 pub mod error;
 pub mod metrics;

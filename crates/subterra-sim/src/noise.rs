@@ -162,7 +162,11 @@ impl DepthNoise {
             }
             DepthNoise::PhantomSpeckle { blobs_per_frame, radius_px, min_depth_m, max_depth_m } => {
                 if !(blobs_per_frame.is_finite() && (0.0..=MAX_BLOBS_PER_FRAME).contains(&blobs_per_frame)) {
-                    return Err(SimError::config(format!("{field}.blobs_per_frame"), format!("must be finite, in [0, {MAX_BLOBS_PER_FRAME}]"), blobs_per_frame));
+                    return Err(SimError::config(
+                        format!("{field}.blobs_per_frame"),
+                        format!("must be finite, in [0, {MAX_BLOBS_PER_FRAME}]"),
+                        blobs_per_frame,
+                    ));
                 }
                 if !(radius_px.is_finite() && radius_px > 0.0 && radius_px <= MAX_BLOB_RADIUS_PX) {
                     return Err(SimError::config(format!("{field}.radius_px"), format!("must be finite, in (0, {MAX_BLOB_RADIUS_PX}] px"), radius_px));
@@ -587,9 +591,9 @@ impl LidarNoiseModel {
     pub fn preset(name: &str) -> SimResult<Self> {
         match name {
             "none" => Ok(Self::default()),
-            "vlp16" | "os1_64" => Ok(Self {
-                stages: vec![LidarNoise::Range { sigma_m: LIDAR_RANGE_SIGMA_M }, LidarNoise::Dropout { probability: LIDAR_DROPOUT_PROBABILITY }],
-            }),
+            "vlp16" | "os1_64" => {
+                Ok(Self { stages: vec![LidarNoise::Range { sigma_m: LIDAR_RANGE_SIGMA_M }, LidarNoise::Dropout { probability: LIDAR_DROPOUT_PROBABILITY }] })
+            }
             _ => Err(SimError::Unknown { what: "lidar noise preset".into(), name: name.into(), known: LIDAR_NOISE_PRESETS.join(", ") }),
         }
     }
@@ -605,7 +609,10 @@ impl LidarNoiseModel {
         self.validate()?;
         let n = scan.points_sensor.len();
         if scan.ring.len() != n || scan.primitive.len() != n {
-            return Err(SimError::input("scan", format!("buffers must have one length, got points {n}, ring {}, primitive {}", scan.ring.len(), scan.primitive.len())));
+            return Err(SimError::input(
+                "scan",
+                format!("buffers must have one length, got points {n}, ring {}, primitive {}", scan.ring.len(), scan.primitive.len()),
+            ));
         }
         let mut out = scan.clone();
         for stage in &self.stages {
@@ -768,7 +775,13 @@ mod tests {
         for v in 0..11 {
             for u in 0..11 {
                 let d = ((u as f64 - 5.0).powi(2) + (v as f64 - 5.0).powi(2)).sqrt();
-                let expected = if (u, v) == (6, 5) { 0.5 } else if d <= 2.0 { 0.7 } else { 0.0 };
+                let expected = if (u, v) == (6, 5) {
+                    0.5
+                } else if d <= 2.0 {
+                    0.7
+                } else {
+                    0.0
+                };
                 assert_eq!(depth[v * 11 + u], expected, "({u}, {v})");
             }
         }

@@ -180,10 +180,7 @@ fn parallel_render_is_identical() {
 // ---------------------------------------------------------------- lidar geometry
 
 fn floor_and_ceiling(h: f64) -> World {
-    world(WorldSpec {
-        planes: vec![plane([0.0, 0.0, -h], [0.0, 0.0, 1.0], "floor"), plane([0.0, 0.0, h], [0.0, 0.0, -1.0], "ceiling")],
-        ..Default::default()
-    })
+    world(WorldSpec { planes: vec![plane([0.0, 0.0, -h], [0.0, 0.0, 1.0], "floor"), plane([0.0, 0.0, h], [0.0, 0.0, -1.0], "ceiling")], ..Default::default() })
 }
 
 #[test]
@@ -230,7 +227,10 @@ fn ray_to_vertical_cylinder(d: DVec3, cx: f64, cy: f64, r: f64) -> Option<f64> {
 fn lidar_ranges_to_a_pole_are_exact() {
     // A pole of radius 0.4 m, 6 m ahead-left, tall enough for every ring within 100 m.
     let (cx, cy, r) = (5.0, 3.0, 0.4);
-    let w = world(WorldSpec { cylinders: vec![CylinderSpec { a: [cx, cy, -40.0], b: [cx, cy, 40.0], radius: r, tag: "pole".into(), dark: false }], ..Default::default() });
+    let w = world(WorldSpec {
+        cylinders: vec![CylinderSpec { a: [cx, cy, -40.0], b: [cx, cy, 40.0], radius: r, tag: "pole".into(), dark: false }],
+        ..Default::default()
+    });
     let config = LidarConfig::vlp16();
     let lidar = Lidar::new(config.clone()).unwrap();
     // Sensor at z = 0.5 m, yawed by 0.3 rad: the pole sits at bearing atan2(3, 5) - 0.3 in the sensor frame.
@@ -468,7 +468,12 @@ fn flying_pixels_land_between_the_sides_of_an_edge() {
         let z = render.depth_m[p];
         let (u, v) = (p % width, p / width);
         let neighbours = [(u > 0).then(|| p - 1), (u + 1 < width).then(|| p + 1), (v > 0).then(|| p - width), (p + width < noisy.len()).then(|| p + width)];
-        let far_side = neighbours.into_iter().flatten().map(|q| render.depth_m[q]).filter(|&zq| zq > 0.0 && (zq - z).abs() > 1.0).max_by(|a, b| (a - z).abs().total_cmp(&(b - z).abs()));
+        let far_side = neighbours
+            .into_iter()
+            .flatten()
+            .map(|q| render.depth_m[q])
+            .filter(|&zq| zq > 0.0 && (zq - z).abs() > 1.0)
+            .max_by(|a, b| (a - z).abs().total_cmp(&(b - z).abs()));
         match far_side {
             Some(zq) => {
                 let (lo, hi) = (z.min(zq), z.max(zq));
@@ -513,7 +518,8 @@ fn phantom_blobs_appear_at_the_configured_rate() {
     let config = small_camera();
     let (w, render) = wall_render(8.0, &config);
     let (rate, radius) = (3.0, 3.0);
-    let model = DepthNoiseModel::new(vec![DepthNoise::PhantomSpeckle { blobs_per_frame: rate, radius_px: radius, min_depth_m: 0.5, max_depth_m: 1.5 }]).unwrap();
+    let model =
+        DepthNoiseModel::new(vec![DepthNoise::PhantomSpeckle { blobs_per_frame: rate, radius_px: radius, min_depth_m: 0.5, max_depth_m: 1.5 }]).unwrap();
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(77);
     let frames = 400;
     let (mut blobs, mut pixels) = (0, 0);
@@ -596,7 +602,10 @@ fn bad_parameters_name_the_field() {
     assert_eq!(field_of(DepthNoiseModel::new(vec![DepthNoise::DarkNoReturn, DepthNoise::Dropout { probability: 1.2 }])), "stages[1].probability");
     assert_eq!(field_of(DepthNoiseModel::new(vec![DepthNoise::Stereo { c_m: f64::NAN, l: 0.0, q_per_m: 0.0 }])), "stages[0].c_m");
     assert_eq!(field_of(DepthNoiseModel::new(vec![DepthNoise::ThinNoReturn { min_width_px: f64::NAN }])), "stages[0].min_width_px");
-    assert_eq!(field_of(DepthNoiseModel::new(vec![DepthNoise::PhantomSpeckle { blobs_per_frame: -1.0, radius_px: 3.0, min_depth_m: 0.3, max_depth_m: 1.0 }])), "stages[0].blobs_per_frame");
+    assert_eq!(
+        field_of(DepthNoiseModel::new(vec![DepthNoise::PhantomSpeckle { blobs_per_frame: -1.0, radius_px: 3.0, min_depth_m: 0.3, max_depth_m: 1.0 }])),
+        "stages[0].blobs_per_frame"
+    );
     assert_eq!(field_of(LidarNoiseModel::new(vec![LidarNoise::Range { sigma_m: -0.01 }])), "stages[0].sigma_m");
     assert_eq!(field_of(LidarNoiseModel::new(vec![LidarNoise::Dropout { probability: f64::NAN }])), "stages[0].probability");
     let mut lidar = LidarConfig::os1_64();
