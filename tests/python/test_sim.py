@@ -111,8 +111,7 @@ def test_simulation_flies_to_the_goal_and_is_deterministic():
     world = sim.World.from_toml(WALL)
 
     def run(seed):
-        s = sim.Simulation(world, "quadrotor", start=[0.0, 0.0, 0.0], seed=seed)
-        s.add_depth_camera("front", sim.DepthCamera.d435(), noise="d435")
+        s = sim.Simulation(world, "quadrotor", {"front": (sim.DepthCamera.d435(), None, "d435")}, seed, start=[0.0, 0.0, 0.0])
         s.set_goal(region="goal")
         s.set_time_limit(30.0)
         frames = []
@@ -122,7 +121,7 @@ def test_simulation_flies_to_the_goal_and_is_deterministic():
             p = obs["world_from_body"][:3, 3]
             goal = np.array([2.0, -1.0, 0.0]) - p
             heading = math.atan2(goal[1], goal[0])
-            s.step(v_x=0.5 * math.cos(heading), v_y=0.5 * math.sin(heading), dt=0.1)
+            s.step([0.5 * math.cos(heading), 0.5 * math.sin(heading), 0.0, 0.0], dt=0.1)
         return s.metrics(), frames
 
     metrics, frames = run(0)
@@ -139,14 +138,18 @@ def test_simulation_detects_a_collision_and_bad_steps():
     world = sim.World.from_toml(WALL)
     s = sim.Simulation(world, "quadrotor", start=[0.0, 0.0, 0.0])
     while s.status == "running":
-        out = s.step(v_x=0.6, dt=0.1)
+        out = s.step([0.6, 0.0, 0.0, 0.0], 0.1)
     assert out["status"] == "failed" and out["failure"] == "collision"
     assert s.metrics()["collisions"] == 1
     s = sim.Simulation(world, "quadrotor", start=[0.0, 0.0, 0.0])
     with pytest.raises(errors.InputError, match="dt"):
-        s.step(v_x=0.1, dt=-1.0)
+        s.step([0.1, 0, 0, 0], dt=-1.0)
     with pytest.raises(errors.InputError, match="v_x"):
-        s.step(v_x=float("nan"))
+        s.step([float("nan"), 0, 0, 0])
+    with pytest.raises(errors.InputError, match="command"):
+        s.step([0.1, 0.0])
+    with pytest.raises(errors.InputError, match="sensors"):
+        sim.Simulation(world, "quadrotor", {"x": 3})
     with pytest.raises(errors.ConfigError, match="vehicle"):
         sim.Simulation(world, "submarine")
     with pytest.raises(errors.ConfigError, match="nowhere"):
@@ -162,8 +165,22 @@ def test_ground_robot_on_the_mine():
     assert obs["scans"]["os1"].shape[0] > 10_000
     z = obs["world_from_body"][2, 3]
     assert z == pytest.approx(world.ground_height(start[0], start[1]), abs=0.15)
-    out = s.step(v_x=0.5, dt=0.2)
+    out = s.step([0.5, 0.0, 0.0, 0.0], dt=0.2)
     assert out["status"] == "running"
+
+
+def test_apf_commands_drive_the_simulated_quadrotor():
+    import subterra
+
+    world = sim.World.from_toml(WALL)
+    s = sim.Simulation(world, "quadrotor", {"front": sim.DepthCamera.d435()}, 0, start=[0.0, 0.0, 0.0])
+    perception = subterra.DepthPerception(sim.DepthCamera.d435().camera, seed=0)
+    controller = subterra.ApfController()
+    obs = s.observe()
+    out = perception.update(obs["depth"]["front"])
+    cmd = controller.command([2.0, -1.0, 0.0], [out])
+    step = s.step(cmd, 0.1)
+    assert step["status"] == "running" and s.time_s == pytest.approx(0.1)
 
 
 def test_cli_sim_render_writes_pictures(tmp_path, capsys):

@@ -3,11 +3,11 @@ quadrotor and a ground robot, and per-run metrics (crate `subterra-sim`).
 
 >>> from subterra import sim
 >>> world = sim.World.scenario("highbay", seed=0)
->>> s = sim.Simulation(world, "quadrotor", start=world.regions["A"][0], seed=0)
->>> s.add_depth_camera("front", sim.DepthCamera.d435(), noise="d435")
+>>> sensors = {"front": (sim.DepthCamera.d435(), None, "d435")}   # sensor, body_from_sensor, noise
+>>> s = sim.Simulation(world, "quadrotor", sensors, seed=0, start=world.regions["A"][0])
 >>> s.set_goal(region="B")
 >>> obs = s.observe()                        # obs["depth"]["front"]: (480, 640) float32 [m]
->>> out = s.step(v_x=0.5, dt=0.1)            # {"status": "running", ...}
+>>> out = s.step([0.5, 0.0, 0.0, 0.0], dt=0.1)   # or a subterra.Command; {"status": "running", ...}
 
 World files are TOML (docs/world-format.md); `World.from_toml(text)` or :func:`load_world`.
 """
