@@ -43,6 +43,20 @@ fn bench_perception(c: &mut Criterion) {
     }
     c.bench_function("update_particle_flight_640x480", |b| b.iter(|| perception.update(black_box(image), 640, 480).unwrap()));
 
+    // Every camera frame arrives fresh from memory (as in `subterra bench perception`): cycle
+    // through 256 distinct frames (157 MB, more than the last-level cache), each the box
+    // frame with its background moved by a millimetre.
+    let fresh: Vec<Vec<u16>> =
+        (0..256u16).map(|f| frame.iter().map(|&raw| if raw == 3000 { 3000 + f } else { raw }).collect()).collect();
+    let mut next = 0;
+    c.bench_function("update_particle_flight_640x480_fresh_frames", |b| {
+        b.iter(|| {
+            next = (next + 1) % fresh.len();
+            let image = DepthImage::U16 { pixels: &fresh[next], scale_m_per_unit: 0.001 };
+            perception.update(black_box(image), 640, 480).unwrap()
+        })
+    });
+
     let mut histogram_config = config;
     histogram_config.filter.mode = subterra::config::FilterMode::Histogram;
     let mut histogram = DepthPerception::new(camera, Isometry3::body_from_forward_optical(), histogram_config, 0).unwrap();
