@@ -41,7 +41,7 @@ def _parser() -> argparse.ArgumentParser:
     per.add_argument("--out", default="runs/perceive", help="output folder (default runs/perceive)")
 
     bench = sub.add_parser("bench", help="benchmarks against the NumPy reference")
-    bench.add_argument("what", choices=["perception"])
+    bench.add_argument("what", choices=["perception", "sim"])
     bench.add_argument("--frames", type=int, default=300)
     bench.add_argument("--reference-frames", type=int, default=30)
     bench.add_argument("--mode", choices=["particle", "histogram"], default="particle")
@@ -82,9 +82,14 @@ def _perceive(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from subterra.bench.perception import bench_perception
+    if args.what == "sim":
+        from subterra.bench.sim import bench_sim
 
-    report = bench_perception(frames=args.frames, reference_frames=args.reference_frames, mode=args.mode, seed=args.seed)
+        report = bench_sim(seed=args.seed)
+    else:
+        from subterra.bench.perception import bench_perception
+
+        report = bench_perception(frames=args.frames, reference_frames=args.reference_frames, mode=args.mode, seed=args.seed)
     text = json.dumps(report, indent=2)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

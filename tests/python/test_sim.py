@@ -189,3 +189,16 @@ def test_cli_sim_render_writes_pictures(tmp_path, capsys):
         assert (tmp_path / name).stat().st_size > 10_000
     assert "wrote" in capsys.readouterr().out
     assert main(["sim", "render", "moon", "--out", str(tmp_path)]) == 2
+
+
+def test_bench_sim_reports_rust_and_mujoco_on_the_same_rays():
+    from subterra.bench.sim import bench_sim
+
+    report = bench_sim(repeats=1)
+    for name in ("depth_d435_highbay", "depth_d435_tunnel"):
+        case = report["cases"][name]
+        assert case["rays"] == 640 * 480 and case["rust_one_thread"]["median_ms"] > 0
+        if isinstance(case["mujoco_multiray"], dict):
+            # The same rays into the same world: MuJoCo's depths agree with ours.
+            assert case["mujoco_depth_agreement_p99_m"] < 1e-4
+    assert report["cases"]["lidar_os1_64_mine"]["rays"] == 64 * 1024

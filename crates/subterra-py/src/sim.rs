@@ -208,15 +208,20 @@ impl PyDepthCamera {
     }
 
     /// Renders `(H, W)` float32 depth [m] (0 = no return) from `world_from_camera` (4x4,
-    /// optical frame), with the named noise preset seeded by `seed`. Releases the GIL.
-    #[pyo3(signature = (world, world_from_camera, noise = "none", seed = 0))]
-    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, noise: &str, seed: u64) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    /// optical frame), with the named noise preset seeded by `seed`, on `threads` threads
+    /// (the image is the same for any count). Releases the GIL.
+    #[pyo3(signature = (world, world_from_camera, noise = "none", seed = 0, threads = 1))]
+    #[allow(clippy::too_many_arguments)]
+    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, noise: &str, seed: u64, threads: usize) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        if threads == 0 || threads > 256 {
+            return Err(input_error(py, format!("argument `threads` must be in 1..=256, got {threads}")));
+        }
         let pose = isometry(py, "world_from_camera", world_from_camera)?;
         let model = depth_noise(py, noise)?;
         let (cam, w) = (&self.inner, &world.inner);
         let depth = py
             .detach(|| {
-                let truth = cam.render(w, &pose);
+                let truth = if threads > 1 { cam.render_parallel(w, &pose, threads) } else { cam.render(w, &pose) };
                 let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
                 model.try_apply(&truth, w, cam.config(), &mut rng)
             })
