@@ -20,6 +20,11 @@ def main() -> None:
     plot_depth_trace(records, FIGURES / "apf-pf-approaching-box.png",
                      title="APF-PF (flight): a 0.5 m box approaching a D435 (synthetic, seed 0)", truth_depth_m=truth)
 
+    from subterra.sim.render import render_scenario
+
+    for name in ("highbay", "mine"):
+        render_scenario(name, FIGURES, seed=0)
+
 
 if __name__ == "__main__":
     main()

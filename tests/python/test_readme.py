@@ -48,3 +48,4 @@ def test_cli_examples_run(tmp_path):
         assert result.returncode == 0, result.stderr
     assert (tmp_path / "room" / "perception.png").stat().st_size > 10_000
     assert (tmp_path / "bench.json").is_file()
+    assert (tmp_path / "render" / "tunnel-depth.png").is_file()
