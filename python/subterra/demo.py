@@ -62,6 +62,10 @@ def run_demo(*, data: str | None = None, out: str | None = None) -> int:
     else:
         print("note: ../shared/data not found: the real RealSense frames are skipped (pass --data DIR)")
 
+    from subterra.sim.render import render_scenario
+
+    scenes = {name: render_scenario(name, report, seed=0) for name in ("highbay", "mine")}
+
     rows = []
     for c in cases:
         s, recs = c["summary"], c["records"]
@@ -84,6 +88,9 @@ def run_demo(*, data: str | None = None, out: str | None = None) -> int:
     for c in cases:
         index += [f"## {c['name']}", "", c["description"], "", f"![{c['name']}]({c['name']}.png)", "",
                   f"Per-frame data: [{c['name']}.json]({c['name']}.json)", ""]
+    index += ["## Simulated scenes", "", "The simulator's built-in worlds (closed-loop flights and drives build on them):", ""]
+    for name, paths in scenes.items():
+        index += [f"### {name}", "", f"![{name} depth]({paths['depth'].name})", "", f"![{name} map]({paths['map'].name})", ""]
     (report / "index.md").write_text("\n".join(index), encoding="utf-8")
     print(f"\nreport: {report / 'index.md'}")
     return 0

@@ -91,6 +91,7 @@ def test_demo_writes_an_index_and_a_table(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
     index = (tmp_path / "demo" / "index.md").read_text()
     assert "approaching-box.png" in index and "noise-only.png" in index
+    assert "highbay-depth.png" in index and (tmp_path / "demo" / "mine-map.png").is_file()
     printed = capsys.readouterr().out
     assert "mean P(free)" in printed
     noise = json.loads((tmp_path / "demo" / "noise-only.json").read_text())
