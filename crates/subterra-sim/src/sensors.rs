@@ -235,18 +235,18 @@ impl DepthCamera {
         let origin = world_from_camera.translation;
         let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
         let rays = self.rays_camera.get(first..first + depth.len()).unwrap_or(&[]);
-        for (((ray, z_out), id_out), cos_out) in rays.iter().zip(depth.iter_mut()).zip(primitive.iter_mut()).zip(incidence.iter_mut()) {
-            // ray.z > 0 for every pixel: the ray through the image plane z = 1.
-            let dir = rotation * *ray;
-            let Some(hit) = world.cast_ray(origin, dir, max_m / ray.z) else { continue };
-            let z = hit.distance_m * ray.z;
+        // ray.z > 0 for every pixel: the ray through the image plane z = 1.
+        let range = |k: usize| max_m / rays[k].z;
+        world.cast_fan(origin, rotation, rays, &range, &mut |k, dir, hit| {
+            let Some(hit) = hit else { return };
+            let z = hit.distance_m * rays[k].z;
             if !(z >= min_m && z <= max_m) {
-                continue;
+                return;
             }
-            *z_out = z as f32;
-            *id_out = i32::try_from(hit.primitive).unwrap_or(-1);
-            *cos_out = dir.dot(hit.normal).abs().min(1.0) as f32;
-        }
+            depth[k] = z as f32;
+            primitive[k] = i32::try_from(hit.primitive).unwrap_or(-1);
+            incidence[k] = dir.dot(hit.normal).abs().min(1.0) as f32;
+        });
     }
 }
 
@@ -410,17 +410,18 @@ impl Lidar {
         let rotation = world_from_sensor.rotation;
         let origin = world_from_sensor.translation;
         let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
-        for (beam, &ring) in self.beams_sensor.iter().zip(&self.beam_ring) {
-            let Some(hit) = world.cast_ray(origin, rotation * *beam, max_m) else { continue };
+        let beams = &self.beams_sensor;
+        world.cast_fan(origin, rotation, beams, &|_| max_m, &mut |k, _, hit| {
+            let Some(hit) = hit else { return };
             let r = hit.distance_m;
             if !(r >= min_m && r <= max_m) {
-                continue;
+                return;
             }
-            let p = *beam * r;
+            let p = beams[k] * r;
             out.points_sensor.push([p.x as f32, p.y as f32, p.z as f32]);
-            out.ring.push(ring);
+            out.ring.push(self.beam_ring[k]);
             out.primitive.push(i32::try_from(hit.primitive).unwrap_or(-1));
-        }
+        });
     }
 }
 

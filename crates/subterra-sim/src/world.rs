@@ -5,14 +5,21 @@
 //! ([`World::ground_height`]). World frame ENU (z up), metres.
 //!
 //! How it is built:
-//! - The bounded primitives (cylinders, capsules, boxes, spheres, solid items) sit in a parry3d
-//!   bounding-volume hierarchy ([`Bvh`]) for ray casts, and in a parry3d [`Compound`] (its own
-//!   BVH) for point queries. A ray is tested only against the leaves whose boxes it crosses; the
-//!   leaf test itself is the exact analytic intersection in f64 (parry's f32 GJK ray cast on a
-//!   cylinder is off by up to a few mm), so hit distances are exact to ~1e-9 m.
-//! - The terrain is a parry3d [`HeightField`]; cells touching a hole are removed. Its ray hits
-//!   are refined in f64 on the triangle parry reports, and [`World::ground_height`] interpolates
-//!   the same triangles in f64.
+//! - The bounded primitives (cylinders, capsules, boxes, spheres, solid items) sit in a flat
+//!   bounding-volume hierarchy of their loosened boxes (binned surface-area splits, f32 slab
+//!   tests, nearest child first, early out at the current hit) for ray casts, and in a parry3d
+//!   [`Compound`] (its own BVH) for point queries. The leaf test itself is the exact analytic
+//!   intersection in f64 (parry's f32 GJK ray cast on a cylinder is off by up to a few mm), so
+//!   hit distances are exact to ~1e-9 m.
+//! - Many rays from one origin ([`World::cast_rays`], the depth camera and the lidar) are cast
+//!   as fans: per fan the primitives in its frustum are found once through the BVH, their
+//!   origin terms computed once, and their boxes projected onto a grid of bins over the fan's
+//!   image; a ray then tests only its bin's few candidates, nearest first. Same answers as
+//!   [`World::cast_ray`], bit for bit (ties between primitives go to the lower id).
+//! - The terrain is a parry3d [`HeightField`] for clearance queries; cells touching a hole are
+//!   removed. Rays walk its grid themselves (blocks of 8 x 8 cells with their height range,
+//!   then cells), testing the two f64 triangles of each cell they may meet; those are the
+//!   triangles [`World::ground_height`] interpolates.
 //! - Planes are few and unbounded: handled analytically.
 //!
 //! Primitive ids ([`PrimitiveId`]) are stable: cylinders, capsules, boxes, spheres and solid
@@ -23,10 +30,9 @@
 //! seen from both sides.
 
 use glam::DVec3;
-use parry3d::bounding_volume::Aabb;
+use glam::DMat3;
 use parry3d::math::{Pose, Rot3, Vector};
-use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhNode};
-use parry3d::query::{PointQuery, Ray, RayCast};
+use parry3d::query::PointQuery;
 use parry3d::shape::{Compound, HeightField, HeightFieldCellStatus, SharedShape};
 use parry3d::utils::Array2;
 
@@ -104,8 +110,8 @@ pub struct World {
     infos: Vec<PrimitiveInfo>,
     /// Bounded primitives in id order (index = id).
     solids: Vec<Solid>,
-    /// Loosened boxes of `solids`, for ray casts.
-    bvh: Bvh,
+    /// Flat BVH over the loosened boxes of `solids`, for ray casts.
+    bvh: FlatBvh,
     /// The same primitives as parry shapes, for point queries; `None` when there are none.
     compound: Option<Compound>,
     planes: Vec<Plane>,
@@ -153,7 +159,19 @@ struct Terrain {
     centre: [f64; 2],
     min_z: f64,
     max_z: f64,
+    /// Bounds of the grid (x, y) and of its heights (z) [m].
+    lo: DVec3,
+    hi: DVec3,
+    /// Blocks of `TERRAIN_BLOCK` x `TERRAIN_BLOCK` cells: `blocks_x` along x, `blocks_y` along y.
+    blocks_x: usize,
+    blocks_y: usize,
+    /// Lowest and highest vertex height of each block's cells that are not removed
+    /// (`(+inf, -inf)` when all are), `[by * blocks_x + bx]`.
+    block_z: Vec<(f64, f64)>,
 }
+
+/// Cells per side of a terrain block, the coarse level of the terrain ray walk.
+const TERRAIN_BLOCK: usize = 8;
 
 /// An intersection found by an exact leaf test.
 #[derive(Debug, Clone, Copy)]
@@ -231,9 +249,10 @@ impl World {
     ///
     /// `dir` should be unit length (it is normalised here; `distance_m` is in metres either
     /// way). Bounded primitives are found through a bounding-volume hierarchy; planes
-    /// analytically; the terrain with parry's cell walk. A ray starting inside a bounded
+    /// analytically; the terrain with a two-level cell walk. A ray starting inside a bounded
     /// primitive or behind a plane hits at distance 0. `None`: no hit in range, or a
-    /// non-finite or zero input (`max_range_m` may be `f64::INFINITY`).
+    /// non-finite or zero input (`max_range_m` may be `f64::INFINITY`). When two bounded
+    /// primitives are hit at exactly the same distance, the lower id is reported.
     pub fn cast_ray(&self, origin: DVec3, dir: DVec3, max_range_m: f64) -> Option<RayHit> {
         if !origin.is_finite() || !dir.is_finite() || max_range_m.is_nan() || max_range_m < 0.0 {
             return None;
@@ -242,35 +261,168 @@ impl World {
         if len <= 0.0 {
             return None;
         }
-        let d = dir / len;
-        let mut best: Option<(LeafHit, PrimitiveId)> = None;
-        let mut limit = max_range_m;
+        self.cast_unit(origin, dir / len, max_range_m)
+    }
 
-        // Planes first: cheap, and their hit (a wall, the floor) shortens the BVH walk.
+    /// Many rays from one origin: `out[i]` is [`World::cast_ray`]`(origin, dirs[i],
+    /// max_ranges[i])` (bit for bit). `max_ranges` holds one range per direction, or a single
+    /// range for all [m]. Faster than a loop of `cast_ray` when the rays are many (hundreds
+    /// or more): the primitives are culled once per fan of rays (see the module notes) instead
+    /// of once per ray.
+    ///
+    /// # Errors
+    /// [`SimError::InvalidInput`] when `max_ranges` or `out` does not match `dirs` in length.
+    pub fn cast_rays(&self, origin: DVec3, dirs: &[DVec3], max_ranges: &[f64], out: &mut [Option<RayHit>]) -> SimResult<()> {
+        if max_ranges.len() != dirs.len() && max_ranges.len() != 1 {
+            return Err(SimError::input("max_ranges", format!("has {} values for {} directions (give one per direction, or one for all)", max_ranges.len(), dirs.len())));
+        }
+        if out.len() != dirs.len() {
+            return Err(SimError::input("out", format!("has {} slots for {} directions", out.len(), dirs.len())));
+        }
+        out.fill(None);
+        if !origin.is_finite() {
+            return Ok(());
+        }
+        let range_of = |i: usize| if max_ranges.len() == 1 { max_ranges[0] } else { max_ranges[i] };
+        // Unit directions are used as given; others are normalised (and invalid ones skipped),
+        // exactly as `cast_ray` does.
+        let mut index = Vec::with_capacity(dirs.len());
+        let mut units = Vec::with_capacity(dirs.len());
+        for (i, &d) in dirs.iter().enumerate() {
+            let len = d.length();
+            let range = range_of(i);
+            if d.is_finite() && len > 0.0 && !range.is_nan() && range >= 0.0 {
+                index.push(i);
+                units.push(d / len);
+            }
+        }
+        self.cast_fan(origin, DMat3::IDENTITY, &units, &|k| range_of(index[k]), &mut |k, _, hit| out[index[k]] = hit);
+        Ok(())
+    }
+
+    /// The rays `origin + t · rotation · dirs[k]` (`dirs` unit length, finite `origin` and
+    /// `rotation`), `0 <= t <= range(k)`, in order of `k`; `sink(k, world direction, hit)`
+    /// receives each result. Same answers as [`World::cast_ray`], bit for bit.
+    ///
+    /// The rays are split into fans of at most 70° around their mean direction; per fan the
+    /// bounded primitives in its frustum (found through the BVH) are projected once onto a
+    /// grid of bins over the fan's gnomonic image, and each ray tests only its bin's list,
+    /// nearest first, stopping at the first one beyond its current hit.
+    pub(crate) fn cast_fan<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], range: &R, sink: &mut S)
+    where
+        R: Fn(usize) -> f64,
+        S: FnMut(usize, DVec3, Option<RayHit>),
+    {
+        self.cast_fan_from(origin, rotation, dirs, 0, range, sink);
+    }
+
+    fn cast_fan_from<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], first: usize, range: &R, sink: &mut S)
+    where
+        R: Fn(usize) -> f64,
+        S: FnMut(usize, DVec3, Option<RayHit>),
+    {
+        if dirs.len() < FAN_MIN_RAYS || self.solids.is_empty() {
+            for (k, dl) in dirs.iter().enumerate() {
+                let d = rotation * *dl;
+                let max_t = range(first + k);
+                let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit(origin, d, max_t) };
+                sink(first + k, d, hit);
+            }
+            return;
+        }
+        let axis = dirs.iter().fold(DVec3::ZERO, |acc, d| acc + *d).normalize_or_zero();
+        let min_cos = dirs.iter().fold(f64::INFINITY, |acc, d| acc.min(d.dot(axis)));
+        if min_cos.is_nan() || min_cos < FAN_MIN_COS {
+            let mid = dirs.len() / 2;
+            self.cast_fan_from(origin, rotation, &dirs[..mid], first, range, sink);
+            self.cast_fan_from(origin, rotation, &dirs[mid..], first + mid, range, sink);
+            return;
+        }
+        let plan = FanPlan::new(self, origin, rotation, axis, dirs, first, range);
+        for (k, dl) in dirs.iter().enumerate() {
+            let d = rotation * *dl;
+            let max_t = range(first + k);
+            let hit = if max_t.is_nan() || max_t < 0.0 {
+                None
+            } else {
+                let mut best: Option<(LeafHit, PrimitiveId)> = None;
+                let mut limit = max_t;
+                for (plane, &s) in self.planes.iter().zip(&plan.plane_s) {
+                    if let Some(hit) = plane.cast_prepared(s, d, limit) {
+                        if best.is_none() || hit.t < limit {
+                            limit = hit.t;
+                            best = Some((hit, plane.id));
+                        }
+                    }
+                }
+                let mut solid: Option<(PrimitiveId, LeafHit)> = None;
+                let mut solid_limit = limit;
+                for &(near, index) in plan.candidates(*dl) {
+                    if near > solid_limit {
+                        break;
+                    }
+                    let Some(&(id, prepared)) = plan.prepared.get(index as usize) else { continue };
+                    if let Some(hit) = prepared.cast(origin, d) {
+                        if improves(hit.t, id, solid_limit, solid) {
+                            solid_limit = hit.t;
+                            solid = Some((id, hit));
+                        }
+                    }
+                }
+                if let Some((id, hit)) = solid {
+                    if best.is_none() || hit.t < limit {
+                        best = Some((hit, id));
+                    }
+                }
+                self.finish(origin, d, max_t, best, plan.terrain)
+            };
+            sink(first + k, d, hit);
+        }
+    }
+
+    /// [`World::cast_ray`] for a unit `d`.
+    fn cast_unit(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<RayHit> {
+        let mut best = self.nearest_plane(o, d, max_t);
+        let limit = best.map_or(max_t, |(h, _)| h.t);
+        if let Some((id, hit)) = self.bvh.cast(&self.solids, o, d, limit) {
+            if best.is_none() || hit.t < limit {
+                best = Some((hit, id));
+            }
+        }
+        self.finish(o, d, max_t, best, true)
+    }
+
+    /// Nearest plane hit within `max_t` (planes are few and unbounded).
+    fn nearest_plane(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<(LeafHit, PrimitiveId)> {
+        let mut best: Option<(LeafHit, PrimitiveId)> = None;
+        let mut limit = max_t;
         for plane in &self.planes {
-            if let Some(hit) = plane.cast(origin, d, limit) {
+            if let Some(hit) = plane.cast(o, d, limit) {
                 if best.is_none() || hit.t < limit {
                     limit = hit.t;
                     best = Some((hit, plane.id));
                 }
             }
         }
-        if let Some((id, hit)) = self.cast_solids(origin, d, limit) {
-            if best.is_none() || hit.t < limit {
-                limit = hit.t;
-                best = Some((hit, id));
-            }
-        }
-        if let Some(terrain) = &self.terrain {
-            if let Some(hit) = terrain.cast(origin, d, limit) {
-                if best.is_none() || hit.t < limit {
-                    best = Some((hit, terrain.id));
+        best
+    }
+
+    /// Adds the terrain (when `terrain`) to `best` and makes the [`RayHit`].
+    #[inline]
+    fn finish(&self, o: DVec3, d: DVec3, max_t: f64, mut best: Option<(LeafHit, PrimitiveId)>, terrain: bool) -> Option<RayHit> {
+        if terrain {
+            if let Some(t) = &self.terrain {
+                let limit = best.map_or(max_t, |(h, _)| h.t);
+                if let Some(hit) = t.cast(o, d, limit) {
+                    if best.is_none() || hit.t < limit {
+                        best = Some((hit, t.id));
+                    }
                 }
             }
         }
         best.map(|(hit, id)| {
             let normal = if hit.normal.dot(d) > 0.0 { -hit.normal } else { hit.normal };
-            RayHit { distance_m: hit.t, point: origin + d * hit.t, normal, primitive: id }
+            RayHit { distance_m: hit.t, point: o + d * hit.t, normal, primitive: id }
         })
     }
 
@@ -322,32 +474,6 @@ impl World {
             .map(|pl| pl.point.z - (pl.normal.x * (x - pl.point.x) + pl.normal.y * (y - pl.point.y)) / pl.normal.z)
             .fold(None, |acc: Option<f64>, h| Some(acc.map_or(h, |a| a.max(h))))
     }
-
-    /// Nearest bounded primitive along the ray, through the BVH.
-    fn cast_solids(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<(PrimitiveId, LeafHit)> {
-        if self.solids.is_empty() {
-            return None;
-        }
-        let o32 = to_f32(o);
-        let inv = Vector::new(inv_component(d.x), inv_component(d.y), inv_component(d.z));
-        let max_cost = if max_t.is_finite() { (max_t as f32) * (1.0 + 1.0e-5) + 1.0e-4 } else { f32::MAX };
-        let aabb_cost = |node: &BvhNode, _best: f32| -> f32 {
-            let t1 = (node.mins() - o32) * inv;
-            let t2 = (node.maxs() - o32) * inv;
-            let t_near = t1.min(t2).max_element().max(0.0);
-            let t_far = t1.max(t2).min_element();
-            if t_far >= t_near {
-                t_near
-            } else {
-                f32::MAX
-            }
-        };
-        let leaf_cost = |leaf: u32, _best: f32| -> Option<(f32, LeafHit)> {
-            let hit = self.solids.get(leaf as usize)?.cast(o, d)?;
-            (hit.t <= max_t).then_some((hit.t as f32, hit))
-        };
-        self.bvh.find_best(max_cost, aabb_cost, leaf_cost).map(|(id, (_, hit))| (id, hit))
-    }
 }
 
 /// 1 / component, kept finite for the slab test (`|d| < 1e-30` counts as 1e-30).
@@ -372,16 +498,540 @@ fn line_column(text: &str, at: usize) -> (usize, usize) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Ray-cast acceleration: a flat BVH for single rays, per-fan culling for bundles of rays.
+
+/// Largest number of primitives in a BVH leaf.
+const BVH_LEAF_SIZE: usize = 2;
+/// Depth of the traversal stack; the builder never makes a deeper tree.
+const BVH_STACK: usize = 64;
+/// Depth from which the builder splits at the median (so the depth stays below `BVH_STACK`).
+const BVH_MEDIAN_DEPTH: usize = 32;
+/// Centroid bins of the surface-area split.
+const BVH_BINS: usize = 12;
+/// Rays below which a bundle is cast ray by ray (the per-fan set-up does not pay).
+const FAN_MIN_RAYS: usize = 64;
+/// Rays per culling bin of a fan (about).
+const FAN_RAYS_PER_BIN: usize = 16;
+/// Most culling bins of a fan.
+const FAN_MAX_BINS: usize = 1 << 15;
+/// Depth (along a fan's axis) in front of which the fan's culling projects boxes [m].
+const FAN_NEAR_M: f64 = 1.0e-6;
+/// Every ray of a fan lies within acos(FAN_MIN_COS) ≈ 70° of its axis, else it is split.
+const FAN_MIN_COS: f64 = 0.34;
+
+/// Whether a hit at `t` on primitive `id` beats `best` (nearest first, then the lower id),
+/// `t <= limit`. The order of testing then never changes the answer.
+fn improves(t: f64, id: PrimitiveId, limit: f64, best: Option<(PrimitiveId, LeafHit)>) -> bool {
+    t <= limit && best.is_none_or(|(bid, b)| t < b.t || (t == b.t && id < bid))
+}
+
+/// f32 bound on the distance of a node worth visiting, loosened so that f32 rounding never
+/// culls an f64 hit at `limit`.
+fn cutoff32(limit: f64) -> f32 {
+    if limit.is_finite() {
+        (limit as f32) * (1.0 + 1.0e-5) + 1.0e-4
+    } else {
+        f32::MAX
+    }
+}
+
+/// A BVH node: its (loosened, f32) box and either two children or a run of primitives.
+#[derive(Debug, Clone, Copy, Default)]
+struct FlatNode {
+    min: [f32; 3],
+    /// Interior: index of the first child (the second follows); leaf: first index into `items`.
+    first: u32,
+    max: [f32; 3],
+    /// 0 for an interior node, else the number of primitives of the leaf.
+    count: u32,
+}
+
+/// A bounding-volume hierarchy over the bounded primitives, stored flat (depth-first,
+/// children adjacent), built with binned surface-area splits.
+#[derive(Debug, Clone, Default)]
+struct FlatBvh {
+    nodes: Vec<FlatNode>,
+    /// Primitive ids in leaf order.
+    items: Vec<u32>,
+    /// Loosened f64 box (min, max) of every primitive, by id.
+    boxes: Vec<(DVec3, DVec3)>,
+}
+
+/// A ray in f32 for box tests: origin and finite inverse direction.
+struct Ray32 {
+    o: [f32; 3],
+    inv: [f32; 3],
+}
+
+impl Ray32 {
+    fn new(o: DVec3, d: DVec3) -> Ray32 {
+        Ray32 { o: [o.x as f32, o.y as f32, o.z as f32], inv: [inv_component(d.x), inv_component(d.y), inv_component(d.z)] }
+    }
+
+    /// Entry distance into the node's box when it is entered before `cutoff`.
+    #[inline(always)]
+    fn enter(&self, n: &FlatNode, cutoff: f32) -> Option<f32> {
+        let tx1 = (n.min[0] - self.o[0]) * self.inv[0];
+        let tx2 = (n.max[0] - self.o[0]) * self.inv[0];
+        let ty1 = (n.min[1] - self.o[1]) * self.inv[1];
+        let ty2 = (n.max[1] - self.o[1]) * self.inv[1];
+        let tz1 = (n.min[2] - self.o[2]) * self.inv[2];
+        let tz2 = (n.max[2] - self.o[2]) * self.inv[2];
+        let t_near = tx1.min(tx2).max(ty1.min(ty2)).max(tz1.min(tz2)).max(0.0);
+        let t_far = tx1.max(tx2).min(ty1.max(ty2)).min(tz1.max(tz2)).min(cutoff);
+        (t_near <= t_far).then_some(t_near)
+    }
+}
+
+fn half_area(lo: DVec3, hi: DVec3) -> f64 {
+    let e = (hi - lo).max(DVec3::ZERO);
+    e.x * e.y + e.y * e.z + e.z * e.x
+}
+
+impl FlatBvh {
+    fn build(boxes: Vec<(DVec3, DVec3)>) -> FlatBvh {
+        let n = boxes.len();
+        let mut bvh = FlatBvh { nodes: Vec::with_capacity(2 * n), items: (0..n as u32).collect(), boxes };
+        if n > 0 {
+            bvh.nodes.push(FlatNode::default());
+            bvh.subdivide(0, 0, n, 0);
+        }
+        bvh
+    }
+
+    fn centroid(&self, id: u32) -> DVec3 {
+        let (lo, hi) = self.boxes[id as usize];
+        (lo + hi) * 0.5
+    }
+
+    fn subdivide(&mut self, node: usize, start: usize, end: usize, depth: usize) {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        let mut clo = lo;
+        let mut chi = hi;
+        for &id in &self.items[start..end] {
+            let (a, b) = self.boxes[id as usize];
+            lo = lo.min(a);
+            hi = hi.max(b);
+            let c = (a + b) * 0.5;
+            clo = clo.min(c);
+            chi = chi.max(c);
+        }
+        // The f64 boxes are loosened far beyond f32 rounding: plain conversion stays conservative.
+        self.nodes[node].min = [lo.x as f32, lo.y as f32, lo.z as f32];
+        self.nodes[node].max = [hi.x as f32, hi.y as f32, hi.z as f32];
+        let count = end - start;
+        if count <= BVH_LEAF_SIZE || depth + 2 >= BVH_STACK {
+            self.nodes[node].first = start as u32;
+            self.nodes[node].count = count as u32;
+            return;
+        }
+        let extent = chi - clo;
+        let axis = if extent.x >= extent.y && extent.x >= extent.z {
+            0
+        } else if extent.y >= extent.z {
+            1
+        } else {
+            2
+        };
+        let mut mid = start + count / 2;
+        let binned = depth < BVH_MEDIAN_DEPTH && extent[axis] > 0.0;
+        if binned {
+            let scale = BVH_BINS as f64 / extent[axis];
+            let bin_of = |c: DVec3| (((c[axis] - clo[axis]) * scale) as usize).min(BVH_BINS - 1);
+            let mut bins = [(0usize, DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)); BVH_BINS];
+            for &id in &self.items[start..end] {
+                let (a, b) = self.boxes[id as usize];
+                let bin = &mut bins[bin_of((a + b) * 0.5)];
+                bin.0 += 1;
+                bin.1 = bin.1.min(a);
+                bin.2 = bin.2.max(b);
+            }
+            // Cost of splitting after bin s: left area x count + right area x count.
+            let mut right_cost = [0.0; BVH_BINS];
+            let (mut n, mut a, mut b) = (0usize, DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+            for s in (1..BVH_BINS).rev() {
+                n += bins[s].0;
+                a = a.min(bins[s].1);
+                b = b.max(bins[s].2);
+                right_cost[s] = if n > 0 { half_area(a, b) * n as f64 } else { 0.0 };
+            }
+            let (mut n, mut a, mut b) = (0usize, DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+            let mut best = (f64::INFINITY, 0usize);
+            for s in 1..BVH_BINS {
+                n += bins[s - 1].0;
+                a = a.min(bins[s - 1].1);
+                b = b.max(bins[s - 1].2);
+                if n == 0 || n == count {
+                    continue;
+                }
+                let cost = half_area(a, b) * n as f64 + right_cost[s];
+                if cost < best.0 {
+                    best = (cost, s);
+                }
+            }
+            if best.1 > 0 {
+                let split = best.1;
+                let (mut i, mut j) = (start, end);
+                while i < j {
+                    if bin_of(self.centroid(self.items[i])) < split {
+                        i += 1;
+                    } else {
+                        j -= 1;
+                        self.items.swap(i, j);
+                    }
+                }
+                mid = i;
+            }
+        }
+        if !binned || mid == start || mid == end {
+            mid = start + count / 2;
+            let boxes = &self.boxes;
+            let key = |id: &u32| {
+                let (a, b) = boxes[*id as usize];
+                a[axis] + b[axis]
+            };
+            self.items[start..end].sort_by(|x, y| key(x).total_cmp(&key(y)).then(x.cmp(y)));
+        }
+        let left = self.nodes.len();
+        self.nodes.push(FlatNode::default());
+        self.nodes.push(FlatNode::default());
+        self.nodes[node].first = left as u32;
+        self.nodes[node].count = 0;
+        self.subdivide(left, start, mid, depth + 1);
+        self.subdivide(left + 1, mid, end, depth + 1);
+    }
+
+    /// Nearest primitive hit along the unit ray within `max_t` (nearest, then lowest id).
+    fn cast(&self, solids: &[Solid], o: DVec3, d: DVec3, max_t: f64) -> Option<(PrimitiveId, LeafHit)> {
+        let root = self.nodes.first()?;
+        let ray = Ray32::new(o, d);
+        let mut cutoff = cutoff32(max_t);
+        ray.enter(root, cutoff)?;
+        let mut best: Option<(PrimitiveId, LeafHit)> = None;
+        let mut limit = max_t;
+        let mut stack = [(0u32, 0.0f32); BVH_STACK];
+        let mut sp = 0usize;
+        let mut node = 0usize;
+        loop {
+            let n = self.nodes[node];
+            if n.count > 0 {
+                let first = n.first as usize;
+                for &id in &self.items[first..first + n.count as usize] {
+                    if let Some(hit) = solids[id as usize].cast(o, d) {
+                        if improves(hit.t, id, limit, best) {
+                            limit = hit.t;
+                            cutoff = cutoff32(limit);
+                            best = Some((id, hit));
+                        }
+                    }
+                }
+            } else {
+                let a = n.first as usize;
+                let ta = ray.enter(&self.nodes[a], cutoff);
+                let tb = ray.enter(&self.nodes[a + 1], cutoff);
+                match (ta, tb) {
+                    (Some(ta), Some(tb)) => {
+                        let (near, far, t_far) = if ta <= tb { (a, a + 1, tb) } else { (a + 1, a, ta) };
+                        stack[sp] = (far as u32, t_far);
+                        sp += 1;
+                        node = near;
+                        continue;
+                    }
+                    (Some(_), None) => {
+                        node = a;
+                        continue;
+                    }
+                    (None, Some(_)) => {
+                        node = a + 1;
+                        continue;
+                    }
+                    (None, None) => {}
+                }
+            }
+            loop {
+                if sp == 0 {
+                    return best;
+                }
+                sp -= 1;
+                let (next, t) = stack[sp];
+                if t <= cutoff {
+                    node = next as usize;
+                    break;
+                }
+            }
+        }
+    }
+
+    /// Ids of the primitives whose boxes may meet `frustum`, through the tree.
+    fn visible(&self, frustum: &Frustum, out: &mut Vec<u32>) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let mut stack = Vec::with_capacity(BVH_STACK);
+        stack.push(0usize);
+        while let Some(node) = stack.pop() {
+            let n = self.nodes[node];
+            let lo = DVec3::new(f64::from(n.min[0]), f64::from(n.min[1]), f64::from(n.min[2]));
+            let hi = DVec3::new(f64::from(n.max[0]), f64::from(n.max[1]), f64::from(n.max[2]));
+            if !frustum.meets(lo, hi) {
+                continue;
+            }
+            if n.count > 0 {
+                let first = n.first as usize;
+                for &id in &self.items[first..first + n.count as usize] {
+                    let (a, b) = self.boxes[id as usize];
+                    if frustum.meets(a, b) {
+                        out.push(id);
+                    }
+                }
+            } else {
+                stack.push(n.first as usize + 1);
+                stack.push(n.first as usize);
+            }
+        }
+    }
+}
+
+/// The pyramid (apex `origin`) of a fan's rays, cut at `range`: four side planes through the
+/// apex, normals pointing inside.
+struct Frustum {
+    origin: DVec3,
+    normals: [DVec3; 4],
+    range: f64,
+}
+
+impl Frustum {
+    /// Whether the box `(lo, hi)` may meet the pyramid (conservative).
+    fn meets(&self, lo: DVec3, hi: DVec3) -> bool {
+        let c = (lo + hi) * 0.5 - self.origin;
+        let h = (hi - lo) * 0.5;
+        let slack = 1.0e-9 * (1.0 + c.abs().element_sum() + h.element_sum());
+        for n in &self.normals {
+            if n.dot(c) + n.abs().dot(h) < -slack {
+                return false;
+            }
+        }
+        box_distance(self.origin, lo, hi) <= self.range
+    }
+}
+
+/// Distance from `p` to the box `(lo, hi)` (0 inside).
+fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
+    (lo - p).max(p - hi).max(DVec3::ZERO).length()
+}
+
+/// Per-fan culling: the fan's rays in gnomonic coordinates `(u, v)` around its axis, a grid of
+/// bins over them, and per bin the primitives whose boxes project into it, nearest first.
+struct FanPlan {
+    /// Local (fan input) frame: axis and two unit vectors across it.
+    axis: DVec3,
+    e1: DVec3,
+    e2: DVec3,
+    u0: f64,
+    v0: f64,
+    su: f64,
+    sv: f64,
+    nbx: usize,
+    nby: usize,
+    /// Bin `b`'s candidates are `entries[starts[b]..starts[b + 1]]`: (distance to the box,
+    /// index into `prepared`), nearest first.
+    starts: Vec<u32>,
+    entries: Vec<(f64, u32)>,
+    /// The visible primitives, prepared for the fan's origin, nearest box first.
+    prepared: Vec<(PrimitiveId, Prepared)>,
+    /// Signed distance of the origin to each plane (as `Plane::cast` computes it).
+    plane_s: Vec<f64>,
+    /// The terrain's box meets the fan.
+    terrain: bool,
+}
+
+impl FanPlan {
+    fn new<R: Fn(usize) -> f64>(world: &World, origin: DVec3, rotation: DMat3, axis: DVec3, dirs: &[DVec3], first: usize, range: &R) -> FanPlan {
+        let (e1, e2) = axis.any_orthonormal_pair();
+        let (mut u0, mut u1, mut v0, mut v1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+        let mut rmax: f64 = 0.0;
+        for (k, d) in dirs.iter().enumerate() {
+            let inv = 1.0 / d.dot(axis);
+            let (u, v) = (d.dot(e1) * inv, d.dot(e2) * inv);
+            u0 = u0.min(u);
+            u1 = u1.max(u);
+            v0 = v0.min(v);
+            v1 = v1.max(v);
+            let r = range(first + k);
+            if r > rmax {
+                rmax = r;
+            }
+        }
+        let bins = (dirs.len() / FAN_RAYS_PER_BIN).clamp(1, FAN_MAX_BINS);
+        let (du, dv) = (u1 - u0, v1 - v0);
+        let nbx = if du <= 0.0 {
+            1
+        } else if dv <= 0.0 {
+            bins
+        } else {
+            ((bins as f64 * du / dv).sqrt().round() as usize).clamp(1, bins)
+        };
+        let nby = (bins / nbx).max(1);
+        let su = if du > 0.0 { nbx as f64 / du } else { 0.0 };
+        let sv = if dv > 0.0 { nby as f64 / dv } else { 0.0 };
+        let mut plan = FanPlan { axis, e1, e2, u0, v0, su, sv, nbx, nby, starts: vec![0; nbx * nby + 1], entries: Vec::new(), prepared: Vec::new(), plane_s: Vec::new(), terrain: false };
+        plan.plane_s = world.planes.iter().map(|p| p.normal.dot(origin - p.point)).collect();
+
+        // World frame of the fan, and its pyramid widened by a hair.
+        let (wa, w1, w2) = (rotation * axis, rotation * e1, rotation * e2);
+        let pad = |x: f64| 1.0e-9 * (1.0 + x.abs());
+        let frustum = Frustum {
+            origin,
+            normals: [w1 - wa * (u0 - pad(u0)), wa * (u1 + pad(u1)) - w1, w2 - wa * (v0 - pad(v0)), wa * (v1 + pad(v1)) - w2],
+            range: rmax,
+        };
+        plan.terrain = world.terrain.as_ref().is_some_and(|t| t.any_cell && frustum.meets(t.lo, t.hi));
+
+        let mut ids = Vec::new();
+        world.bvh.visible(&frustum, &mut ids);
+        // (distance, id, bin rectangle)
+        let mut visible: Vec<(f64, PrimitiveId, [usize; 4])> = Vec::with_capacity(ids.len());
+        for id in ids {
+            let (lo, hi) = world.bvh.boxes[id as usize];
+            let near = box_distance(origin, lo, hi);
+            let cells = if near <= FAN_NEAR_M / FAN_MIN_COS {
+                // The apex touches the box: it may cover any direction of the fan.
+                [0, plan.nbx - 1, 0, plan.nby - 1]
+            } else {
+                // Project the part of the box in front of the plane z = FAN_NEAR_M (every hit
+                // lies there, being farther than FAN_NEAR_M / FAN_MIN_COS): its corners there
+                // and where its edges cross that plane.
+                let mut corners = [(0.0, 0.0, 0.0); 8];
+                for (k, c) in corners.iter_mut().enumerate() {
+                    let p = DVec3::new(
+                        if k & 1 == 0 { lo.x } else { hi.x },
+                        if k & 2 == 0 { lo.y } else { hi.y },
+                        if k & 4 == 0 { lo.z } else { hi.z },
+                    ) - origin;
+                    *c = (p.dot(w1), p.dot(w2), p.dot(wa));
+                }
+                let mut rect = [f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY];
+                let mut add = |u: f64, v: f64| rect = [rect[0].min(u), rect[1].max(u), rect[2].min(v), rect[3].max(v)];
+                for (k, &(x, y, z)) in corners.iter().enumerate() {
+                    if z >= FAN_NEAR_M {
+                        add(x / z, y / z);
+                    }
+                    for bit in [1, 2, 4] {
+                        if k & bit != 0 {
+                            continue;
+                        }
+                        let (x2, y2, z2) = corners[k | bit];
+                        if (z < FAN_NEAR_M) != (z2 < FAN_NEAR_M) {
+                            let s = (FAN_NEAR_M - z) / (z2 - z);
+                            add((x + (x2 - x) * s) / FAN_NEAR_M, (y + (y2 - y) * s) / FAN_NEAR_M);
+                        }
+                    }
+                }
+                if rect[0].is_nan() || rect[0] > rect[1] {
+                    continue;
+                }
+                let (ra, rb, rc, rd) = (rect[0] - pad(rect[0]), rect[1] + pad(rect[1]), rect[2] - pad(rect[2]), rect[3] + pad(rect[3]));
+                if rb < u0 || ra > u1 || rd < v0 || rc > v1 {
+                    continue;
+                }
+                [plan.bin_u(ra), plan.bin_u(rb), plan.bin_v(rc), plan.bin_v(rd)]
+            };
+            visible.push((near, id, cells));
+        }
+        visible.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut counts = vec![0u32; nbx * nby];
+        for (_, _, [bx0, bx1, by0, by1]) in &visible {
+            for by in *by0..=*by1 {
+                for c in &mut counts[by * nbx + bx0..=by * nbx + bx1] {
+                    *c += 1;
+                }
+            }
+        }
+        let mut total = 0u32;
+        for (b, c) in counts.iter().enumerate() {
+            plan.starts[b] = total;
+            total += c;
+        }
+        plan.starts[nbx * nby] = total;
+        plan.entries = vec![(0.0, 0); total as usize];
+        let mut cursor: Vec<u32> = plan.starts[..nbx * nby].to_vec();
+        for (index, &(near, _, [bx0, bx1, by0, by1])) in visible.iter().enumerate() {
+            for by in by0..=by1 {
+                for slot in &mut cursor[by * nbx + bx0..=by * nbx + bx1] {
+                    plan.entries[*slot as usize] = (near, index as u32);
+                    *slot += 1;
+                }
+            }
+        }
+        plan.prepared = visible.iter().filter_map(|&(_, id, _)| Some((id, world.solids.get(id as usize)?.prepare(origin)))).collect();
+        plan
+    }
+
+    fn bin_u(&self, u: f64) -> usize {
+        // `as i32` saturates (NaN gives 0); one instruction, unlike `as usize`.
+        (((u - self.u0) * self.su) as i32).clamp(0, self.nbx as i32 - 1) as usize
+    }
+
+    fn bin_v(&self, v: f64) -> usize {
+        (((v - self.v0) * self.sv) as i32).clamp(0, self.nby as i32 - 1) as usize
+    }
+
+    /// Candidates of the ray with local unit direction `d`, nearest box first.
+    #[inline]
+    fn candidates(&self, d: DVec3) -> &[(f64, u32)] {
+        let inv = 1.0 / d.dot(self.axis);
+        let b = self.bin_v(d.dot(self.e2) * inv) * self.nbx + self.bin_u(d.dot(self.e1) * inv);
+        let (s, e) = (self.starts[b] as usize, self.starts[b + 1] as usize);
+        &self.entries[s..e]
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
 // Exact f64 leaf tests.
 
 impl Solid {
     /// First intersection with `t >= 0` of the ray `o + t·d` (`d` unit).
     fn cast(&self, o: DVec3, d: DVec3) -> Option<LeafHit> {
+        self.prepare(o).cast(o, d)
+    }
+
+    /// The terms of the ray test that depend on the ray origin `o` only (shared by a fan).
+    fn prepare(&self, o: DVec3) -> Prepared {
         match *self {
-            Solid::Sphere { centre, radius } => ray_sphere(o, d, centre, radius),
-            Solid::Capsule { a, axis, length, radius } => ray_capsule(o, d, a, axis, length, radius),
-            Solid::Cylinder { a, axis, length, radius } => ray_cylinder(o, d, a, axis, length, radius),
-            Solid::Box { centre, half, cos, sin } => ray_box(o, d, centre, half, cos, sin),
+            Solid::Sphere { centre, radius } => match SpherePrep::new(o, centre, radius) {
+                Some(s) => Prepared::Sphere { centre, radius, s },
+                None => Prepared::Inside,
+            },
+            Solid::Cylinder { a, axis, length, radius } => {
+                let oa = o - a;
+                let s0 = oa.dot(axis);
+                let op = oa - axis * s0;
+                let r2 = radius * radius;
+                if (0.0..=length).contains(&s0) && op.length_squared() <= r2 {
+                    return Prepared::Inside;
+                }
+                Prepared::Cylinder { a, axis, length, radius, s0, op, c: op.length_squared() - r2 }
+            }
+            Solid::Capsule { a, axis, length, radius } => {
+                let oa = o - a;
+                let clamped = oa.dot(axis).clamp(0.0, length);
+                if (oa - axis * clamped).length_squared() <= radius * radius {
+                    return Prepared::Inside;
+                }
+                let s0 = oa.dot(axis);
+                let op = oa - axis * s0;
+                let b = a + axis * length;
+                // Outside the capsule, hence outside both end spheres (their `c > 0`) up to
+                // rounding; an end sphere that still counts the origin inside reports t = 0.
+                let end = |centre: DVec3| SpherePrep::new(o, centre, radius).map_or((centre, SpherePrep { oc: DVec3::ZERO, c: -1.0 }), |s| (centre, s));
+                Prepared::Capsule { a, axis, length, radius, s0, op, c: op.length_squared() - radius * radius, ends: [end(a), end(b)] }
+            }
+            Solid::Box { centre, half, cos, sin } => {
+                let v = o - centre;
+                let ol = DVec3::new(cos * v.x + sin * v.y, -sin * v.x + cos * v.y, v.z);
+                Prepared::Box { half, cos, sin, ol }
+            }
         }
     }
 
@@ -408,43 +1058,122 @@ impl Solid {
     }
 }
 
+/// Origin terms of a ray against a sphere: `oc = o - centre`, `c = |oc|² - r² > 0`.
+#[derive(Debug, Clone, Copy)]
+struct SpherePrep {
+    oc: DVec3,
+    c: f64,
+}
+
+impl SpherePrep {
+    /// `None` when the origin is inside (or on) the sphere.
+    fn new(o: DVec3, centre: DVec3, radius: f64) -> Option<SpherePrep> {
+        let oc = o - centre;
+        let c = oc.length_squared() - radius * radius;
+        (c > 0.0).then_some(SpherePrep { oc, c })
+    }
+}
+
+/// A solid with the origin terms of its ray test computed ([`Solid::prepare`]).
+#[derive(Debug, Clone, Copy)]
+enum Prepared {
+    /// The origin is inside: every ray hits at 0.
+    Inside,
+    Sphere { centre: DVec3, radius: f64, s: SpherePrep },
+    /// `s0`, `op`: the origin's position along and across the axis; `c = |op|² - r²`.
+    Cylinder { a: DVec3, axis: DVec3, length: f64, radius: f64, s0: f64, op: DVec3, c: f64 },
+    /// As the cylinder, and the end spheres (centre, terms; `c <= 0`: origin inside it).
+    Capsule { a: DVec3, axis: DVec3, length: f64, radius: f64, s0: f64, op: DVec3, c: f64, ends: [(DVec3, SpherePrep); 2] },
+    /// `ol`: the origin in the box frame.
+    Box { half: DVec3, cos: f64, sin: f64, ol: DVec3 },
+}
+
+impl Prepared {
+    /// First intersection with `t >= 0` of the ray `o + t·d` (`d` unit; `o` the prepared origin).
+    #[inline]
+    fn cast(&self, o: DVec3, d: DVec3) -> Option<LeafHit> {
+        match *self {
+            Prepared::Inside => Some(inside_hit(d)),
+            Prepared::Sphere { centre, radius, s } => ray_sphere(o, d, centre, radius, s),
+            Prepared::Cylinder { a, axis, length, radius, s0, op, c } => {
+                let du = d.dot(axis);
+                let dp = d - axis * du;
+                let mut best: Option<LeafHit> = None;
+                if let Some(t) = ray_infinite_cylinder(op, dp, radius, c) {
+                    let s = s0 + t * du;
+                    if (0.0..=length).contains(&s) {
+                        let radial = o + d * t - a - axis * s;
+                        best = Some(LeafHit { t, normal: radial.normalize_or(-d) });
+                    }
+                }
+                if du != 0.0 {
+                    let r2 = radius * radius;
+                    for (cap_s, normal) in [(0.0, -axis), (length, axis)] {
+                        let t = (cap_s - s0) / du;
+                        if t >= 0.0 && best.is_none_or(|b| t < b.t) && (op + dp * t).length_squared() <= r2 {
+                            best = Some(LeafHit { t, normal });
+                        }
+                    }
+                }
+                best
+            }
+            Prepared::Capsule { a, axis, length, radius, s0, op, c, ends } => {
+                let mut best: Option<LeafHit> = None;
+                if length > 0.0 {
+                    let du = d.dot(axis);
+                    let dp = d - axis * du;
+                    if let Some(t) = ray_infinite_cylinder(op, dp, radius, c) {
+                        let s = s0 + t * du;
+                        if (0.0..=length).contains(&s) {
+                            let radial = o + d * t - a - axis * s;
+                            best = Some(LeafHit { t, normal: radial.normalize_or(-d) });
+                        }
+                    }
+                }
+                for (centre, s) in ends {
+                    let hit = if s.c > 0.0 { ray_sphere(o, d, centre, radius, s) } else { Some(inside_hit(d)) };
+                    if let Some(hit) = hit {
+                        if best.is_none_or(|b| hit.t < b.t) {
+                            best = Some(hit);
+                        }
+                    }
+                }
+                best
+            }
+            Prepared::Box { half, cos, sin, ol } => ray_box(d, half, cos, sin, ol),
+        }
+    }
+}
+
 fn inside_hit(d: DVec3) -> LeafHit {
     LeafHit { t: 0.0, normal: -d }
 }
 
-/// Ray against a sphere (solid).
-fn ray_sphere(o: DVec3, d: DVec3, centre: DVec3, radius: f64) -> Option<LeafHit> {
-    let oc = o - centre;
-    let c = oc.length_squared() - radius * radius;
-    if c <= 0.0 {
-        return Some(inside_hit(d));
-    }
-    let b = oc.dot(d);
+/// Ray against a sphere (solid) whose origin is outside it (`s`).
+#[inline]
+fn ray_sphere(o: DVec3, d: DVec3, centre: DVec3, radius: f64, s: SpherePrep) -> Option<LeafHit> {
+    let b = s.oc.dot(d);
     if b >= 0.0 {
         return None;
     }
     // Discriminant from the perpendicular miss distance (no cancellation far away).
-    let q = oc - d * b;
+    let q = s.oc - d * b;
     let disc = radius * radius - q.length_squared();
     if disc < 0.0 {
         return None;
     }
     // Smaller root, in the cancellation-free form c / (-b + sqrt(disc)).
-    let t = c / (-b + disc.sqrt());
+    let t = s.c / (-b + disc.sqrt());
     let normal = (o + d * t - centre) / radius;
     Some(LeafHit { t, normal: normal.normalize_or(-d) })
 }
 
-/// Entry into the infinite cylinder of radius `radius` around the line `a + s·axis`, from
-/// outside it: `(t, s)` of the hit.
-fn ray_infinite_cylinder(o: DVec3, d: DVec3, a: DVec3, axis: DVec3, radius: f64) -> Option<(f64, f64)> {
-    let oa = o - a;
-    let s0 = oa.dot(axis);
-    let du = d.dot(axis);
-    let op = oa - axis * s0;
-    let dp = d - axis * du;
+/// Entry into the infinite cylinder of radius `radius` around an axis, from outside it:
+/// `op` is the origin's offset across the axis, `dp` the direction's, `c = |op|² - r²`.
+/// Returns the distance of the hit.
+#[inline]
+fn ray_infinite_cylinder(op: DVec3, dp: DVec3, radius: f64, c: f64) -> Option<f64> {
     let qa = dp.length_squared();
-    let c = op.length_squared() - radius * radius;
     if qa < 1.0e-24 || c <= 0.0 {
         return None;
     }
@@ -457,90 +1186,38 @@ fn ray_infinite_cylinder(o: DVec3, d: DVec3, a: DVec3, axis: DVec3, radius: f64)
     if disc < 0.0 {
         return None;
     }
-    let t = c / (-qb + disc.sqrt());
-    Some((t, s0 + t * du))
+    Some(c / (-qb + disc.sqrt()))
 }
 
-/// Ray against a finite cylinder with flat caps (solid).
-fn ray_cylinder(o: DVec3, d: DVec3, a: DVec3, axis: DVec3, length: f64, radius: f64) -> Option<LeafHit> {
-    let oa = o - a;
-    let s0 = oa.dot(axis);
-    let op = oa - axis * s0;
-    let r2 = radius * radius;
-    if (0.0..=length).contains(&s0) && op.length_squared() <= r2 {
-        return Some(inside_hit(d));
-    }
-    let mut best: Option<LeafHit> = None;
-    if let Some((t, s)) = ray_infinite_cylinder(o, d, a, axis, radius) {
-        if (0.0..=length).contains(&s) {
-            let radial = o + d * t - a - axis * s;
-            best = Some(LeafHit { t, normal: radial.normalize_or(-d) });
-        }
-    }
-    let du = d.dot(axis);
-    if du != 0.0 {
-        let dp = d - axis * du;
-        for (cap_s, normal) in [(0.0, -axis), (length, axis)] {
-            let t = (cap_s - s0) / du;
-            if t >= 0.0 && best.is_none_or(|b| t < b.t) && (op + dp * t).length_squared() <= r2 {
-                best = Some(LeafHit { t, normal });
-            }
-        }
-    }
-    best
-}
-
-/// Ray against a capsule (solid): the side of its cylinder and its two end spheres.
-fn ray_capsule(o: DVec3, d: DVec3, a: DVec3, axis: DVec3, length: f64, radius: f64) -> Option<LeafHit> {
-    let oa = o - a;
-    let s0 = oa.dot(axis).clamp(0.0, length);
-    if (oa - axis * s0).length_squared() <= radius * radius {
-        return Some(inside_hit(d));
-    }
-    let mut best: Option<LeafHit> = None;
-    if length > 0.0 {
-        if let Some((t, s)) = ray_infinite_cylinder(o, d, a, axis, radius) {
-            if (0.0..=length).contains(&s) {
-                let radial = o + d * t - a - axis * s;
-                best = Some(LeafHit { t, normal: radial.normalize_or(-d) });
-            }
-        }
-    }
-    for centre in [a, a + axis * length] {
-        if let Some(hit) = ray_sphere(o, d, centre, radius) {
-            if best.is_none_or(|b| hit.t < b.t) {
-                best = Some(hit);
-            }
-        }
-    }
-    best
-}
-
-/// Ray against a box of half extents `half` rotated by yaw (`cos`, `sin`) about z (solid).
-fn ray_box(o: DVec3, d: DVec3, centre: DVec3, half: DVec3, cos: f64, sin: f64) -> Option<LeafHit> {
-    let to_local = |v: DVec3| DVec3::new(cos * v.x + sin * v.y, -sin * v.x + cos * v.y, v.z);
-    let ol = to_local(o - centre);
-    let dl = to_local(d);
+/// Ray against a box of half extents `half` rotated by yaw (`cos`, `sin`) about z (solid);
+/// `ol` is the ray origin in the box frame.
+#[inline]
+fn ray_box(d: DVec3, half: DVec3, cos: f64, sin: f64, ol: DVec3) -> Option<LeafHit> {
+    let dl = DVec3::new(cos * d.x + sin * d.y, -sin * d.x + cos * d.y, d.z);
     let mut t_near = f64::NEG_INFINITY;
     let mut t_far = f64::INFINITY;
-    let mut enter = DVec3::ZERO;
-    for k in 0..3 {
-        let (ok, dk, hk) = (ol[k], dl[k], half[k]);
+    // Entering face: axis and sign.
+    let mut enter = (0usize, 0.0);
+    let slab = |ok: f64, dk: f64, hk: f64, k: usize, t_near: &mut f64, t_far: &mut f64, enter: &mut (usize, f64)| -> bool {
         if dk == 0.0 {
-            if ok.abs() > hk {
-                return None;
-            }
-            continue;
+            return ok.abs() <= hk;
         }
-        let t1 = (-hk - ok) / dk;
-        let t2 = (hk - ok) / dk;
+        let inv = 1.0 / dk;
+        let t1 = (-hk - ok) * inv;
+        let t2 = (hk - ok) * inv;
         let (tn, tf, sign) = if t1 < t2 { (t1, t2, -1.0) } else { (t2, t1, 1.0) };
-        if tn > t_near {
-            t_near = tn;
-            enter = DVec3::ZERO;
-            enter[k] = sign;
+        if tn > *t_near {
+            *t_near = tn;
+            *enter = (k, sign);
         }
-        t_far = t_far.min(tf);
+        *t_far = t_far.min(tf);
+        true
+    };
+    if !slab(ol.x, dl.x, half.x, 0, &mut t_near, &mut t_far, &mut enter)
+        || !slab(ol.y, dl.y, half.y, 1, &mut t_near, &mut t_far, &mut enter)
+        || !slab(ol.z, dl.z, half.z, 2, &mut t_near, &mut t_far, &mut enter)
+    {
+        return None;
     }
     if t_far < t_near || t_far < 0.0 {
         return None;
@@ -548,14 +1225,23 @@ fn ray_box(o: DVec3, d: DVec3, centre: DVec3, half: DVec3, cos: f64, sin: f64) -
     if t_near <= 0.0 {
         return Some(inside_hit(d));
     }
-    let normal = DVec3::new(cos * enter.x - sin * enter.y, sin * enter.x + cos * enter.y, enter.z);
+    let normal = match enter {
+        (0, s) => DVec3::new(cos * s, sin * s, 0.0),
+        (1, s) => DVec3::new(-sin * s, cos * s, 0.0),
+        (_, s) => DVec3::new(0.0, 0.0, s),
+    };
     Some(LeafHit { t: t_near, normal })
 }
 
 impl Plane {
     /// Ray against the half-space behind the plane, `t <= max_t`.
     fn cast(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<LeafHit> {
-        let s = self.normal.dot(o - self.point);
+        self.cast_prepared(self.normal.dot(o - self.point), d, max_t)
+    }
+
+    /// As [`Plane::cast`] with the origin's signed distance `s` to the plane given.
+    #[inline]
+    fn cast_prepared(&self, s: f64, d: DVec3, max_t: f64) -> Option<LeafHit> {
         if s < 0.0 {
             return Some(inside_hit(d));
         }
@@ -623,7 +1309,29 @@ impl Terrain {
             }
         }
         let (min_z, max_z) = heights.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &h| (lo.min(h), hi.max(h)));
+        let (cells_x, cells_y) = (cols - 1, rows - 1);
+        let (blocks_x, blocks_y) = (cells_x.div_ceil(TERRAIN_BLOCK), cells_y.div_ceil(TERRAIN_BLOCK));
+        let mut block_z = vec![(f64::INFINITY, f64::NEG_INFINITY); blocks_x * blocks_y];
+        for r in 0..cells_y {
+            for c in 0..cells_x {
+                if removed[r * cells_x + c] {
+                    continue;
+                }
+                let b = &mut block_z[(r / TERRAIN_BLOCK) * blocks_x + c / TERRAIN_BLOCK];
+                for h in [heights[r * cols + c], heights[r * cols + c + 1], heights[(r + 1) * cols + c], heights[(r + 1) * cols + c + 1]] {
+                    b.0 = b.0.min(h);
+                    b.1 = b.1.max(h);
+                }
+            }
+        }
+        let lo = DVec3::new(spec.origin[0], spec.origin[1], min_z);
+        let hi = DVec3::new(spec.origin[0] + size_x, spec.origin[1] + size_y, max_z);
         Terrain {
+            lo,
+            hi,
+            blocks_x,
+            blocks_y,
+            block_z,
             id,
             origin: spec.origin,
             resolution: res,
@@ -641,10 +1349,6 @@ impl Terrain {
 
     fn h(&self, r: usize, c: usize) -> f64 {
         self.heights[r * self.cols + c]
-    }
-
-    fn vertex(&self, r: usize, c: usize) -> DVec3 {
-        DVec3::new(self.origin[0] + c as f64 * self.resolution, self.origin[1] + r as f64 * self.resolution, self.h(r, c))
     }
 
     fn to_local(&self, p: DVec3) -> Vector {
@@ -679,45 +1383,87 @@ impl Terrain {
         })
     }
 
-    /// The triangle parry's triangle id `id` names, world frame.
-    fn triangle(&self, id: u32) -> Option<[DVec3; 3]> {
-        let cells = (self.rows - 1) * (self.cols - 1);
-        let id = id as usize;
-        let (k, left) = if id < cells { (id, true) } else { (id - cells, false) };
-        if k >= cells {
-            return None;
-        }
-        let (i, j) = (k % (self.rows - 1), k / (self.rows - 1));
-        let (r, c) = (self.rows - 2 - i, j);
-        Some(if left {
-            [self.vertex(r + 1, c), self.vertex(r, c), self.vertex(r + 1, c + 1)]
-        } else {
-            [self.vertex(r, c), self.vertex(r, c + 1), self.vertex(r + 1, c + 1)]
-        })
-    }
-
-    /// Ray against the surface, `t <= max_t`; parry's hit refined on its triangle in f64.
+    /// Ray against the surface (seen from both sides), `t <= max_t`, exact in f64 on the same
+    /// triangles as [`Terrain::height_at`]. The ray is clipped to the grid's box, then walks
+    /// the blocks it crosses, skipping those whose height range it passes above or below,
+    /// and inside the others the cells likewise; only cells it may meet are tested.
     fn cast(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<LeafHit> {
         if !self.any_cell {
             return None;
         }
-        let ray = Ray::new(self.to_local(o), Vector::new(d.x as f32, d.z as f32, -d.y as f32));
-        let max32 = if max_t.is_finite() { (max_t as f32) * (1.0 + 1.0e-5) + 1.0e-4 } else { f32::MAX };
-        let hit = self.shape.cast_local_ray_and_get_normal(&ray, max32, true)?;
-        let t32 = f64::from(hit.time_of_impact);
-        let n32 = DVec3::new(f64::from(hit.normal.x), -f64::from(hit.normal.z), f64::from(hit.normal.y));
-        let mut out = LeafHit { t: t32, normal: n32.normalize_or(-d) };
-        if let Some([a, b, c]) = self.triangle(hit.subshape) {
-            let n = (b - a).cross(c - a);
-            let denom = n.dot(d);
-            if denom.abs() > 1.0e-9 * n.length() {
-                let t = n.dot(a - o) / denom;
-                if t >= 0.0 && (t - t32).abs() <= 1.0e-3 + 1.0e-4 * t32 {
-                    out = LeafHit { t, normal: n.normalize_or(out.normal) };
+        // Clip to the box, widened by a hair.
+        let (mut t0, mut t1) = (0.0f64, max_t);
+        for k in 0..3 {
+            let pad = 1.0e-9 * (1.0 + self.lo[k].abs().max(self.hi[k].abs()));
+            let (lo, hi) = (self.lo[k] - pad, self.hi[k] + pad);
+            if d[k] == 0.0 {
+                if o[k] < lo || o[k] > hi {
+                    return None;
                 }
+                continue;
+            }
+            let (a, b) = ((lo - o[k]) / d[k], (hi - o[k]) / d[k]);
+            t0 = t0.max(a.min(b));
+            t1 = t1.min(a.max(b));
+        }
+        if t0.is_nan() || t1.is_nan() || t0 > t1 {
+            return None;
+        }
+        let (px, py) = (o.x - self.origin[0], o.y - self.origin[1]);
+        let (cells_x, cells_y) = (self.cols - 1, self.rows - 1);
+        let block = TERRAIN_BLOCK as f64 * self.resolution;
+        let hit = walk_grid(px, py, d.x, d.y, block, (0, self.blocks_x), (0, self.blocks_y), t0, t1, |bx, by, ta, tb| {
+            let (zlo, zhi) = self.block_z[by * self.blocks_x + bx];
+            if !z_range_meets(o.z, d.z, ta, tb, zlo, zhi) {
+                return None;
+            }
+            let i_range = (bx * TERRAIN_BLOCK, ((bx + 1) * TERRAIN_BLOCK).min(cells_x));
+            let j_range = (by * TERRAIN_BLOCK, ((by + 1) * TERRAIN_BLOCK).min(cells_y));
+            walk_grid(px, py, d.x, d.y, self.resolution, i_range, j_range, ta, tb, |c, r, ta, tb| {
+                if self.removed[r * cells_x + c] {
+                    return None;
+                }
+                self.cast_cell(o, d, r, c, ta, tb)
+            })
+        })?;
+        (hit.t <= max_t).then_some(hit)
+    }
+
+    /// Ray against the two triangles of cell (r, c), whose part of the ray is `[ta, tb]`.
+    fn cast_cell(&self, o: DVec3, d: DVec3, r: usize, c: usize, ta: f64, tb: f64) -> Option<LeafHit> {
+        let (h00, h10, h01, h11) = (self.h(r, c), self.h(r, c + 1), self.h(r + 1, c), self.h(r + 1, c + 1));
+        if !z_range_meets(o.z, d.z, ta, tb, h00.min(h10).min(h01.min(h11)), h00.max(h10).max(h01.max(h11))) {
+            return None;
+        }
+        // Cell coordinates: u along x, v along y, both in [0, 1] over the cell.
+        let res = self.resolution;
+        let (ou, ov) = ((o.x - self.origin[0]) / res - c as f64, (o.y - self.origin[1]) / res - r as f64);
+        let (du, dv) = (d.x / res, d.y / res);
+        // Triangle A (u <= v): z = h00 + u (h11 - h01) + v (h01 - h00); B (u > v):
+        // z = h00 + u (h10 - h00) + v (h11 - h10). A hit on the ray where z_ray = z_plane.
+        const EDGE: f64 = 1.0e-12;
+        let mut best: Option<LeafHit> = None;
+        for (gu, gv, in_triangle) in [(h11 - h01, h01 - h00, true), (h10 - h00, h11 - h10, false)] {
+            let g0 = o.z - (h00 + ou * gu + ov * gv);
+            let g1 = d.z - (du * gu + dv * gv);
+            if g1 == 0.0 {
+                continue;
+            }
+            let t = -g0 / g1;
+            if t.is_nan() || t < 0.0 || best.is_some_and(|b| b.t <= t) {
+                continue;
+            }
+            let (u, v) = (ou + du * t, ov + dv * t);
+            let inside = if in_triangle {
+                u >= -EDGE && v <= 1.0 + EDGE && u <= v + EDGE
+            } else {
+                v >= -EDGE && u <= 1.0 + EDGE && v <= u + EDGE
+            };
+            if inside {
+                best = Some(LeafHit { t, normal: DVec3::new(-gu / res, -gv / res, 1.0).normalize() });
             }
         }
-        (out.t <= max_t).then_some(out)
+        best
     }
 
     /// Distance to the surface, negative below it where it covers `p` (not over a hole).
@@ -728,6 +1474,75 @@ impl Terrain {
         let d = f64::from(self.shape.distance_to_local_point(self.to_local(p), true));
         let below = self.covers(p.x, p.y) && self.height_at(p.x, p.y).is_some_and(|h| p.z < h);
         Some(if below { -d } else { d })
+    }
+}
+
+/// Whether the ray's height over `[ta, tb]` meets `[zlo, zhi]` (widened by a hair).
+#[inline]
+fn z_range_meets(oz: f64, dz: f64, ta: f64, tb: f64, zlo: f64, zhi: f64) -> bool {
+    let (za, zb) = (oz + dz * ta, oz + dz * tb);
+    let pad = 1.0e-9 * (1.0 + zlo.abs().max(zhi.abs()));
+    za.max(zb) >= zlo - pad && za.min(zb) <= zhi + pad
+}
+
+/// Walks the square cells (side `size`, cell (i, j) spans `[i, i + 1) · size` along x) that
+/// the ray `p + t·d` (x, y only; `p` relative to the grid's corner) crosses for `t` in
+/// `[t0, t1]`, in order, within the index ranges `[i0, i1) x [j0, j1)`; `visit(i, j, ta, tb)`
+/// gets each cell and the ray's part in it, and the first `Some` it returns ends the walk.
+#[allow(clippy::too_many_arguments)]
+fn walk_grid<T>(
+    px: f64,
+    py: f64,
+    dx: f64,
+    dy: f64,
+    size: f64,
+    (i0, i1): (usize, usize),
+    (j0, j1): (usize, usize),
+    t0: f64,
+    t1: f64,
+    mut visit: impl FnMut(usize, usize, f64, f64) -> Option<T>,
+) -> Option<T> {
+    if i0 >= i1 || j0 >= j1 {
+        return None;
+    }
+    let start = |p: f64, d: f64, lo: usize, hi: usize| (((p + d * t0) / size).floor().max(lo as f64) as usize).min(hi - 1);
+    let (mut i, mut j) = (start(px, dx, i0, i1), start(py, dy, j0, j1));
+    // Distance at which the ray leaves cell index `k` along an axis.
+    let exit = |p: f64, d: f64, k: usize| {
+        if d > 0.0 {
+            ((k + 1) as f64 * size - p) / d
+        } else if d < 0.0 {
+            (k as f64 * size - p) / d
+        } else {
+            f64::INFINITY
+        }
+    };
+    let mut t = t0;
+    loop {
+        let (tx, ty) = (exit(px, dx, i), exit(py, dy, j));
+        let t_out = tx.min(ty).min(t1).max(t);
+        if let Some(found) = visit(i, j, t, t_out) {
+            return Some(found);
+        }
+        if t_out >= t1 {
+            return None;
+        }
+        if tx <= ty {
+            if dx > 0.0 && i + 1 < i1 {
+                i += 1;
+            } else if dx < 0.0 && i > i0 {
+                i -= 1;
+            } else {
+                return None;
+            }
+        } else if dy > 0.0 && j + 1 < j1 {
+            j += 1;
+        } else if dy < 0.0 && j > j0 {
+            j -= 1;
+        } else {
+            return None;
+        }
+        t = t_out;
     }
 }
 
@@ -895,16 +1710,16 @@ fn build(spec: WorldSpec) -> World {
 
     let mut lo = DVec3::splat(f64::INFINITY);
     let mut hi = DVec3::splat(f64::NEG_INFINITY);
-    let mut leaves = Vec::with_capacity(solids.len());
+    let mut leaves: Vec<(DVec3, DVec3)> = Vec::with_capacity(solids.len());
     for s in &solids {
         let (mn, mx) = s.aabb();
         lo = lo.min(mn);
         hi = hi.max(mx);
         // Loosened so that f32 rounding in the traversal never culls a grazing f64 hit.
         let margin = 1.0e-4 + 1.0e-6 * mn.abs().max(mx.abs()).max_element();
-        leaves.push(Aabb::new(to_f32(mn - DVec3::splat(margin)), to_f32(mx + DVec3::splat(margin))));
+        leaves.push((mn - DVec3::splat(margin), mx + DVec3::splat(margin)));
     }
-    let bvh = Bvh::from_leaves(BvhBuildStrategy::Binned, &leaves);
+    let bvh = FlatBvh::build(leaves);
     let compound = (!parts.is_empty()).then(|| Compound::new(parts));
 
     let mut planes = Vec::with_capacity(spec.planes.len());
@@ -1144,5 +1959,111 @@ mod tests {
         assert_eq!(w.clearance(DVec3::ZERO), f64::INFINITY);
         assert_eq!(w.bounds(), (DVec3::ZERO, DVec3::ZERO));
         assert_eq!(w.primitive_count(), 0);
+    }
+
+    /// A tiny seeded generator for the tests below (splitmix64).
+    fn next(state: &mut u64) -> f64 {
+        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = *state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        (z ^ (z >> 31)) as f64 / u64::MAX as f64
+    }
+
+    #[test]
+    fn fans_give_the_single_ray_answers_bit_for_bit() {
+        let mut state = 5u64;
+        // A 64 x 48 pinhole grid (~80° x 64°) and a 360° x ±17° lidar-like fan.
+        let camera: Vec<DVec3> = (0..48).flat_map(|v| (0..64).map(move |u| DVec3::new((u as f64 - 31.5) / 38.5, (v as f64 - 23.5) / 38.5, 1.0).normalize())).collect();
+        let lidar: Vec<DVec3> = (0..256)
+            .flat_map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / 256.0;
+                (0..16).map(move |r| {
+                    let e = (-17.0 + 34.0 * r as f64 / 15.0).to_radians();
+                    DVec3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin())
+                })
+            })
+            .collect();
+        for name in crate::scenarios::SCENARIOS {
+            let w = world(crate::scenarios::generate(name, 3).expect("scenario"));
+            let (lo, hi) = w.bounds();
+            let mut compared = 0;
+            let mut hits = 0;
+            for _ in 0..6 {
+                let origin = lo + (hi - lo) * DVec3::new(next(&mut state), next(&mut state), next(&mut state));
+                let rotation = DMat3::from_rotation_z(next(&mut state) * 6.3) * DMat3::from_rotation_x(next(&mut state) * 6.3);
+                for (dirs, range) in [(&camera, 10.0), (&lidar, 120.0)] {
+                    let max = |k: usize| range * (0.5 + (k % 7) as f64 / 12.0);
+                    w.cast_fan(origin, rotation, dirs, &max, &mut |k, d, hit| {
+                        assert_eq!(d, rotation * dirs[k]);
+                        assert_eq!(hit, w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
+                        compared += 1;
+                        hits += usize::from(hit.is_some());
+                    });
+                }
+            }
+            assert_eq!(compared, 6 * (camera.len() + lidar.len()));
+            assert!(hits > compared / 4, "{name}: {hits} hits of {compared}");
+        }
+    }
+
+    #[test]
+    fn cast_rays_equals_cast_ray_and_checks_lengths() {
+        let w = world(crate::scenarios::generate("tunnel", 2).expect("scenario"));
+        let origin = DVec3::from_array(w.region("start").expect("start").centre);
+        let mut state = 9u64;
+        let mut dirs: Vec<DVec3> = (0..500).map(|_| DVec3::new(next(&mut state) - 0.5, next(&mut state) - 0.5, next(&mut state) - 0.5) * 3.0).collect();
+        dirs[7] = DVec3::ZERO;
+        dirs[8] = DVec3::new(f64::NAN, 0.0, 1.0);
+        let ranges: Vec<f64> = (0..500).map(|i| if i == 9 { -1.0 } else { 2.0 + (i % 10) as f64 }).collect();
+        let mut out = vec![None; 500];
+        w.cast_rays(origin, &dirs, &ranges, &mut out).expect("lengths match");
+        for (i, hit) in out.iter().enumerate() {
+            assert_eq!(*hit, w.cast_ray(origin, dirs[i], ranges[i]), "ray {i}");
+        }
+        assert!(out[7].is_none() && out[8].is_none() && out[9].is_none());
+        assert!(out.iter().filter(|h| h.is_some()).count() > 200);
+        // One range for all.
+        w.cast_rays(origin, &dirs, &[4.0], &mut out).expect("broadcast range");
+        assert_eq!(out[0], w.cast_ray(origin, dirs[0], 4.0));
+        assert!(matches!(w.cast_rays(origin, &dirs, &ranges[..3], &mut out), Err(SimError::InvalidInput { argument, .. }) if argument == "max_ranges"));
+        assert!(matches!(w.cast_rays(origin, &dirs, &ranges, &mut out[..3]), Err(SimError::InvalidInput { argument, .. }) if argument == "out"));
+    }
+
+    #[test]
+    fn terrain_walk_finds_the_brute_force_nearest_triangle() {
+        let w = world(crate::scenarios::generate("mine", 4).expect("scenario"));
+        let t = w.terrain.as_ref().expect("terrain");
+        let (cells_x, cells_y) = (t.cols - 1, t.rows - 1);
+        let mut state = 11u64;
+        let mut hits = 0;
+        for i in 0..400 {
+            let o = DVec3::new(next(&mut state) * 30.0, next(&mut state) * 20.0, 0.2 + next(&mut state) * 2.0);
+            let d = DVec3::new(next(&mut state) - 0.5, next(&mut state) - 0.5, -(next(&mut state) * 0.4) + if i % 5 == 0 { 0.3 } else { 0.0 }).normalize();
+            let max_t = 40.0;
+            let mut want: Option<LeafHit> = None;
+            for r in 0..cells_y {
+                for c in 0..cells_x {
+                    if t.removed[r * cells_x + c] {
+                        continue;
+                    }
+                    if let Some(h) = t.cast_cell(o, d, r, c, 0.0, max_t) {
+                        if h.t <= max_t && want.is_none_or(|b| h.t < b.t) {
+                            want = Some(h);
+                        }
+                    }
+                }
+            }
+            let got = t.cast(o, d, max_t);
+            match (want, got) {
+                (Some(a), Some(b)) => {
+                    assert!((a.t - b.t).abs() < 1e-9, "ray {i}: {} vs {}", a.t, b.t);
+                    hits += 1;
+                }
+                (None, None) => {}
+                (a, b) => panic!("ray {i}: brute force {a:?}, walk {b:?}"),
+            }
+        }
+        assert!(hits > 200, "{hits}");
     }
 }
