@@ -17,6 +17,7 @@
 //! pixel index ascending), so the same seed gives the same bits.
 
 use rand::Rng;
+use rand_distr::{Distribution, Poisson, StandardNormal};
 
 use crate::error::{SimError, SimResult};
 use crate::sensors::{DepthCameraConfig, DepthRender, LidarScan};
@@ -58,9 +59,6 @@ pub const PHANTOM_MAX_DEPTH_M: f64 = 1.5;
 const MAX_BLOBS_PER_FRAME: f64 = 10_000.0;
 /// Largest phantom blob radius accepted [px].
 const MAX_BLOB_RADIUS_PX: f64 = 4096.0;
-/// Poisson means above this are drawn as a sum of Poisson draws of at most this mean
-/// (Knuth's product method needs `exp(-λ)` to stay well above the smallest f64).
-const POISSON_CHUNK: f64 = 30.0;
 
 /// One stage of depth-camera noise.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -446,87 +444,17 @@ fn uniform<R: Rng + ?Sized>(rng: &mut R) -> f64 {
     (rng.next_u64() >> 11) as f64 * (1.0 / (1_u64 << 53) as f64)
 }
 
-/// Layers of the ziggurat (Marsaglia & Tsang 2000; Doornik 2005, "An improved ziggurat
-/// method to generate normal random samples").
-const ZIGGURAT_LAYERS: usize = 128;
-/// Start of the tail of the 128-layer ziggurat [σ].
-const ZIGGURAT_R: f64 = 3.442_619_855_899;
-/// Area of each of the 128 layers under `exp(-x²/2)`.
-const ZIGGURAT_V: f64 = 9.912_563_035_262_17e-3;
-
-/// Layer edges `x[i]` (`x[0] = V / f(R)`, `x[1] = R`, `x[128] = 0`) and the ratios
-/// `x[i + 1] / x[i]` below which a draw lies in the layer's inner rectangle.
-struct ZigguratTables {
-    x: [f64; ZIGGURAT_LAYERS + 1],
-    ratio: [f64; ZIGGURAT_LAYERS],
-}
-
-fn ziggurat_tables() -> &'static ZigguratTables {
-    static TABLES: std::sync::OnceLock<ZigguratTables> = std::sync::OnceLock::new();
-    TABLES.get_or_init(|| {
-        let mut x = [0.0; ZIGGURAT_LAYERS + 1];
-        let mut f = (-0.5 * ZIGGURAT_R * ZIGGURAT_R).exp();
-        x[0] = ZIGGURAT_V / f;
-        x[1] = ZIGGURAT_R;
-        for i in 2..ZIGGURAT_LAYERS {
-            x[i] = (-2.0 * (ZIGGURAT_V / x[i - 1] + f).ln()).sqrt();
-            f = (-0.5 * x[i] * x[i]).exp();
-        }
-        let mut ratio = [0.0; ZIGGURAT_LAYERS];
-        for i in 0..ZIGGURAT_LAYERS {
-            ratio[i] = x[i + 1] / x[i];
-        }
-        ZigguratTables { x, ratio }
-    })
-}
-
-/// A standard normal draw by the ziggurat method (Doornik's ZIGNOR): one `next_u64` per
-/// draw in ~98 % of cases — its top 53 bits give the abscissa, its low 7 bits the layer.
+/// A standard normal draw (rand_distr's ziggurat).
 fn standard_normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
-    let tables = ziggurat_tables();
-    loop {
-        let bits = rng.next_u64();
-        let u = 2.0 * ((bits >> 11) as f64 * (1.0 / (1_u64 << 53) as f64)) - 1.0;
-        let i = (bits & (ZIGGURAT_LAYERS as u64 - 1)) as usize;
-        if u.abs() < tables.ratio[i] {
-            return u * tables.x[i];
-        }
-        if i == 0 {
-            // The tail beyond R (Marsaglia 1964): an exponential proposal a, accepted
-            // when -2 ln U >= a² (probability exp(-a²/2)).
-            loop {
-                let a = (1.0 - uniform(rng)).ln() / ZIGGURAT_R;
-                let b = (1.0 - uniform(rng)).ln();
-                if -2.0 * b >= a * a {
-                    return if u < 0.0 { a - ZIGGURAT_R } else { ZIGGURAT_R - a };
-                }
-            }
-        }
-        let x = u * tables.x[i];
-        let f0 = (-0.5 * (tables.x[i] * tables.x[i] - x * x)).exp();
-        let f1 = (-0.5 * (tables.x[i + 1] * tables.x[i + 1] - x * x)).exp();
-        if f1 + uniform(rng) * (f0 - f1) < 1.0 {
-            return x;
-        }
-    }
+    StandardNormal.sample(rng)
 }
 
-/// A Poisson draw of mean `lambda` (Knuth's product method, in chunks of mean <= 30:
-/// a sum of independent Poisson variables is Poisson with the summed mean).
+/// A Poisson draw of mean `lambda` (rand_distr); 0 for a mean that is not positive.
 fn poisson<R: Rng + ?Sized>(rng: &mut R, lambda: f64) -> u64 {
-    let mut remaining = lambda.max(0.0);
-    let mut count = 0;
-    while remaining > 0.0 {
-        let chunk = remaining.min(POISSON_CHUNK);
-        remaining -= chunk;
-        let limit = (-chunk).exp();
-        let mut product = uniform(rng);
-        while product > limit {
-            count += 1;
-            product *= uniform(rng);
-        }
+    match Poisson::new(lambda) {
+        Ok(p) if lambda > 0.0 => p.sample(rng) as u64,
+        _ => 0,
     }
-    count
 }
 
 /// One stage of lidar noise.
@@ -678,13 +606,6 @@ mod tests {
 
     #[test]
     fn gaussian_and_poisson_moments() {
-        // The ziggurat's layer edges: x[1] = R, the last ones approach 0, areas consistent.
-        let t = ziggurat_tables();
-        assert_eq!(t.x[1], ZIGGURAT_R);
-        assert!(t.x[127] > 0.0 && t.x[127] < 0.3 && t.x[128] == 0.0, "{}", t.x[127]);
-        // Top layer: V = x[127] · (1 - f(x[127])) to 1e-9 when the recursion is right.
-        let top = t.x[127] * (1.0 - (-0.5 * t.x[127] * t.x[127]).exp());
-        assert!((top - ZIGGURAT_V).abs() < 1e-9, "{top}");
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
         let n = 1_000_000;
         let xs: Vec<f64> = (0..n).map(|_| standard_normal(&mut rng)).collect();
@@ -695,12 +616,12 @@ mod tests {
         assert!(mean.abs() < 0.005, "{mean}");
         assert!((var - 1.0).abs() < 0.007, "{var}");
         assert!((kurtosis - 3.0).abs() < 0.03, "{kurtosis}");
-        // P(|x| < 1) = 0.682689; P(|x| > R = 3.4426) = 5.76e-4 (the tail path): 576 ± 24 of 1e6.
+        // P(|x| < 1) = 0.682689; P(|x| > 3.4426) = 5.76e-4: 576 ± 24 of 1e6.
         let within = xs.iter().filter(|x| x.abs() < 1.0).count() as f64 / n as f64;
         assert!((within - 0.682_689).abs() < 0.002, "{within}");
-        let tail = xs.iter().filter(|x| x.abs() > ZIGGURAT_R).count();
+        let tail = xs.iter().filter(|x| x.abs() > 3.442_619_855_899).count();
         assert!((480..680).contains(&tail), "{tail}");
-        // Poisson: mean = variance = λ, also above the chunk size.
+        // Poisson: mean = variance = λ, small and large means.
         for lambda in [0.5, 4.0, 75.0] {
             let ks: Vec<f64> = (0..20_000).map(|_| poisson(&mut rng, lambda) as f64).collect();
             let m = ks.iter().sum::<f64>() / ks.len() as f64;
