@@ -162,16 +162,27 @@ struct Terrain {
     /// Bounds of the grid (x, y) and of its heights (z) [m].
     lo: DVec3,
     hi: DVec3,
-    /// Blocks of `TERRAIN_BLOCK` x `TERRAIN_BLOCK` cells: `blocks_x` along x, `blocks_y` along y.
-    blocks_x: usize,
-    blocks_y: usize,
-    /// Lowest and highest vertex height of each block's cells that are not removed
-    /// (`(+inf, -inf)` when all are), `[by * blocks_x + bx]`.
-    block_z: Vec<(f64, f64)>,
+    /// Height pyramid, finest first: level `l` has blocks of `TERRAIN_BLOCK^(l + 1)` cells a side.
+    levels: Vec<TerrainLevel>,
 }
 
-/// Cells per side of a terrain block, the coarse level of the terrain ray walk.
-const TERRAIN_BLOCK: usize = 8;
+/// One level of the terrain's height pyramid.
+#[derive(Debug, Clone)]
+struct TerrainLevel {
+    /// Blocks along x and y.
+    nx: usize,
+    ny: usize,
+    /// Block side [m].
+    size: f64,
+    /// Lowest and highest vertex height of each block's cells that are not removed
+    /// (`(+inf, -inf)` when all are), `[by * nx + bx]`.
+    z: Vec<(f64, f64)>,
+}
+
+/// Children per side of a block of the terrain's height pyramid.
+const TERRAIN_BLOCK: usize = 4;
+/// Levels of the terrain's height pyramid (blocks of 4, 16, 64 cells a side).
+const TERRAIN_LEVELS: usize = 3;
 
 /// An intersection found by an exact leaf test.
 #[derive(Debug, Clone, Copy)]
@@ -1310,28 +1321,33 @@ impl Terrain {
         }
         let (min_z, max_z) = heights.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &h| (lo.min(h), hi.max(h)));
         let (cells_x, cells_y) = (cols - 1, rows - 1);
-        let (blocks_x, blocks_y) = (cells_x.div_ceil(TERRAIN_BLOCK), cells_y.div_ceil(TERRAIN_BLOCK));
-        let mut block_z = vec![(f64::INFINITY, f64::NEG_INFINITY); blocks_x * blocks_y];
-        for r in 0..cells_y {
-            for c in 0..cells_x {
-                if removed[r * cells_x + c] {
-                    continue;
-                }
-                let b = &mut block_z[(r / TERRAIN_BLOCK) * blocks_x + c / TERRAIN_BLOCK];
-                for h in [heights[r * cols + c], heights[r * cols + c + 1], heights[(r + 1) * cols + c], heights[(r + 1) * cols + c + 1]] {
-                    b.0 = b.0.min(h);
-                    b.1 = b.1.max(h);
+        let mut levels: Vec<TerrainLevel> = Vec::with_capacity(TERRAIN_LEVELS);
+        let (mut span, mut size) = (1usize, res);
+        for _ in 0..TERRAIN_LEVELS {
+            span *= TERRAIN_BLOCK;
+            size *= TERRAIN_BLOCK as f64;
+            let (nx, ny) = (cells_x.div_ceil(span), cells_y.div_ceil(span));
+            let mut z = vec![(f64::INFINITY, f64::NEG_INFINITY); nx * ny];
+            for r in 0..cells_y {
+                for c in 0..cells_x {
+                    if removed[r * cells_x + c] {
+                        continue;
+                    }
+                    let b = &mut z[(r / span) * nx + c / span];
+                    for h in [heights[r * cols + c], heights[r * cols + c + 1], heights[(r + 1) * cols + c], heights[(r + 1) * cols + c + 1]] {
+                        b.0 = b.0.min(h);
+                        b.1 = b.1.max(h);
+                    }
                 }
             }
+            levels.push(TerrainLevel { nx, ny, size, z });
         }
         let lo = DVec3::new(spec.origin[0], spec.origin[1], min_z);
         let hi = DVec3::new(spec.origin[0] + size_x, spec.origin[1] + size_y, max_z);
         Terrain {
             lo,
             hi,
-            blocks_x,
-            blocks_y,
-            block_z,
+            levels,
             id,
             origin: spec.origin,
             resolution: res,
@@ -1410,23 +1426,39 @@ impl Terrain {
             return None;
         }
         let (px, py) = (o.x - self.origin[0], o.y - self.origin[1]);
-        let (cells_x, cells_y) = (self.cols - 1, self.rows - 1);
-        let block = TERRAIN_BLOCK as f64 * self.resolution;
-        let hit = walk_grid(px, py, d.x, d.y, block, (0, self.blocks_x), (0, self.blocks_y), t0, t1, |bx, by, ta, tb| {
-            let (zlo, zhi) = self.block_z[by * self.blocks_x + bx];
+        let top = self.levels.len() - 1;
+        let level = &self.levels[top];
+        let hit = self.walk_level(o, d, px, py, top, (0, level.nx), (0, level.ny), t0, t1)?;
+        (hit.t <= max_t).then_some(hit)
+    }
+
+    /// Walks the blocks of pyramid level `level` in the index ranges given, over `[ta, tb]`,
+    /// descending into those whose height range the ray meets; the first hit found ends it.
+    #[allow(clippy::too_many_arguments)]
+    fn walk_level(&self, o: DVec3, d: DVec3, px: f64, py: f64, level: usize, i_range: (usize, usize), j_range: (usize, usize), ta: f64, tb: f64) -> Option<LeafHit> {
+        let l = &self.levels[level];
+        walk_grid(px, py, d.x, d.y, l.size, i_range, j_range, ta, tb, |bx, by, ta, tb| {
+            let (zlo, zhi) = l.z[by * l.nx + bx];
             if !z_range_meets(o.z, d.z, ta, tb, zlo, zhi) {
                 return None;
             }
-            let i_range = (bx * TERRAIN_BLOCK, ((bx + 1) * TERRAIN_BLOCK).min(cells_x));
-            let j_range = (by * TERRAIN_BLOCK, ((by + 1) * TERRAIN_BLOCK).min(cells_y));
-            walk_grid(px, py, d.x, d.y, self.resolution, i_range, j_range, ta, tb, |c, r, ta, tb| {
-                if self.removed[r * cells_x + c] {
-                    return None;
-                }
-                self.cast_cell(o, d, r, c, ta, tb)
-            })
-        })?;
-        (hit.t <= max_t).then_some(hit)
+            if level == 0 {
+                let (cells_x, cells_y) = (self.cols - 1, self.rows - 1);
+                let i_range = (bx * TERRAIN_BLOCK, ((bx + 1) * TERRAIN_BLOCK).min(cells_x));
+                let j_range = (by * TERRAIN_BLOCK, ((by + 1) * TERRAIN_BLOCK).min(cells_y));
+                walk_grid(px, py, d.x, d.y, self.resolution, i_range, j_range, ta, tb, |c, r, ta, tb| {
+                    if self.removed[r * cells_x + c] {
+                        return None;
+                    }
+                    self.cast_cell(o, d, r, c, ta, tb)
+                })
+            } else {
+                let child = &self.levels[level - 1];
+                let i_range = (bx * TERRAIN_BLOCK, ((bx + 1) * TERRAIN_BLOCK).min(child.nx));
+                let j_range = (by * TERRAIN_BLOCK, ((by + 1) * TERRAIN_BLOCK).min(child.ny));
+                self.walk_level(o, d, px, py, level - 1, i_range, j_range, ta, tb)
+            }
+        })
     }
 
     /// Ray against the two triangles of cell (r, c), whose part of the ray is `[ta, tb]`.
