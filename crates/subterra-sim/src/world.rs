@@ -1537,21 +1537,24 @@ fn walk_grid<T>(
     if i0 >= i1 || j0 >= j1 {
         return None;
     }
-    let start = |p: f64, d: f64, lo: usize, hi: usize| (((p + d * t0) / size).floor().max(lo as f64) as usize).min(hi - 1);
+    // `as usize` truncates and saturates (NaN gives 0): with the clamp at `lo >= 0` this is
+    // the floor (no libm call).
+    let start = |p: f64, d: f64, lo: usize, hi: usize| (((p + d * t0) / size).max(lo as f64) as usize).min(hi - 1);
     let (mut i, mut j) = (start(px, dx, i0, i1), start(py, dy, j0, j1));
+    let (ix, iy) = (1.0 / dx, 1.0 / dy);
     // Distance at which the ray leaves cell index `k` along an axis.
-    let exit = |p: f64, d: f64, k: usize| {
+    let exit = |p: f64, d: f64, inv: f64, k: usize| {
         if d > 0.0 {
-            ((k + 1) as f64 * size - p) / d
+            ((k + 1) as f64 * size - p) * inv
         } else if d < 0.0 {
-            (k as f64 * size - p) / d
+            (k as f64 * size - p) * inv
         } else {
             f64::INFINITY
         }
     };
     let mut t = t0;
+    let (mut tx, mut ty) = (exit(px, dx, ix, i), exit(py, dy, iy, j));
     loop {
-        let (tx, ty) = (exit(px, dx, i), exit(py, dy, j));
         let t_out = tx.min(ty).min(t1).max(t);
         if let Some(found) = visit(i, j, t, t_out) {
             return Some(found);
@@ -1567,12 +1570,16 @@ fn walk_grid<T>(
             } else {
                 return None;
             }
-        } else if dy > 0.0 && j + 1 < j1 {
-            j += 1;
-        } else if dy < 0.0 && j > j0 {
-            j -= 1;
+            tx = exit(px, dx, ix, i);
         } else {
-            return None;
+            if dy > 0.0 && j + 1 < j1 {
+                j += 1;
+            } else if dy < 0.0 && j > j0 {
+                j -= 1;
+            } else {
+                return None;
+            }
+            ty = exit(py, dy, iy, j);
         }
         t = t_out;
     }
