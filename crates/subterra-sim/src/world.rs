@@ -372,7 +372,8 @@ impl World {
                     if near > solid_limit {
                         break;
                     }
-                    let Some(&(id, prepared)) = plan.prepared.get(index as usize) else { continue };
+                    let Some((id, prepared)) = plan.prepared.get(index as usize) else { continue };
+                    let id = *id;
                     if let Some(hit) = prepared.cast(origin, d) {
                         if improves(hit.t, id, solid_limit, solid) {
                             solid_limit = hit.t;
