@@ -145,6 +145,8 @@ pub struct DepthCamera {
     config: DepthCameraConfig,
     /// Unit ray through each pixel centre, optical frame, row-major.
     rays_camera: Vec<DVec3>,
+    /// Ray length at which each pixel's depth reaches `max_range_m` (`max_range_m / ray.z`) [m].
+    ray_range: Vec<f64>,
 }
 
 impl DepthCamera {
@@ -161,7 +163,8 @@ impl DepthCamera {
                 rays_camera.push(DVec3::new(x, y, 1.0).normalize());
             }
         }
-        Ok(Self { config, rays_camera })
+        let ray_range = rays_camera.iter().map(|r| config.max_range_m / r.z).collect();
+        Ok(Self { config, rays_camera, ray_range })
     }
 
     /// The configuration.
@@ -184,10 +187,11 @@ impl DepthCamera {
 
     /// As [`Self::render`], reusing `out`'s buffers (no allocation once they have the size).
     pub fn render_into(&self, world: &World, world_from_camera: &Isometry3, out: &mut DepthRender) {
-        self.prepare(out);
         if !pose_is_finite(world_from_camera) {
+            self.prepare(out);
             return;
         }
+        self.size(out);
         self.render_span(world, world_from_camera, 0, &mut out.depth_m, &mut out.primitive, &mut out.incidence_cos);
     }
 
@@ -195,10 +199,11 @@ impl DepthCamera {
     /// renders on the calling thread). The output is identical to [`Self::render`].
     pub fn render_parallel(&self, world: &World, world_from_camera: &Isometry3, threads: usize) -> DepthRender {
         let mut out = DepthRender::default();
-        self.prepare(&mut out);
         if !pose_is_finite(world_from_camera) {
+            self.prepare(&mut out);
             return out;
         }
+        self.size(&mut out);
         let width = self.config.camera.width as usize;
         let height = self.config.camera.height as usize;
         let threads = threads.clamp(1, height.max(1));
@@ -229,18 +234,34 @@ impl DepthCamera {
         out.incidence_cos.resize(n, 0.0);
     }
 
-    /// Renders pixels `first..first + depth.len()` into the given slices (pre-cleared).
+    /// Sizes `out` to the image, keeping whatever values it holds ([`Self::render_span`]
+    /// writes every pixel).
+    fn size(&self, out: &mut DepthRender) {
+        let n = self.rays_camera.len();
+        out.width = self.config.camera.width;
+        out.height = self.config.camera.height;
+        out.depth_m.resize(n, 0.0);
+        out.primitive.resize(n, -1);
+        out.incidence_cos.resize(n, 0.0);
+    }
+
+    /// Renders pixels `first..first + depth.len()` into the given slices, every pixel.
     fn render_span(&self, world: &World, world_from_camera: &Isometry3, first: usize, depth: &mut [f32], primitive: &mut [i32], incidence: &mut [f32]) {
         let rotation = world_from_camera.rotation;
         let origin = world_from_camera.translation;
         let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
         let rays = self.rays_camera.get(first..first + depth.len()).unwrap_or(&[]);
         // ray.z > 0 for every pixel: the ray through the image plane z = 1.
-        let range = |k: usize| max_m / rays[k].z;
+        let ranges = self.ray_range.get(first..first + depth.len()).unwrap_or(&[]);
+        let range = |k: usize| ranges[k];
         world.cast_fan(origin, rotation, rays, &range, &mut |k, dir, hit| {
-            let Some(hit) = hit else { return };
+            let Some(hit) = hit else {
+                (depth[k], primitive[k], incidence[k]) = (0.0, -1, 0.0);
+                return;
+            };
             let z = hit.distance_m * rays[k].z;
             if !(z >= min_m && z <= max_m) {
+                (depth[k], primitive[k], incidence[k]) = (0.0, -1, 0.0);
                 return;
             }
             depth[k] = z as f32;
@@ -504,6 +525,25 @@ mod tests {
         let mut l = LidarConfig::vlp16();
         l.vertical_angles_rad.clear();
         assert!(matches!(l.validate(), Err(SimError::InvalidConfig { field, .. }) if field == "vertical_angles_rad"));
+    }
+
+    #[test]
+    fn render_into_a_used_buffer_equals_a_fresh_render() {
+        let world = World::from_spec(crate::scenarios::generate("highbay", 1).unwrap()).unwrap();
+        let camera = DepthCamera::new(DepthCameraConfig::d435()).unwrap();
+        let centre = DVec3::from_array(world.region("A").unwrap().centre);
+        let look = Isometry3::body_from_forward_optical().rotation;
+        let near = Isometry3 { rotation: look, translation: centre };
+        let far = Isometry3 { rotation: glam::DMat3::from_rotation_z(2.0) * look, translation: centre };
+        let mut out = camera.render(&world, &near);
+        assert!(out.valid_count() > 0);
+        camera.render_into(&world, &far, &mut out);
+        let fresh = camera.render(&world, &far);
+        assert_eq!(out, fresh);
+        assert_eq!(fresh, camera.render_parallel(&world, &far, 3));
+        // A non-finite pose clears the buffer to "no return".
+        camera.render_into(&world, &Isometry3 { rotation: look, translation: DVec3::NAN }, &mut out);
+        assert_eq!(out, DepthRender::empty(640, 480));
     }
 
     #[test]
