@@ -16,7 +16,7 @@ use glam::DVec3;
 use subterra::{Isometry3, PinholeCamera};
 
 use crate::error::{SimError, SimResult};
-use crate::world::World;
+use crate::world::{FanLayout, World};
 
 /// D435 depth stream nearest usable depth [m] (Intel RealSense D400 datasheet: ~0.1 m at
 /// 640x480 with the minimum disparity shift; the preset).
@@ -147,6 +147,8 @@ pub struct DepthCamera {
     rays_camera: Vec<DVec3>,
     /// Ray length at which each pixel's depth reaches `max_range_m` (`max_range_m / ray.z`) [m].
     ray_range: Vec<f64>,
+    /// The pixels' rays split into fans (pose-free set-up of [`World`]'s fan casts).
+    layout: FanLayout,
 }
 
 impl DepthCamera {
@@ -163,8 +165,9 @@ impl DepthCamera {
                 rays_camera.push(DVec3::new(x, y, 1.0).normalize());
             }
         }
-        let ray_range = rays_camera.iter().map(|r| config.max_range_m / r.z).collect();
-        Ok(Self { config, rays_camera, ray_range })
+        let ray_range: Vec<f64> = rays_camera.iter().map(|r| config.max_range_m / r.z).collect();
+        let layout = FanLayout::new(&rays_camera, &|k| ray_range[k]);
+        Ok(Self { config, rays_camera, ray_range, layout })
     }
 
     /// The configuration.
@@ -254,7 +257,9 @@ impl DepthCamera {
         // ray.z > 0 for every pixel: the ray through the image plane z = 1.
         let ranges = self.ray_range.get(first..first + depth.len()).unwrap_or(&[]);
         let range = |k: usize| ranges[k];
-        world.cast_fan(origin, rotation, rays, &range, &mut |k, dir, hit| {
+        // The cached layout covers the whole image (a span of all of it); others fall back to
+        // laying out their fans per call.
+        world.cast_fan_cached(origin, rotation, rays, &self.layout, &range, &mut |k, dir, hit| {
             let Some(hit) = hit else {
                 (depth[k], primitive[k], incidence[k]) = (0.0, -1, 0.0);
                 return;
@@ -387,6 +392,8 @@ pub struct Lidar {
     beams_sensor: Vec<DVec3>,
     /// Ring of each beam.
     beam_ring: Vec<u16>,
+    /// The beams split into fans (pose-free set-up of [`World`]'s fan casts).
+    layout: FanLayout,
 }
 
 impl Lidar {
@@ -407,7 +414,9 @@ impl Lidar {
                 beam_ring.push(ring as u16);
             }
         }
-        Ok(Self { config, beams_sensor, beam_ring })
+        let max_m = config.max_range_m;
+        let layout = FanLayout::new(&beams_sensor, &|_| max_m);
+        Ok(Self { config, beams_sensor, beam_ring, layout })
     }
 
     /// The configuration.
@@ -432,7 +441,7 @@ impl Lidar {
         let origin = world_from_sensor.translation;
         let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
         let beams = &self.beams_sensor;
-        world.cast_fan(origin, rotation, beams, &|_| max_m, &mut |k, _, hit| {
+        world.cast_fan_cached(origin, rotation, beams, &self.layout, &|_| max_m, &mut |k, _, hit| {
             let Some(hit) = hit else { return };
             let r = hit.distance_m;
             if !(r >= min_m && r <= max_m) {

@@ -349,47 +349,85 @@ impl World {
             self.cast_fan_from(origin, rotation, &dirs[mid..], first + mid, range, sink);
             return;
         }
-        let plan = FanPlan::new(self, origin, rotation, axis, dirs, first, range);
+        let plan = FanPlan::new(self, origin, rotation, FanGeom::new(axis, dirs, first, range));
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
-            let max_t = range(first + k);
-            let hit = if max_t.is_nan() || max_t < 0.0 {
-                None
-            } else {
-                let mut best: Option<(LeafHit, PrimitiveId)> = None;
-                let mut limit = max_t;
-                for (plane, &s) in self.planes.iter().zip(&plan.plane_s) {
-                    if let Some(hit) = plane.cast_prepared(s, d, limit) {
-                        if best.is_none() || hit.t < limit {
-                            limit = hit.t;
-                            best = Some((hit, plane.id));
-                        }
-                    }
-                }
-                let mut solid: Option<(PrimitiveId, LeafHit)> = None;
-                let mut solid_limit = limit;
-                for &(near, index) in plan.candidates(*dl) {
-                    if near > solid_limit {
-                        break;
-                    }
-                    let Some((id, prepared)) = plan.prepared.get(index as usize) else { continue };
-                    let id = *id;
-                    if let Some(hit) = prepared.cast(origin, d) {
-                        if improves(hit.t, id, solid_limit, solid) {
-                            solid_limit = hit.t;
-                            solid = Some((id, hit));
-                        }
-                    }
-                }
-                if let Some((id, hit)) = solid {
-                    if best.is_none() || hit.t < limit {
-                        best = Some((hit, id));
-                    }
-                }
-                self.finish(origin, d, max_t, best, plan.terrain)
-            };
+            let hit = self.fan_ray(&plan, origin, d, range(first + k), plan.g.bin(*dl));
             sink(first + k, d, hit);
         }
+    }
+
+    /// [`World::cast_fan`] with the fans laid out beforehand: `layout` is
+    /// [`FanLayout::new`]`(dirs, range)` (the same `dirs` and `range`). Same answers.
+    pub(crate) fn cast_fan_cached<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], layout: &FanLayout, range: &R, sink: &mut S)
+    where
+        R: Fn(usize) -> f64,
+        S: FnMut(usize, DVec3, Option<RayHit>),
+    {
+        if layout.len() != dirs.len() {
+            self.cast_fan(origin, rotation, dirs, range, sink);
+            return;
+        }
+        for &(first, len, geom) in &layout.fans {
+            let fan = &dirs[first..first + len];
+            match geom {
+                Some(g) if !self.solids.is_empty() => {
+                    let plan = FanPlan::new(self, origin, rotation, g);
+                    for (k, dl) in fan.iter().enumerate() {
+                        let d = rotation * *dl;
+                        let hit = self.fan_ray(&plan, origin, d, range(first + k), layout.bins[first + k] as usize);
+                        sink(first + k, d, hit);
+                    }
+                }
+                _ => {
+                    for (k, dl) in fan.iter().enumerate() {
+                        let d = rotation * *dl;
+                        let max_t = range(first + k);
+                        let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit(origin, d, max_t) };
+                        sink(first + k, d, hit);
+                    }
+                }
+            }
+        }
+    }
+
+    /// One ray of a fan: world direction `d`, range `max_t`, bin `bin` of the plan's grid.
+    #[inline]
+    fn fan_ray(&self, plan: &FanPlan, origin: DVec3, d: DVec3, max_t: f64, bin: usize) -> Option<RayHit> {
+        if max_t.is_nan() || max_t < 0.0 {
+            return None;
+        }
+        let mut best: Option<(LeafHit, PrimitiveId)> = None;
+        let mut limit = max_t;
+        for (plane, &s) in self.planes.iter().zip(&plan.plane_s) {
+            if let Some(hit) = plane.cast_prepared(s, d, limit) {
+                if best.is_none() || hit.t < limit {
+                    limit = hit.t;
+                    best = Some((hit, plane.id));
+                }
+            }
+        }
+        let mut solid: Option<(PrimitiveId, LeafHit)> = None;
+        let mut solid_limit = limit;
+        for &(near, index) in plan.candidates(bin) {
+            if near > solid_limit {
+                break;
+            }
+            let Some((id, prepared)) = plan.prepared.get(index as usize) else { continue };
+            let id = *id;
+            if let Some(hit) = prepared.cast(origin, d) {
+                if improves(hit.t, id, solid_limit, solid) {
+                    solid_limit = hit.t;
+                    solid = Some((id, hit));
+                }
+            }
+        }
+        if let Some((id, hit)) = solid {
+            if best.is_none() || hit.t < limit {
+                best = Some((hit, id));
+            }
+        }
+        self.finish(origin, d, max_t, best, plan.terrain)
     }
 
     /// [`World::cast_ray`] for a unit `d`.
@@ -836,16 +874,8 @@ fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
 /// Per-fan culling: the fan's rays in gnomonic coordinates `(u, v)` around its axis, a grid of
 /// bins over them, and per bin the primitives whose boxes project into it, nearest first.
 struct FanPlan {
-    /// Local (fan input) frame: axis and two unit vectors across it.
-    axis: DVec3,
-    e1: DVec3,
-    e2: DVec3,
-    u0: f64,
-    v0: f64,
-    su: f64,
-    sv: f64,
-    nbx: usize,
-    nby: usize,
+    /// The fan's frame and bin grid.
+    g: FanGeom,
     /// Bin `b`'s candidates are `entries[starts[b]..starts[b + 1]]`: (distance to the box,
     /// index into `prepared`), nearest first.
     starts: Vec<u32>,
@@ -858,8 +888,70 @@ struct FanPlan {
     terrain: bool,
 }
 
-impl FanPlan {
-    fn new<R: Fn(usize) -> f64>(world: &World, origin: DVec3, rotation: DMat3, axis: DVec3, dirs: &[DVec3], first: usize, range: &R) -> FanPlan {
+/// The pose-free part of a fan: its frame, the extent of its rays' gnomonic image, the
+/// bin grid and the longest range.
+#[derive(Debug, Clone, Copy)]
+struct FanGeom {
+    axis: DVec3,
+    e1: DVec3,
+    e2: DVec3,
+    u0: f64,
+    u1: f64,
+    v0: f64,
+    v1: f64,
+    su: f64,
+    sv: f64,
+    nbx: usize,
+    nby: usize,
+    rmax: f64,
+}
+
+/// Rays split into fans once, for casting them from many poses ([`World::cast_fan_cached`]):
+/// what [`World::cast_fan`] computes per call that depends on the directions and ranges only.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct FanLayout {
+    /// (first ray, ray count, geometry; `None`: cast ray by ray).
+    fans: Vec<(usize, usize, Option<FanGeom>)>,
+    /// Bin of each ray in its fan's grid.
+    bins: Vec<u32>,
+}
+
+impl FanLayout {
+    /// Splits `dirs` (unit, local frame) as [`World::cast_fan`] does; `range(k)` is ray `k`'s range.
+    pub(crate) fn new<R: Fn(usize) -> f64>(dirs: &[DVec3], range: &R) -> FanLayout {
+        let mut layout = FanLayout { fans: Vec::new(), bins: vec![0; dirs.len()] };
+        layout.split(dirs, 0, range);
+        layout
+    }
+
+    fn split<R: Fn(usize) -> f64>(&mut self, dirs: &[DVec3], first: usize, range: &R) {
+        if dirs.len() < FAN_MIN_RAYS {
+            self.fans.push((first, dirs.len(), None));
+            return;
+        }
+        let axis = dirs.iter().fold(DVec3::ZERO, |acc, d| acc + *d).normalize_or_zero();
+        let min_cos = dirs.iter().fold(f64::INFINITY, |acc, d| acc.min(d.dot(axis)));
+        if min_cos.is_nan() || min_cos < FAN_MIN_COS {
+            let mid = dirs.len() / 2;
+            self.split(&dirs[..mid], first, range);
+            self.split(&dirs[mid..], first + mid, range);
+            return;
+        }
+        let g = FanGeom::new(axis, dirs, first, range);
+        for (k, d) in dirs.iter().enumerate() {
+            self.bins[first + k] = g.bin(*d) as u32;
+        }
+        self.fans.push((first, dirs.len(), Some(g)));
+    }
+
+    /// Number of rays laid out.
+    pub(crate) fn len(&self) -> usize {
+        self.bins.len()
+    }
+}
+
+impl FanGeom {
+    fn new<R: Fn(usize) -> f64>(axis: DVec3, dirs: &[DVec3], first: usize, range: &R) -> FanGeom {
         let (e1, e2) = axis.any_orthonormal_pair();
         let (mut u0, mut u1, mut v0, mut v1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
         let mut rmax: f64 = 0.0;
@@ -887,7 +979,30 @@ impl FanPlan {
         let nby = (bins / nbx).max(1);
         let su = if du > 0.0 { nbx as f64 / du } else { 0.0 };
         let sv = if dv > 0.0 { nby as f64 / dv } else { 0.0 };
-        let mut plan = FanPlan { axis, e1, e2, u0, v0, su, sv, nbx, nby, starts: vec![0; nbx * nby + 1], entries: Vec::new(), prepared: Vec::new(), plane_s: Vec::new(), terrain: false };
+        FanGeom { axis, e1, e2, u0, u1, v0, v1, su, sv, nbx, nby, rmax }
+    }
+
+    fn bin_u(&self, u: f64) -> usize {
+        // `as i32` saturates (NaN gives 0); one instruction, unlike `as usize`.
+        (((u - self.u0) * self.su) as i32).clamp(0, self.nbx as i32 - 1) as usize
+    }
+
+    fn bin_v(&self, v: f64) -> usize {
+        (((v - self.v0) * self.sv) as i32).clamp(0, self.nby as i32 - 1) as usize
+    }
+
+    /// Bin of the ray with local unit direction `d`.
+    #[inline]
+    fn bin(&self, d: DVec3) -> usize {
+        let inv = 1.0 / d.dot(self.axis);
+        self.bin_v(d.dot(self.e2) * inv) * self.nbx + self.bin_u(d.dot(self.e1) * inv)
+    }
+}
+
+impl FanPlan {
+    fn new(world: &World, origin: DVec3, rotation: DMat3, g: FanGeom) -> FanPlan {
+        let FanGeom { axis, e1, e2, u0, u1, v0, v1, nbx, nby, rmax, .. } = g;
+        let mut plan = FanPlan { g, starts: vec![0; nbx * nby + 1], entries: Vec::new(), prepared: Vec::new(), plane_s: Vec::new(), terrain: false };
         plan.plane_s = world.planes.iter().map(|p| p.normal.dot(origin - p.point)).collect();
 
         // World frame of the fan, and its pyramid widened by a hair.
@@ -909,7 +1024,7 @@ impl FanPlan {
             let near = box_distance(origin, lo, hi);
             let cells = if near <= FAN_NEAR_M / FAN_MIN_COS {
                 // The apex touches the box: it may cover any direction of the fan.
-                [0, plan.nbx - 1, 0, plan.nby - 1]
+                [0, nbx - 1, 0, nby - 1]
             } else {
                 // Project the part of the box in front of the plane z = FAN_NEAR_M (every hit
                 // lies there, being farther than FAN_NEAR_M / FAN_MIN_COS): its corners there
@@ -947,7 +1062,7 @@ impl FanPlan {
                 if rb < u0 || ra > u1 || rd < v0 || rc > v1 {
                     continue;
                 }
-                [plan.bin_u(ra), plan.bin_u(rb), plan.bin_v(rc), plan.bin_v(rd)]
+                [g.bin_u(ra), g.bin_u(rb), g.bin_v(rc), g.bin_v(rd)]
             };
             visible.push((near, id, cells));
         }
@@ -980,20 +1095,9 @@ impl FanPlan {
         plan
     }
 
-    fn bin_u(&self, u: f64) -> usize {
-        // `as i32` saturates (NaN gives 0); one instruction, unlike `as usize`.
-        (((u - self.u0) * self.su) as i32).clamp(0, self.nbx as i32 - 1) as usize
-    }
-
-    fn bin_v(&self, v: f64) -> usize {
-        (((v - self.v0) * self.sv) as i32).clamp(0, self.nby as i32 - 1) as usize
-    }
-
-    /// Candidates of the ray with local unit direction `d`, nearest box first.
+    /// Candidates of the rays in bin `b`, nearest box first.
     #[inline]
-    fn candidates(&self, d: DVec3) -> &[(f64, u32)] {
-        let inv = 1.0 / d.dot(self.axis);
-        let b = self.bin_v(d.dot(self.e2) * inv) * self.nbx + self.bin_u(d.dot(self.e1) * inv);
+    fn candidates(&self, b: usize) -> &[(f64, u32)] {
         let (s, e) = (self.starts[b] as usize, self.starts[b + 1] as usize);
         &self.entries[s..e]
     }
@@ -2040,6 +2144,16 @@ mod tests {
                         compared += 1;
                         hits += usize::from(hit.is_some());
                     });
+                    // The cached fan layout gives the same answers too.
+                    let layout = FanLayout::new(dirs, &max);
+                    let mut cached = 0;
+                    w.cast_fan_cached(origin, rotation, dirs, &layout, &max, &mut |k, d, hit| {
+                        assert_eq!(k, cached);
+                        assert_eq!(d, rotation * dirs[k]);
+                        assert_eq!(hit, w.cast_unit(origin, d, max(k)), "{name}: cached ray {k} from {origin}");
+                        cached += 1;
+                    });
+                    assert_eq!(cached, dirs.len());
                 }
             }
             assert_eq!(compared, 6 * (camera.len() + lidar.len()));
