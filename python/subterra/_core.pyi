@@ -1,7 +1,8 @@
 """Type stubs of the compiled extension `subterra._core` (see crates/subterra-py)."""
 
 from collections.abc import Sequence
-from typing import Any
+from types import ModuleType
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -93,6 +94,7 @@ class DepthPerception:
         config: PerceptionConfig | None = None,
         body_from_camera: npt.ArrayLike | None = None,
         seed: int = 0,
+        mode: Literal["particle", "histogram", "raw"] | None = None,
     ) -> None: ...
     def update(self, depth: npt.NDArray[np.uint16] | npt.NDArray[np.float32], scale: float | None = None) -> PerceptionOutput: ...
     @property
@@ -147,3 +149,14 @@ class ApfController:
         *,
         repulsive_body: Sequence[float] | npt.ArrayLike | None = None,
     ) -> Command: ...
+
+class _SimModule(ModuleType):
+    """The simulator (``subterra.sim`` re-exports it with its docs)."""
+
+    World: Any
+    DepthCamera: Any
+    Lidar: Any
+    Simulation: Any
+    def scenario_names(self) -> list[str]: ...
+
+sim: _SimModule

@@ -9,10 +9,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from subterra.errors import SubterraError
+from subterra.errors import InputError, SubterraError
 
 __all__ = ["main"]
 
@@ -23,6 +24,16 @@ def _goal(text: str) -> tuple[float, float, float]:
     except ValueError as exc:
         raise argparse.ArgumentTypeError(f"expected x,y,z in metres, got {text!r}") from exc
     return x, y, z
+
+
+_NOISES = ("none", "paper-every-pixel", "paper-every-2nd", "paper-every-10th", "d435", "d435-phantom")
+
+
+def _flight_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="highbay", help="built-in scenario with routes: highbay (default) or tunnel")
+    p.add_argument("--preset", default="flight", help="perception preset (default flight)")
+    p.add_argument("--config", default=None, help="perception config TOML, instead of --preset")
+    p.add_argument("--rate", type=float, default=15.0, help="camera and control rate [Hz] (default 15)")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -56,9 +67,38 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--noise", default="d435", help="depth noise preset (default d435)")
     render.add_argument("--out", default="runs/render", help="output folder (default runs/render)")
 
-    demo = sub.add_parser("demo", help="the main job: run the pipelines on built-in scenes and real data")
+    fly = sub.add_parser("fly", help="one closed-loop flight in the simulator (depth camera -> controller -> quadrotor)")
+    _flight_options(fly)
+    fly.add_argument("--route", default="A-B", help="route, e.g. A-B (highbay: A-B, B-C, C-D, D-C, D-B)")
+    fly.add_argument("--controller", default="apf-pf", choices=["apf-pf", "apf-pf-histogram", "raw-apf"],
+                     help="apf-pf (particle filter, the paper), apf-pf-histogram (exact filter) or raw-apf (the baseline)")
+    fly.add_argument("--noise", default="d435", help="depth noise model: " + ", ".join(_NOISES) + " (default d435)")
+    fly.add_argument("--seed", type=int, default=0, help="world layout, noise and filter seed (default 0)")
+    fly.add_argument("--time-limit", type=float, default=None, help="seconds of simulated time (default: 4x the straight-line time)")
+    fly.add_argument("--world", default=None, help="fly in this world file (TOML) instead of a built-in scenario")
+    fly.add_argument("--no-rerun", action="store_true", help="do not write flight.rrd even if rerun-sdk is installed")
+    fly.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    fly.add_argument("--out", default=None, help="run folder (default runs/fly-<scenario>-<route>-<controller>-<noise>-s<seed>)")
+
+    batch = sub.add_parser("fly-batch", help="many randomized flights, APF-PF and the raw-APF baseline side by side")
+    _flight_options(batch)
+    batch.add_argument("--routes", default="all", help="comma-separated routes or 'all' (default)")
+    batch.add_argument("--seeds", type=int, default=50, help="seeds 0..N-1, one obstacle layout each (default 50)")
+    batch.add_argument("--first-seed", type=int, default=0, help="start the seeds here (default 0)")
+    batch.add_argument("--controllers", default="apf-pf,raw-apf", help="comma-separated (default apf-pf,raw-apf)")
+    batch.add_argument("--noise", default="d435-phantom", help="comma-separated noise models (default d435-phantom)")
+    batch.add_argument("--workers", type=int, default=None, help="parallel flights (default: CPU count)")
+    batch.add_argument("--no-plots", action="store_true", help="skip the path figure")
+    batch.add_argument("--out", default=None, help="output folder (default runs/fly-batch-<scenario>-<time>)")
+
+    from subterra.flight.cable import register_cli as register_cable_test
+
+    register_cable_test(sub)
+
+    demo = sub.add_parser("demo", help="the main job: simulated flights, the cable test and a small batch, with a report")
     demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
     demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")
+    demo.add_argument("--quick", action="store_true", help="a short version (20 s flights, fewer frames, one batch route)")
     return p
 
 
@@ -107,18 +147,67 @@ def _sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fly(args: argparse.Namespace) -> int:
+    from subterra import load_config
+    from subterra.flight import fly
+    from subterra.sim import load_world
+    from subterra.viz.rerun import rerun_available
+
+    config = load_config(args.config) if args.config else None
+    world = load_world(args.world) if args.world else None
+    scenario = world.name if world is not None else args.scenario
+    out = Path(args.out or f"runs/fly-{scenario}-{args.route}-{args.controller}-{args.noise}-s{args.seed}")
+    rerun = None if args.no_rerun or not rerun_available() else out / "flight.rrd"
+    if rerun is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    result = fly(args.scenario, args.route, controller=args.controller, noise=args.noise, preset=args.preset, config=config,
+                 seed=args.seed, world=world, rate_hz=args.rate, time_limit_s=args.time_limit, progress=True, rerun_path=rerun)
+    paths = result.save(out, plots=not args.no_plots)
+    m = result.summary()
+    outcome = "reached the goal" if m["success"] else f"failed: {m['failure']}"
+    print(f"{scenario} {result.route} with {args.controller}, noise {args.noise}, seed {args.seed}: {outcome} "
+          f"after {m['time_s']:.1f} s, {m['path_length_m']:.1f} m; collisions {m['collisions']}, "
+          f"min clearance {m['min_clearance_m']:.3f} m; compute median {m['compute_ms_median']:.2f} ms, p99 {m['compute_ms_p99']:.2f} ms")
+    for kind, path in paths.items():
+        print(f"  {kind}: {path}")
+    if rerun is None and not args.no_rerun:
+        print("  (no flight.rrd: pip install 'subterra[viz]' for a Rerun recording)")
+    return 0
+
+
+def _fly_batch(args: argparse.Namespace) -> int:
+    from subterra.flight import fly_batch
+
+    if args.config:
+        raise InputError("argument --config: fly-batch takes --preset, not --config")
+    if args.seeds < 1:
+        raise InputError(f"argument --seeds must be >= 1, got {args.seeds}")
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    result = fly_batch(args.scenario, args.routes, seeds, controllers=[c.strip() for c in args.controllers.split(",") if c.strip()],
+                       noises=[n.strip() for n in args.noise.split(",") if n.strip()], preset=args.preset, rate_hz=args.rate,
+                       workers=args.workers)
+    out = Path(args.out or f"runs/fly-batch-{args.scenario}-{time.strftime('%Y%m%d-%H%M%S')}")
+    paths = result.save(out, plots=not args.no_plots)
+    print(result.markdown())
+    print(f"{len(result.rows)} flights in {result.wall_s:.0f} s")
+    for kind, path in paths.items():
+        print(f"  {kind}: {path}")
+    return 0
+
+
 def _demo(args: argparse.Namespace) -> int:
     from subterra.demo import run_demo
 
-    return run_demo(data=args.data, out=args.out)
+    return run_demo(data=args.data, out=args.out, quick=args.quick)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `subterra` command."""
     args = _parser().parse_args(argv)
-    handlers = {"perceive": _perceive, "bench": _bench, "sim": _sim, "demo": _demo}
+    handlers = {"perceive": _perceive, "bench": _bench, "sim": _sim, "demo": _demo, "fly": _fly, "fly-batch": _fly_batch}
     try:
-        return handlers[args.command](args)
+        handler = getattr(args, "handler", None) or handlers[args.command]
+        return handler(args)
     except (SubterraError, ValueError, OSError) as exc:
         if args.debug:
             raise

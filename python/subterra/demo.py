@@ -1,5 +1,7 @@
-"""`subterra demo` (what `make demo` runs): the pipelines on built-in scenes and real data,
-a summary table on stdout and a report folder with an index."""
+"""`subterra demo` (what `make demo` runs): closed-loop flights in the simulator with APF-PF
+and the raw-APF baseline, the thin-cable test, a small randomized batch, APF-PF on real
+RealSense frames when `../shared/data` is there, and pictures of the built-in scenes. It
+prints a summary table and writes a report folder with an index linking every plot."""
 
 from __future__ import annotations
 
@@ -8,16 +10,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from subterra._core import PinholeCamera
-from subterra.perceive import run_perception, summarise
-from subterra.scenarios.synthetic import approaching_box_frames, noise_only_frames
-from subterra.viz.plots import plot_depth_trace
+from subterra.flight import fly, fly_batch
+from subterra.flight.cable import cable_test
+from subterra.viz.flight import plot_flight_path
 
 __all__ = ["run_demo"]
 
 REALSENSE = "realsense-d435-room"
+#: The flight every controller flies in the demo.
+DEMO_ROUTE = "A-B"
+DEMO_NOISE = "d435-phantom"
+DEMO_SEED = 1
 
 
 def _default_data() -> Path | None:
@@ -27,70 +30,135 @@ def _default_data() -> Path | None:
     return None
 
 
-def _case(name: str, description: str, frames, camera, out: Path, truth=None) -> dict[str, Any]:
-    perception, records = run_perception(frames, camera, progress=True, total=None)
-    summary = summarise(perception, records, source=name, preset="flight")
-    (out / f"{name}.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
-    plot_depth_trace(records, out / f"{name}.png", title=f"APF-PF (flight): {description}", truth_depth_m=truth)
-    return {"name": name, "description": description, "summary": summary, "records": records, "truth": truth}
+def _table(header: tuple[str, ...], rows: list[tuple[Any, ...]]) -> str:
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows, strict=False)]
+
+    def line(r: tuple[Any, ...] | list[str]) -> str:
+        return "  ".join(str(x).ljust(w) for x, w in zip(r, widths, strict=False)).rstrip()
+
+    return "\n".join([line(header), line(["-" * w for w in widths]), *(line(r) for r in rows)])
 
 
-def run_demo(*, data: str | None = None, out: str | None = None) -> int:
-    """Runs the demo; returns the exit code."""
+def _real_data(data_dir: Path, report: Path) -> tuple[str, list[str]] | None:
+    from subterra._core import PinholeCamera  # noqa: F401  (the extension must be importable)
+    from subterra.io import list_depth_files, read_depth, read_intrinsics
+    from subterra.perceive import run_perception, summarise
+    from subterra.viz.plots import plot_depth_trace
+
+    room = data_dir / REALSENSE
+    camera = read_intrinsics(room / "cam_params_realsense.json").to_camera()
+    files = list_depth_files(room / "depth")
+    frames = ((p.name, read_depth(p).data, 0.001) for p in files)
+    perception, records = run_perception(frames, camera, progress=True, total=len(files))
+    summary = summarise(perception, records, source=str(room), preset="flight")
+    (report / "realsense-room.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    plot_depth_trace(records, report / "realsense-room.png", title=f"APF-PF (flight): {len(files)} real RealSense D435 frames")
+    t = summary["timing"]
+    line = (f"{len(files)} real D435 frames from {room}: mean P(free) {summary['p_free_mean']:.3f}, "
+            f"median {t['median_ms']:.3f} ms, p99 {t['p99_ms']:.3f} ms per frame")
+    return line, ["## Real data: RealSense D435 room", "", line, "", "![realsense](realsense-room.png)", "",
+                  "Per-frame data: [realsense-room.json](realsense-room.json)", ""]
+
+
+def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = False) -> int:
+    """Runs the demo; returns the exit code. ``quick`` shortens everything (for tests):
+    20 s flights, 30 cable-test frames, a batch of one route."""
+    started = time.perf_counter()
     stamp = time.strftime("%Y%m%d-%H%M%S")
     report = Path(out or f"runs/demo-{stamp}")
     report.mkdir(parents=True, exist_ok=True)
-    camera = PinholeCamera.d435()
-    cases = []
+    index = ["# subterra demo", "", f"Written {time.strftime('%Y-%m-%d %H:%M:%S')}" + (" (quick run)" if quick else "") + ".", ""]
+    summary: dict[str, Any] = {"quick": quick}
 
-    depth, truth = approaching_box_frames(camera, frames=40, seed=0)
-    cases.append(_case("approaching-box", "a 0.5 m box approaching from 1.6 m to 0.5 m (synthetic, D435)",
-                       ((f"{n}", d, None) for n, d in enumerate(depth)), camera, report, truth=truth))
-    noise = noise_only_frames(camera, frames=20, seed=0)
-    cases.append(_case("noise-only", "no obstacle, σ = 0.2 m noise on every 10th pixel (synthetic)",
-                       ((f"{n}", d, None) for n, d in enumerate(noise)), camera, report))
+    # 1. One highbay route flown by each controller, same world, seed and noise.
+    print(f"[1/4] highbay {DEMO_ROUTE}, noise {DEMO_NOISE}, seed {DEMO_SEED}: APF-PF and the raw-APF baseline")
+    flights = []
+    for controller in ("apf-pf", "raw-apf"):
+        result = fly("highbay", DEMO_ROUTE, controller=controller, noise=DEMO_NOISE, seed=DEMO_SEED, progress=True,
+                     time_limit_s=20.0 if quick else None)
+        result.save(report / f"fly-{controller}")
+        flights.append(result)
+    plot_flight_path(flights, report / "flight-paths.png",
+                     title=f"highbay {DEMO_ROUTE}, seed {DEMO_SEED}, noise {DEMO_NOISE}: APF-PF vs raw APF")
+    flight_rows = []
+    for r in flights:
+        m = r.summary()
+        flight_rows.append((r.controller, "goal" if m["success"] else m["failure"], f"{m['time_s']:.1f}", f"{m['path_length_m']:.1f}",
+                            m["collisions"], f"{m['min_clearance_m']:.3f}", f"{m['compute_ms_median']:.2f}", f"{m['compute_ms_p99']:.2f}"))
+    flight_table = _table(("controller", "outcome", "time [s]", "path [m]", "collisions", "min clearance [m]",
+                           "compute median [ms]", "p99 [ms]"), flight_rows)
+    summary["flights"] = [r.summary() for r in flights]
+    index += ["## Closed-loop flight: APF-PF vs raw APF", "",
+              f"`highbay` route {DEMO_ROUTE} (seed {DEMO_SEED}), D435 noise with phantom speckle, 15 Hz.", "",
+              "```", flight_table, "```", "", "![paths](flight-paths.png)", ""]
+    for r in flights:
+        d = f"fly-{r.controller}"
+        index += [f"### {r.controller}", "", f"![trace]({d}/depth-trace.png)", "", f"![compute]({d}/compute-time.png)", "",
+                  f"Data: [{d}/frames.csv]({d}/frames.csv), [{d}/trajectory.csv]({d}/trajectory.csv), "
+                  f"[{d}/metrics.json]({d}/metrics.json)", ""]
 
+    # 2. The thin-cable test (paper §V-A).
+    print("[2/4] cable test: a static robot facing an 8 mm cable, four noise conditions")
+    cable = cable_test(report / "cable-test", frames=30 if quick else 150, seed=0, progress=True)
+    cable_rows = [(c["name"], f"{c['detection_rate']:.2f}", f"{c['mean_confidence']:.3f}",
+                   f"{c['mean_p_free']:.2f}") for c in cable["conditions"]]
+    cable_table = _table(("noise", "detection rate", "mean confidence", "mean P(free)"), cable_rows)
+    ordering = ", ".join(f"{k}: {'holds' if v['holds'] else 'fails'}" for k, v in cable["ordering"].items())
+    statement = cable.get("flight_comparison", {}).get("statement", "")
+    summary["cable_test"] = {k: cable[k] for k in ("conditions", "ordering") if k in cable}
+    index += ["## Thin-cable test (paper §V-A, Fig. 6)", "", "```", cable_table, "```", "",
+              f"Ordering none >= every 10th >= every 2nd >= every pixel: {ordering}.", "", statement, "",
+              "![cable test](cable-test/cable-test.png)", "", "Data: [cable-test/cable-test.json](cable-test/cable-test.json)", ""]
+
+    # 3. A small randomized batch.
+    routes = DEMO_ROUTE if quick else "all"
+    seeds = [2] if quick else [2, 3]
+    print(f"[3/4] fly-batch: highbay routes {routes}, seeds {seeds}, APF-PF and raw APF, noise {DEMO_NOISE}")
+    batch = fly_batch("highbay", routes, seeds, noises=(DEMO_NOISE,), time_limit_s=20.0 if quick else None)
+    batch_files = batch.save(report / "batch")
+    totals = [t for t in batch.table if t["route"] == "all"]
+    batch_rows = [(t["controller"], t["flights"], f"{t['successes']} ({100 * t['success_rate']:.0f}%)", t["collisions"],
+                   t["local_minima"], t["timeouts"], "-" if t["min_clearance_m"] is None else f"{t['min_clearance_m']:.3f}")
+                  for t in totals]
+    batch_table = _table(("controller", "flights", "success", "collisions", "local minima", "timeouts", "min clearance [m]"), batch_rows)
+    summary["batch"] = totals
+    index += ["## Randomized batch", "", f"Every route of `highbay` on seeds {seeds} (a new obstacle layout each), both controllers. "
+              "The full 250-flight run is `subterra fly-batch --scenario highbay --routes all --seeds 50`.", "",
+              "```", batch_table, "```", "", "Per route: [batch/results.md](batch/results.md); every flight: "
+              "[batch/results.json](batch/results.json).", ""]
+    index += [f"![batch paths](batch/{p.name})" for k, p in batch_files.items() if k.startswith("paths_")]
+    index.append("")
+
+    # 4. Real data and the scenes.
+    print("[4/4] APF-PF on real frames (if ../shared/data is there) and pictures of the built-in scenes")
     data_dir = Path(data) if data else _default_data()
+    real = None
     if data_dir is not None and (data_dir / REALSENSE).is_dir():
-        from subterra.io import list_depth_files, read_depth, read_intrinsics
-
-        room = data_dir / REALSENSE
-        real_camera = read_intrinsics(room / "cam_params_realsense.json").to_camera()
-        files = list_depth_files(room / "depth")
-        frames = ((p.name, read_depth(p).data, 0.001) for p in files)
-        cases.append(_case("realsense-room", f"real RealSense D435 frames ({len(files)}) from {room}", frames, real_camera, report))
+        real = _real_data(data_dir, report)
+        index += real[1]
     else:
         print("note: ../shared/data not found: the real RealSense frames are skipped (pass --data DIR)")
-
     from subterra.sim.render import render_scenario
 
-    scenes = {name: render_scenario(name, report, seed=0) for name in ("highbay", "mine")}
-
-    rows = []
-    for c in cases:
-        s, recs = c["summary"], c["records"]
-        last = recs[-1]
-        err = ""
-        if c["truth"] is not None:
-            seen = [(r["map_depth_m"], t) for r, t in zip(recs, c["truth"]) if r["map_depth_m"] is not None and t < 1.2 and r["p_free"] < 0.5]
-            err = f"{np.median([abs(a - b) for a, b in seen]):.3f}" if seen else "n/a"
-        rows.append((c["name"], s["frames"], f"{s['p_free_mean']:.3f}",
-                     "-" if last["map_depth_m"] is None else f"{last['map_depth_m']:.2f}",
-                     err, f"{s['timing']['median_ms']:.3f}", f"{s['timing']['p99_ms']:.3f}"))
-    header = ("case", "frames", "mean P(free)", "last MAP depth [m]", "median |MAP - truth| [m]", "median [ms]", "p99 [ms]")
-    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
-    line = lambda r: "  ".join(str(x).ljust(w) for x, w in zip(r, widths))  # noqa: E731
-    table = "\n".join([line(header), line(["-" * w for w in widths]), *(line(r) for r in rows)])
-    print("\nAPF-PF demo (preset flight)\n")
-    print(table)
-
-    index = ["# subterra demo", "", f"Written {time.strftime('%Y-%m-%d %H:%M:%S')}.", "", "```", table, "```", ""]
-    for c in cases:
-        index += [f"## {c['name']}", "", c["description"], "", f"![{c['name']}]({c['name']}.png)", "",
-                  f"Per-frame data: [{c['name']}.json]({c['name']}.json)", ""]
-    index += ["## Simulated scenes", "", "The simulator's built-in worlds (closed-loop flights and drives build on them):", ""]
+    scenes = {name: render_scenario(name, report, seed=0) for name in ("highbay", "tunnel", "mine")}
+    index += ["## Simulated scenes", ""]
     for name, paths in scenes.items():
         index += [f"### {name}", "", f"![{name} depth]({paths['depth'].name})", "", f"![{name} map]({paths['map'].name})", ""]
+
+    summary["wall_s"] = round(time.perf_counter() - started, 1)
+    (report / "summary.json").write_text(json.dumps(summary, indent=2, default=str), encoding="utf-8")
     (report / "index.md").write_text("\n".join(index), encoding="utf-8")
-    print(f"\nreport: {report / 'index.md'}")
+
+    print(f"\nsubterra demo: closed-loop flight, highbay {DEMO_ROUTE}, noise {DEMO_NOISE}, seed {DEMO_SEED}\n")
+    print(flight_table)
+    print("\nthin-cable test (cable preset)\n")
+    print(cable_table)
+    print(f"ordering: {ordering}")
+    if statement:
+        print(statement)
+    print(f"\nrandomized batch (highbay, seeds {seeds}, routes {routes})\n")
+    print(batch_table)
+    if real is not None:
+        print(f"\nreal data: {real[0]}")
+    print(f"\nreport: {report / 'index.md'}  ({summary['wall_s']:.0f} s)")
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -88,11 +89,18 @@ def test_bench_perception_reports_rust_and_reference(tmp_path):
 
 
 def test_demo_writes_an_index_and_a_table(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
-    index = (tmp_path / "demo" / "index.md").read_text()
-    assert "approaching-box.png" in index and "noise-only.png" in index
-    assert "highbay-depth.png" in index and (tmp_path / "demo" / "mine-map.png").is_file()
+    out = tmp_path / "demo"
+    assert main(["demo", "--quick", "--out", str(out)]) == 0
+    index = (out / "index.md").read_text()
+    linked = re.findall(r"\]\(([^)]+)\)", index)
+    assert linked, index
+    for rel in linked:
+        assert (out / rel).is_file(), f"index links a missing file: {rel}"
+    for expected in ("flight-paths.png", "fly-apf-pf/depth-trace.png", "fly-raw-apf/compute-time.png",
+                     "cable-test/cable-test.png", "batch/results.md", "highbay-depth.png", "mine-map.png"):
+        assert expected in linked, expected
     printed = capsys.readouterr().out
-    assert "mean P(free)" in printed
-    noise = json.loads((tmp_path / "demo" / "noise-only.json").read_text())
-    assert noise["p_free_mean"] > 0.9
+    assert "raw-apf" in printed and "apf-pf" in printed and "detection rate" in printed
+    summary = json.loads((out / "summary.json").read_text())
+    assert {f["controller"] for f in summary["flights"]} == {"apf-pf", "raw-apf"}
+    assert summary["flights"][0]["collisions"] == 0

@@ -9,7 +9,7 @@ mod sim;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use subterra::config::{PerceptionConfig, PRESET_NAMES};
+use subterra::config::{FilterMode, PerceptionConfig, PRESET_NAMES};
 use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, VoxelIndex};
 use subterra::{ApfController, Command, Isometry3, PinholeCamera};
 
@@ -278,7 +278,7 @@ struct PyDepthPerception {
 #[pymethods]
 impl PyDepthPerception {
     #[new]
-    #[pyo3(signature = (camera, preset = "flight", *, config = None, body_from_camera = None, seed = None))]
+    #[pyo3(signature = (camera, preset = "flight", *, config = None, body_from_camera = None, seed = None, mode = None))]
     fn new(
         py: Python<'_>,
         camera: &PyPinholeCamera,
@@ -286,8 +286,17 @@ impl PyDepthPerception {
         config: Option<&PyPerceptionConfig>,
         body_from_camera: Option<&Bound<'_, PyAny>>,
         seed: Option<&Bound<'_, PyAny>>,
+        mode: Option<&str>,
     ) -> PyResult<Self> {
-        let config = resolve_config(py, preset, config)?;
+        let mut config = resolve_config(py, preset, config)?;
+        if let Some(mode) = mode {
+            config.filter.mode = match mode {
+                "particle" => FilterMode::Particle,
+                "histogram" => FilterMode::Histogram,
+                "raw" => FilterMode::Raw,
+                _ => return Err(config_error(py, format!("argument `mode` must be \"particle\", \"histogram\" or \"raw\", got {mode:?}"))),
+            };
+        }
         let body_from_camera = match body_from_camera {
             Some(m) => isometry(py, "body_from_camera", m)?,
             None => Isometry3::body_from_forward_optical(),
@@ -356,7 +365,7 @@ impl PyDepthPerception {
     /// Bytes held by the transition model.
     #[getter]
     fn transition_memory_bytes(&self) -> usize {
-        self.inner.transition().memory_bytes()
+        self.inner.transition().map_or(0, |t| t.memory_bytes())
     }
     /// The dense belief over all states, shape `(S,)`.
     fn belief<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
@@ -397,7 +406,8 @@ impl PyDepthPerception {
     /// The transition row `T(state -> ·)`, shape `(S,)`.
     fn transition_row<'py>(&self, py: Python<'py>, state: i64) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let s = self.check_state(py, state)?;
-        Ok(self.inner.transition().row(StateId(s)).into_pyarray(py))
+        let t = self.inner.transition().ok_or_else(|| input_error(py, "argument `state`: filter mode `raw` has no transition model"))?;
+        Ok(t.row(StateId(s)).into_pyarray(py))
     }
     /// Flat id of voxel `(i, j, k)`.
     fn state_of(&self, py: Python<'_>, i: i64, j: i64, k: i64) -> PyResult<u32> {

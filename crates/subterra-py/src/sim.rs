@@ -7,7 +7,7 @@ use pyo3::types::PyDict;
 use subterra::Isometry3;
 use subterra_sim::noise::{DepthNoiseModel, LidarNoiseModel};
 use subterra_sim::scenarios;
-use subterra_sim::sensors::{DepthCamera, DepthCameraConfig, Lidar, LidarConfig};
+use subterra_sim::sensors::{depth_to_millimetres, DepthCamera, DepthCameraConfig, Lidar, LidarConfig};
 use subterra_sim::simulation::{Goal, RunStatus, Simulation, Vehicle};
 use subterra_sim::vehicles::{BodyVelocityCommand, GroundRobotConfig, GroundRobotState, QuadrotorConfig, QuadrotorState};
 use subterra_sim::world::World;
@@ -54,6 +54,33 @@ fn vec3_array<'py>(py: Python<'py>, v: DVec3) -> Bound<'py, PyArray1<f64>> {
 
 fn image<'py>(py: Python<'py>, data: Vec<f32>, width: u32, height: u32) -> PyResult<Bound<'py, PyArray2<f32>>> {
     Ok(data.into_pyarray(py).reshape([height as usize, width as usize])?)
+}
+
+/// Which encoding a depth image is returned in.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum DepthDtype {
+    /// float32 metres.
+    F32,
+    /// uint16 millimetres (ROS / RealSense `16UC1`).
+    U16,
+}
+
+fn depth_dtype(py: Python<'_>, argument: &str, dtype: &str) -> PyResult<DepthDtype> {
+    match dtype {
+        "float32" => Ok(DepthDtype::F32),
+        "uint16" => Ok(DepthDtype::U16),
+        _ => Err(input_error(py, format!("argument `{argument}` must be \"float32\" (metres) or \"uint16\" (millimetres), got {dtype:?}"))),
+    }
+}
+
+fn depth_image<'py>(py: Python<'py>, data: Vec<f32>, width: u32, height: u32, dtype: DepthDtype) -> PyResult<Bound<'py, PyAny>> {
+    Ok(match dtype {
+        DepthDtype::F32 => image(py, data, width, height)?.into_any(),
+        DepthDtype::U16 => {
+            let mm = py.detach(|| depth_to_millimetres(&data));
+            mm.into_pyarray(py).reshape([height as usize, width as usize])?.into_any()
+        }
+    })
 }
 
 fn points<'py>(py: Python<'py>, pts: &[[f32; 3]]) -> PyResult<Bound<'py, PyArray2<f32>>> {
@@ -207,12 +234,14 @@ impl PyDepthCamera {
         PyPinholeCamera { inner: self.inner.config().camera }
     }
 
-    /// Renders `(H, W)` float32 depth [m] (0 = no return) from `world_from_camera` (4x4,
-    /// optical frame), with the named noise preset seeded by `seed`, on `threads` threads
-    /// (the image is the same for any count). Releases the GIL.
-    #[pyo3(signature = (world, world_from_camera, noise = "none", seed = 0, threads = 1))]
+    /// Renders an `(H, W)` depth image from `world_from_camera` (4x4, optical frame), with
+    /// the named noise preset seeded by `seed`, on `threads` threads (the image is the same
+    /// for any count): `dtype="float32"` metres or `"uint16"` millimetres, 0 = no return.
+    /// Releases the GIL.
+    #[pyo3(signature = (world, world_from_camera, noise = "none", seed = 0, threads = 1, *, dtype = "float32"))]
     #[allow(clippy::too_many_arguments)]
-    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, noise: &str, seed: u64, threads: usize) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, noise: &str, seed: u64, threads: usize, dtype: &str) -> PyResult<Bound<'py, PyAny>> {
+        let dtype = depth_dtype(py, "dtype", dtype)?;
         if threads == 0 || threads > 256 {
             return Err(input_error(py, format!("argument `threads` must be in 1..=256, got {threads}")));
         }
@@ -227,7 +256,7 @@ impl PyDepthCamera {
             })
             .sim_err(py)?;
         let c = self.inner.config().camera;
-        image(py, depth, c.width, c.height)
+        depth_image(py, depth, c.width, c.height, dtype)
     }
 }
 
@@ -394,21 +423,28 @@ impl PySimulation {
         self.inner.abort(cause);
     }
 
-    /// Renders every sensor at the true pose: a dict with `time_s`, `depth` and
-    /// `depth_truth` ({name: (H, W) float32 [m]}), `scans` ({name: (N, 3) float32}),
+    /// Renders every sensor at the true pose: a dict with `time_s`, `depth` ({name: (H, W)
+    /// noisy depth, float32 [m] or, with `depth_dtype="uint16"`, uint16 [mm]),
+    /// `depth_truth` ({name: (H, W) float32 [m], noise-free}), `depth_truth_min` ({name:
+    /// closest noise-free depth [m] or None}), `scans` ({name: (N, 3) float32}),
     /// `world_from_body` and `odometry` (4x4), `velocity_world`, `world_from_sensor` ({name: 4x4}).
-    fn observe<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    #[pyo3(signature = (*, depth_dtype = "float32"))]
+    fn observe<'py>(&mut self, py: Python<'py>, depth_dtype: &str) -> PyResult<Bound<'py, PyDict>> {
+        let dtype = self::depth_dtype(py, "depth_dtype", depth_dtype)?;
         let sim = &mut self.inner;
         let obs = py.detach(|| sim.observe());
         let d = PyDict::new(py);
         d.set_item("time_s", obs.time_s)?;
         let depth = PyDict::new(py);
         let truth = PyDict::new(py);
+        let truth_min = PyDict::new(py);
         let poses = PyDict::new(py);
         for o in obs.depth {
+            let closest = o.truth.depth_m.iter().copied().filter(|&z| z > 0.0).reduce(f32::min).map(f64::from);
+            truth_min.set_item(&o.name, closest)?;
             truth.set_item(&o.name, image(py, o.truth.depth_m, o.width, o.height)?)?;
             poses.set_item(&o.name, matrix(py, &o.world_from_camera)?)?;
-            depth.set_item(o.name, image(py, o.depth_m, o.width, o.height)?)?;
+            depth.set_item(o.name, depth_image(py, o.depth_m, o.width, o.height, dtype)?)?;
         }
         let scans = PyDict::new(py);
         for s in obs.scans {
@@ -417,6 +453,7 @@ impl PySimulation {
         }
         d.set_item("depth", depth)?;
         d.set_item("depth_truth", truth)?;
+        d.set_item("depth_truth_min", truth_min)?;
         d.set_item("scans", scans)?;
         d.set_item("world_from_sensor", poses)?;
         d.set_item("world_from_body", matrix(py, &obs.world_from_body)?)?;

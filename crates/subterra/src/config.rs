@@ -69,6 +69,10 @@ pub enum FilterMode {
     Particle,
     /// Exact histogram Bayes filter over the same model (no sampling noise; subterra).
     Histogram,
+    /// No filter: the baseline APF-PF argues against ("raw APF"). The belief is this
+    /// frame's empirical histogram of in-range points, `b(s) = n_s / Σ n`, and
+    /// `b(s_free) = 1` only when no point is in range. No transition model is built.
+    Raw,
 }
 
 /// How particles are resampled after weighting.
@@ -85,7 +89,7 @@ pub enum Resampling {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FilterConfig {
-    /// Particle or exact histogram filter.
+    /// Particle filter, exact histogram filter, or none (`raw`: the baseline).
     pub mode: FilterMode,
     /// Number of particles N. Paper §V: 20000.
     pub particles: usize,

@@ -81,6 +81,8 @@ pub const SPARSE_BELIEF_THRESHOLD: f64 = 1e-12;
 enum Filter {
     Particle(ParticleFilter),
     Histogram(HistogramFilter),
+    /// No filter: the belief is the frame's empirical histogram of in-range points.
+    Raw,
 }
 
 /// APF-PF perception for one depth camera.
@@ -89,7 +91,8 @@ pub struct DepthPerception {
     config: PerceptionConfig,
     body_from_camera: Isometry3,
     grid: DepthVoxelGrid,
-    transition: TransitionModel,
+    /// `None` in raw mode (no filter, nothing to propagate).
+    transition: Option<TransitionModel>,
     observation: ObservationModel,
     filter: Filter,
     /// Per state: repulsive force of an obstacle at the voxel centre, body frame.
@@ -109,19 +112,23 @@ impl DepthPerception {
         config.validate_for_image(camera.width, camera.height)?;
         let grid = DepthVoxelGrid::new(camera, config.grid)?;
         let started = Instant::now();
-        let transition = TransitionModel::new(&grid, &config.transition)?;
+        let transition = match config.filter.mode {
+            FilterMode::Raw => None,
+            FilterMode::Particle | FilterMode::Histogram => Some(TransitionModel::new(&grid, &config.transition)?),
+        };
         let transition_build_s = started.elapsed().as_secs_f64();
         let observation = ObservationModel::new(&grid, &config.observation);
         let states = grid.state_count();
-        let filter = match config.filter.mode {
-            FilterMode::Particle => Filter::Particle(ParticleFilter::new(
-                &transition,
+        let filter = match (config.filter.mode, &transition) {
+            (FilterMode::Particle, Some(transition)) => Filter::Particle(ParticleFilter::new(
+                transition,
                 config.filter.particles,
                 config.filter.resampling,
                 config.filter.free_proposal_min,
                 Pcg64Mcg::seed_from_u64(seed),
             )),
-            FilterMode::Histogram => Filter::Histogram(HistogramFilter::new(states)),
+            (FilterMode::Histogram, _) => Filter::Histogram(HistogramFilter::new(states)),
+            _ => Filter::Raw,
         };
         let mut forces_body = Vec::with_capacity(states);
         for s in 0..grid.voxel_count() as u32 {
@@ -157,9 +164,9 @@ impl DepthPerception {
         &self.grid
     }
 
-    /// The transition model.
-    pub fn transition(&self) -> &TransitionModel {
-        &self.transition
+    /// The transition model (`None` in raw mode).
+    pub fn transition(&self) -> Option<&TransitionModel> {
+        self.transition.as_ref()
     }
 
     /// `body_from_camera`.
@@ -196,6 +203,20 @@ impl DepthPerception {
         match &self.filter {
             Filter::Particle(f) => f.belief(&mut self.belief),
             Filter::Histogram(f) => self.belief.copy_from_slice(f.belief()),
+            Filter::Raw => {
+                // Before the first frame (and on frames with no point in range): free.
+                let free = self.grid.free_state().0 as usize;
+                self.belief.fill(0.0);
+                match &self.last_counts {
+                    Some(c) if c.in_range > 0 => {
+                        let total = c.in_range as f64;
+                        for (b, &n) in self.belief.iter_mut().zip(&c.counts) {
+                            *b = f64::from(n) / total;
+                        }
+                    }
+                    _ => self.belief[free] = 1.0,
+                }
+            }
         }
     }
 
@@ -204,20 +225,26 @@ impl DepthPerception {
         let started = Instant::now();
         let counts = self.grid.count(image, width, height)?;
         let counted = Instant::now();
-        match &mut self.filter {
-            Filter::Particle(f) => f.propagate(&self.transition),
-            Filter::Histogram(f) => f.predict(&self.transition),
+        match (&mut self.filter, &self.transition) {
+            (Filter::Particle(f), Some(t)) => f.propagate(t),
+            (Filter::Histogram(f), Some(t)) => f.predict(t),
+            _ => {}
         }
         let predicted = Instant::now();
-        self.observation.log_likelihood(&counts, &mut self.log_likelihood);
+        if !matches!(self.filter, Filter::Raw) {
+            self.observation.log_likelihood(&counts, &mut self.log_likelihood);
+        }
         match &mut self.filter {
             Filter::Particle(f) => f.weight_and_resample(&self.log_likelihood),
             Filter::Histogram(f) => f.update(&self.log_likelihood),
+            Filter::Raw => {}
         }
         let updated = Instant::now();
+        let (closest_depth_m, valid_pixels, in_range_pixels, max_count) = (counts.closest_depth_m, counts.valid, counts.in_range, counts.max_count);
+        self.last_counts = Some(counts);
         self.refresh_belief();
         let threshold = match self.filter {
-            Filter::Particle(_) => 0.0,
+            Filter::Particle(_) | Filter::Raw => 0.0,
             Filter::Histogram(_) => SPARSE_BELIEF_THRESHOLD,
         };
         let free = self.grid.free_state().0 as usize;
@@ -255,10 +282,10 @@ impl DepthPerception {
             belief_probabilities,
             p_free: self.belief[free],
             most_probable,
-            closest_depth_m: counts.closest_depth_m,
-            valid_pixels: counts.valid,
-            in_range_pixels: counts.in_range,
-            max_count: counts.max_count,
+            closest_depth_m,
+            valid_pixels,
+            in_range_pixels,
+            max_count,
             repulsive_body,
             timings: StageTimings {
                 count_s: (counted - started).as_secs_f64(),
@@ -268,7 +295,57 @@ impl DepthPerception {
                 total_s: (done - started).as_secs_f64(),
             },
         };
-        self.last_counts = Some(counts);
         Ok(output)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn raw_perception() -> DepthPerception {
+        let mut config = PerceptionConfig::flight();
+        config.filter.mode = FilterMode::Raw;
+        DepthPerception::new(PinholeCamera::d435(), Isometry3::body_from_forward_optical(), config, 0).unwrap()
+    }
+
+    #[test]
+    fn raw_mode_belief_is_the_frame_histogram() {
+        let mut p = raw_perception();
+        assert!(p.transition().is_none(), "raw mode builds no transition model");
+        let (w, h) = (640usize, 480usize);
+        // 100 pixels at 0.55 m in the top-left block, 300 at 0.95 m in the centre, the
+        // rest beyond the horizon (valid but out of range).
+        let mut image = vec![5000u16; w * h];
+        for r in 0..10 {
+            for c in 0..10 {
+                image[r * w + c] = 550;
+            }
+        }
+        for r in 230..245 {
+            for c in 310..330 {
+                image[r * w + c] = 950;
+            }
+        }
+        let out = p.update(DepthImage::U16 { pixels: &image, scale_m_per_unit: 0.001 }, 640, 480).unwrap();
+        assert_eq!(out.in_range_pixels, 400);
+        assert_eq!(out.p_free, 0.0);
+        let total: f64 = out.belief_probabilities.iter().sum();
+        assert!((total - 1.0).abs() < 1e-12);
+        let counts = p.last_counts().unwrap();
+        let mut expected = DVec3::ZERO;
+        for (s, &n) in counts.counts.iter().enumerate() {
+            let b = f64::from(n) / 400.0;
+            assert_eq!(p.belief()[s], b, "state {s}");
+            expected += b * p.forces_body()[s];
+        }
+        assert!((out.repulsive_body - expected).length() < 1e-12);
+        let best = out.most_probable.unwrap();
+        assert!((best.centre_camera.z - 0.95).abs() <= 0.05 + 1e-9, "the 300-pixel patch wins: {best:?}");
+        // Memoryless: an empty frame next is free at once (a filter would remember).
+        let empty = vec![0u16; w * h];
+        let out = p.update(DepthImage::U16 { pixels: &empty, scale_m_per_unit: 0.001 }, 640, 480).unwrap();
+        assert_eq!(out.p_free, 1.0);
+        assert!(out.most_probable.is_none() && out.repulsive_body == DVec3::ZERO);
     }
 }

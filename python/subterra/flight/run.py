@@ -1,0 +1,383 @@
+"""One closed-loop flight: simulated depth camera -> controller -> quadrotor.
+
+The loop, per control step (``rate_hz``): the simulator renders the forward D435 at the
+true pose with the chosen noise (``uint16`` millimetres, as the sensor gives them); the
+controller (APF-PF, or the raw-APF baseline through the same interface) turns the frame
+and the goal, expressed in the body frame from the odometry, into a body-frame velocity
+command; the quadrotor tracks it for one step. The run ends at the goal, on a collision,
+at the time limit, or when the robot has stalled (a local minimum of the potential).
+
+>>> from subterra.flight import fly
+>>> result = fly("highbay", "A-B", controller="apf-pf", noise="d435", seed=0)
+>>> result.metrics["success"], result.metrics["failure"]
+>>> result.save("runs/fly-A-B")          # CSV, JSON and the paper's Fig. 9-11
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from subterra._core import ApfController, DepthPerception, PerceptionConfig, PinholeCamera
+from subterra.errors import ConfigError, InputError
+from subterra.sim import DEPTH_NOISE_PRESETS, DepthCamera, Simulation, World
+
+__all__ = ["CONTROLLERS", "FlightResult", "fly", "resolve_route"]
+
+#: Controllers a flight can run, and the perception filter mode each uses. ``raw-apf`` is
+#: the baseline the APF-PF paper argues against: the same voxel binning and potentials,
+#: but the belief is each frame's raw histogram of in-range points (no filter, no memory).
+CONTROLLERS: dict[str, str] = {"apf-pf": "particle", "apf-pf-histogram": "histogram", "raw-apf": "raw"}
+
+#: Per-frame arrays of a flight (see :class:`FlightResult`), in CSV column order.
+FRAME_FIELDS = (
+    "time_s", "position", "yaw", "mpv_voxel", "mpv_depth_m", "mpv_probability", "mpv_body", "p_free",
+    "closest_depth_m", "truth_closest_m", "obstacle_in_view", "repulsive_body", "repulsive_norm",
+    "command", "compute_ms", "clearance_m",
+)
+
+
+@dataclass
+class FlightResult:
+    """Everything one flight recorded. ``frames`` holds one row per control step:
+
+    ``time_s`` (F,), ``position`` (F, 3) true world position at the observation, ``yaw``
+    (F,) [rad], ``mpv_voxel`` (F, 3) most probable voxel (i, j, k) or -1, ``mpv_depth_m``,
+    ``mpv_probability`` (F,) (NaN when no voxel has belief), ``mpv_body`` (F, 3) its centre
+    in the body frame, ``p_free`` (F,), ``closest_depth_m`` (F,) closest valid raw (noisy)
+    depth, ``truth_closest_m`` (F,) closest noise-free depth (NaN when nothing returns),
+    ``obstacle_in_view`` (F,) bool (a real surface within the filter's horizon),
+    ``repulsive_body`` (F, 3) and ``repulsive_norm`` (F,), ``command`` (F, 4) ``[v_x, v_y,
+    v_z, yaw_rate]``, ``compute_ms`` (F,) controller wall time, ``clearance_m`` (F,) after
+    the step (negative = penetration). ``path`` is (F + 1, 3): every observed position and
+    the final one.
+    """
+
+    scenario: str
+    route: str
+    controller: str
+    noise: str
+    preset: str
+    seed: int
+    world: World
+    start: np.ndarray
+    goal: np.ndarray
+    goal_radius_m: float
+    rate_hz: float
+    horizon_m: float
+    rho_0_m: float
+    frames: dict[str, np.ndarray]
+    metrics: dict[str, Any]
+    path: np.ndarray
+    wall_s: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def success(self) -> bool:
+        return bool(self.metrics.get("success"))
+
+    @property
+    def failure(self) -> str | None:
+        return self.metrics.get("failure")
+
+    def summary(self) -> dict[str, Any]:
+        """The metrics plus what was flown, as plain JSON-ready values."""
+        compute = self.frames["compute_ms"]
+        in_view = self.frames["obstacle_in_view"]
+        return {
+            "scenario": self.scenario,
+            "route": self.route,
+            "controller": self.controller,
+            "noise": self.noise,
+            "preset": self.preset,
+            "seed": self.seed,
+            "rate_hz": self.rate_hz,
+            "start": [float(v) for v in self.start],
+            "goal": [float(v) for v in self.goal],
+            "goal_radius_m": self.goal_radius_m,
+            **{k: _plain(v) for k, v in self.metrics.items()},
+            "frames": int(compute.size),
+            "compute_ms_median": float(np.median(compute)) if compute.size else None,
+            "compute_ms_p99": float(np.percentile(compute, 99)) if compute.size else None,
+            "obstacle_in_view_fraction": float(in_view.mean()) if in_view.size else 0.0,
+            "wall_s": round(self.wall_s, 3),
+        }
+
+    def save(self, out_dir: str | os.PathLike[str], *, plots: bool = True) -> dict[str, Path]:
+        """Writes the run folder: ``trajectory.csv``, ``frames.csv`` (the per-frame
+        summary), ``metrics.json`` and, with ``plots``, ``path.png`` (Fig. 10),
+        ``depth-trace.png`` (Fig. 9) and ``compute-time.png`` (Fig. 11). Returns the paths."""
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        written = {
+            "trajectory": _write_trajectory(self, out / "trajectory.csv"),
+            "frames": _write_frames(self, out / "frames.csv"),
+            "metrics": out / "metrics.json",
+        }
+        written["metrics"].write_text(json.dumps(self.summary(), indent=2) + "\n", encoding="utf-8")
+        if plots:
+            from subterra.viz.flight import plot_compute_time, plot_flight_path, plot_flight_trace
+
+            written["path_plot"] = plot_flight_path(self, out / "path.png")
+            written["trace_plot"] = plot_flight_trace(self, out / "depth-trace.png")
+            written["compute_plot"] = plot_compute_time(self, out / "compute-time.png")
+        if "rerun" in self.extra:
+            written["rerun"] = Path(self.extra["rerun"])
+        return written
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def _write_trajectory(result: FlightResult, path: Path) -> Path:
+    f = result.frames
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["time_s", "x_m", "y_m", "z_m", "yaw_rad"])
+        for t, p, yaw in zip(f["time_s"], f["position"], f["yaw"], strict=True):
+            w.writerow([f"{t:.4f}", f"{p[0]:.4f}", f"{p[1]:.4f}", f"{p[2]:.4f}", f"{yaw:.5f}"])
+        end = result.path[-1]
+        w.writerow([f"{result.metrics.get('time_s', float('nan')):.4f}", f"{end[0]:.4f}", f"{end[1]:.4f}", f"{end[2]:.4f}", ""])
+    return path
+
+
+def _write_frames(result: FlightResult, path: Path) -> Path:
+    f = result.frames
+    header = [
+        "time_s", "x_m", "y_m", "z_m", "yaw_rad", "mpv_i", "mpv_j", "mpv_k", "mpv_depth_m", "mpv_probability",
+        "mpv_x_body_m", "mpv_y_body_m", "mpv_z_body_m", "p_free", "closest_depth_m", "truth_closest_m",
+        "obstacle_in_view", "rep_x", "rep_y", "rep_z", "rep_norm", "cmd_v_x", "cmd_v_y", "cmd_v_z", "cmd_yaw_rate",
+        "compute_ms", "clearance_m",
+    ]
+
+    def num(v: float, digits: int = 5) -> str:
+        return "" if not math.isfinite(v) else f"{v:.{digits}f}"
+
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for n in range(f["time_s"].size):
+            row = [num(f["time_s"][n], 4), *(num(v, 4) for v in f["position"][n]), num(f["yaw"][n])]
+            row += [str(int(v)) if v >= 0 else "" for v in f["mpv_voxel"][n]]
+            row += [num(f["mpv_depth_m"][n]), num(f["mpv_probability"][n]), *(num(v) for v in f["mpv_body"][n])]
+            row += [num(f["p_free"][n]), num(f["closest_depth_m"][n]), num(f["truth_closest_m"][n])]
+            row += [str(int(f["obstacle_in_view"][n])), *(num(v) for v in f["repulsive_body"][n]), num(f["repulsive_norm"][n])]
+            row += [*(num(v) for v in f["command"][n]), num(f["compute_ms"][n], 4), num(f["clearance_m"][n], 4)]
+            w.writerow(row)
+    return path
+
+
+def resolve_route(world: World, route: str) -> tuple[str, str, str]:
+    """``(name, from, to)`` of ``route`` on ``world``: a route name (``"A-B"``) or two region
+    names joined by ``-``. Raises :class:`InputError` naming the known routes."""
+    regions = world.regions
+    for name, a, b in world.routes:
+        if route == name or route == f"{a}-{b}":
+            return name, a, b
+    parts = route.split("-")
+    if len(parts) == 2 and all(p in regions for p in parts):
+        return route, parts[0], parts[1]
+    known = ", ".join(f"{a}-{b}" for _, a, b in world.routes) or "none"
+    raise InputError(f"argument `route`: no route {route!r} in world {world.name!r} (routes: {known}; regions: {', '.join(regions) or 'none'})")
+
+
+def _yaw_of(world_from_body: np.ndarray) -> float:
+    return math.atan2(world_from_body[1, 0], world_from_body[0, 0])
+
+
+def fly(
+    scenario: str = "highbay",
+    route: str = "A-B",
+    *,
+    controller: str = "apf-pf",
+    noise: str = "d435",
+    preset: str = "flight",
+    config: PerceptionConfig | None = None,
+    seed: int = 0,
+    world: World | None = None,
+    rate_hz: float = 15.0,
+    time_limit_s: float | None = None,
+    stall_window_s: float = 10.0,
+    stall_distance_m: float = 0.3,
+    progress: bool | Callable[[dict[str, Any]], None] = False,
+    rerun_path: str | os.PathLike[str] | None = None,
+    rerun_depth_every: int = 5,
+) -> FlightResult:
+    """Flies ``route`` of ``scenario`` (or of ``world``) once and returns the record.
+
+    ``controller``: ``"apf-pf"`` (particle filter, the paper), ``"apf-pf-histogram"`` (the
+    exact filter) or ``"raw-apf"`` (the baseline: no filter). ``noise``: a depth noise preset
+    of :data:`subterra.sim.DEPTH_NOISE_PRESETS`. ``seed`` seeds the world's layout (built-in
+    scenarios), the sensor noise and the particle filter. The run ends at the goal region,
+    on a collision, after ``time_limit_s`` (default: 4x the straight-line time at the
+    preset's top speed, at least 60 s), or as ``local_minimum`` when the robot has moved
+    less than ``stall_distance_m`` over the last ``stall_window_s`` seconds.
+    ``progress``: True for a live line on stderr, or a callback receiving a dict per step.
+    ``rerun_path``: also record a Rerun ``.rrd`` (needs ``subterra[viz]``) with the depth
+    image of every ``rerun_depth_every``-th frame (a D435 frame is ~0.5 MB in the file)
+    and everything else every frame.
+    """
+    if controller not in CONTROLLERS:
+        raise InputError(f"argument `controller` must be one of {', '.join(CONTROLLERS)}, got {controller!r}")
+    if noise not in DEPTH_NOISE_PRESETS:
+        raise InputError(f"argument `noise` must be one of {', '.join(DEPTH_NOISE_PRESETS)}, got {noise!r}")
+    if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 1.0 <= rate_hz <= 200.0):
+        raise InputError(f"argument `rate_hz` must be in [1, 200] Hz, got {rate_hz!r}")
+    if time_limit_s is not None and not (math.isfinite(time_limit_s) and time_limit_s > 0):
+        raise InputError(f"argument `time_limit_s` must be finite and > 0, got {time_limit_s!r}")
+    if not (math.isfinite(stall_window_s) and stall_window_s > 0):
+        raise InputError(f"argument `stall_window_s` must be finite and > 0, got {stall_window_s!r}")
+    if not (math.isfinite(stall_distance_m) and stall_distance_m >= 0):
+        raise InputError(f"argument `stall_distance_m` must be finite and >= 0, got {stall_distance_m!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"argument `seed` must be an integer >= 0, got {seed!r}")
+    seed = int(seed)
+    started = time.perf_counter()
+    if world is None:
+        world = World.scenario(scenario, seed)
+    else:
+        scenario = world.name
+    route_name, a, b = resolve_route(world, route)
+    regions = world.regions
+    start = np.asarray(regions[a][0], dtype=np.float64)
+    goal, goal_radius = np.asarray(regions[b][0], dtype=np.float64), float(regions[b][1])
+    yaw0 = math.atan2(goal[1] - start[1], goal[0] - start[0])
+
+    camera = DepthCamera.d435()
+    sim = Simulation(world, "quadrotor", {"front": (camera, None, noise)}, seed=seed, start=start, yaw=yaw0)
+    sim.set_goal(region=b)
+    perception = DepthPerception(camera.camera, preset, config=config, seed=seed, mode=CONTROLLERS[controller])
+    cfg = perception.config.to_dict()
+    apf = ApfController(preset, config=config)
+    v_max = float(cfg["apf"]["v_x_max_m_s"])
+    if time_limit_s is None:
+        time_limit_s = max(60.0, 4.0 * float(np.linalg.norm(goal - start)) / max(v_max, 1e-3))
+    sim.set_time_limit(time_limit_s)
+    grid = cfg["grid"]
+    horizon_m = float(grid["depth_max_m"])
+    centres_body = perception.voxel_centres("body") if rerun_path is not None else None
+    free_state = perception.free_state
+
+    recorder = None
+    if rerun_path is not None:
+        from subterra.viz.rerun import RerunRecorder
+
+        recorder = RerunRecorder(rerun_path, application_id=f"subterra-fly-{route_name}", depth_every=rerun_depth_every)
+        recorder.log_world(world)
+
+    dt = 1.0 / float(rate_hz)
+    stall_steps = max(1, round(stall_window_s * rate_hz))
+    rows: dict[str, list[Any]] = {k: [] for k in FRAME_FIELDS}
+    positions: list[np.ndarray] = []
+    bar = None
+    if progress is True:
+        from tqdm import tqdm
+
+        bar = tqdm(total=round(time_limit_s), unit="s", desc=f"fly {route_name} {controller}", leave=False, disable=None,
+                   bar_format="{desc}: {n:.0f}/{total:.0f} s sim {postfix}")
+    try:
+        while sim.status == "running":
+            obs = sim.observe(depth_dtype="uint16")
+            truth_body = obs["world_from_body"]
+            odom = obs["odometry"]
+            goal_body = odom[:3, :3].T @ (goal - odom[:3, 3])
+            tick = time.perf_counter()
+            out = perception.update(obs["depth"]["front"])
+            cmd = apf.command(goal_body, out)
+            compute_s = time.perf_counter() - tick
+            step = sim.step(cmd, dt, compute_time_s=compute_s)
+
+            position = truth_body[:3, 3].copy()
+            positions.append(position)
+            mp = out.most_probable
+            rep = out.repulsive_body
+            truth_min = obs["depth_truth_min"]["front"]
+            rows["time_s"].append(obs["time_s"])
+            rows["position"].append(position)
+            rows["yaw"].append(_yaw_of(truth_body))
+            rows["mpv_voxel"].append(mp.voxel if mp else (-1, -1, -1))
+            rows["mpv_depth_m"].append(mp.depth_m if mp else math.nan)
+            rows["mpv_probability"].append(mp.probability if mp else math.nan)
+            rows["mpv_body"].append(mp.centre_body if mp else (math.nan,) * 3)
+            rows["p_free"].append(out.p_free)
+            rows["closest_depth_m"].append(out.closest_depth_m if out.closest_depth_m is not None else math.nan)
+            rows["truth_closest_m"].append(truth_min if truth_min is not None else math.nan)
+            rows["obstacle_in_view"].append(truth_min is not None and truth_min < horizon_m)
+            rows["repulsive_body"].append(rep)
+            rows["repulsive_norm"].append(float(np.linalg.norm(rep)))
+            rows["command"].append(cmd.as_array())
+            rows["compute_ms"].append(compute_s * 1e3)
+            rows["clearance_m"].append(step["clearance_m"])
+
+            if recorder is not None:
+                states = out.belief_states
+                keep = states != free_state
+                pts = centres_body[states[keep]] @ truth_body[:3, :3].T + truth_body[:3, 3]
+                recorder.log_frame(
+                    obs["time_s"], depth=obs["depth"]["front"], world_from_camera=obs["world_from_sensor"]["front"],
+                    camera=camera.camera, belief_points_world=pts, belief_weights=out.belief_probabilities[keep],
+                    position=position, command=cmd.as_array(), p_free=out.p_free,
+                )
+            if bar is not None:
+                bar.n = step["time_s"]
+                bar.set_postfix_str(
+                    f"to goal {np.linalg.norm(goal - position):.1f} m, clearance {step['clearance_m']:.2f} m, "
+                    f"{compute_s * 1e3:.2f} ms/frame", refresh=False)
+                bar.update(0)
+            elif callable(progress):
+                progress({"time_s": step["time_s"], "position": position, "status": step["status"],
+                          "clearance_m": step["clearance_m"], "compute_ms": compute_s * 1e3})
+            if sim.status == "running" and len(positions) > stall_steps:
+                moved = float(np.linalg.norm(positions[-1] - positions[-1 - stall_steps]))
+                if moved < stall_distance_m:
+                    sim.abort("local_minimum")
+    finally:
+        if bar is not None:
+            bar.close()
+        if recorder is not None:
+            recorder.close()
+
+    final = sim.world_from_body[:3, 3].copy()
+    frames = {
+        "time_s": np.asarray(rows["time_s"], dtype=np.float64),
+        "position": np.asarray(rows["position"], dtype=np.float64).reshape(-1, 3),
+        "yaw": np.asarray(rows["yaw"], dtype=np.float64),
+        "mpv_voxel": np.asarray(rows["mpv_voxel"], dtype=np.int64).reshape(-1, 3),
+        "mpv_depth_m": np.asarray(rows["mpv_depth_m"], dtype=np.float64),
+        "mpv_probability": np.asarray(rows["mpv_probability"], dtype=np.float64),
+        "mpv_body": np.asarray(rows["mpv_body"], dtype=np.float64).reshape(-1, 3),
+        "p_free": np.asarray(rows["p_free"], dtype=np.float64),
+        "closest_depth_m": np.asarray(rows["closest_depth_m"], dtype=np.float64),
+        "truth_closest_m": np.asarray(rows["truth_closest_m"], dtype=np.float64),
+        "obstacle_in_view": np.asarray(rows["obstacle_in_view"], dtype=bool),
+        "repulsive_body": np.asarray(rows["repulsive_body"], dtype=np.float64).reshape(-1, 3),
+        "repulsive_norm": np.asarray(rows["repulsive_norm"], dtype=np.float64),
+        "command": np.asarray(rows["command"], dtype=np.float64).reshape(-1, 4),
+        "compute_ms": np.asarray(rows["compute_ms"], dtype=np.float64),
+        "clearance_m": np.asarray(rows["clearance_m"], dtype=np.float64),
+    }
+    path = np.vstack([frames["position"], final[None, :]])
+    result = FlightResult(
+        scenario=scenario, route=route_name, controller=controller, noise=noise, preset=preset, seed=seed,
+        world=world, start=start, goal=goal, goal_radius_m=goal_radius, rate_hz=float(rate_hz),
+        horizon_m=horizon_m, rho_0_m=float(cfg["apf"]["rho_0_m"]), frames=frames, metrics=dict(sim.metrics()),
+        path=path, wall_s=time.perf_counter() - started,
+    )
+    result.metrics["time_limit_s"] = time_limit_s
+    if rerun_path is not None:
+        result.extra["rerun"] = str(rerun_path)
+    return result
