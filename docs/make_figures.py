@@ -25,6 +25,23 @@ def main() -> None:
     for name in ("highbay", "mine"):
         render_scenario(name, FIGURES, seed=0)
 
+    # Closed-loop flights (docs/flight.md): highbay B-C, seed 3, both controllers.
+    from subterra.flight import fly
+    from subterra.flight.cable import cable_test
+    from subterra.viz.flight import plot_compute_time, plot_flight_path, plot_flight_trace
+
+    flights = [fly("highbay", "B-C", controller=c, noise="d435-phantom", seed=3) for c in ("apf-pf", "raw-apf")]
+    plot_flight_path(flights, FIGURES / "flight-paths.png", title="highbay B-C, seed 3, D435 + phantom speckle: APF-PF vs raw APF")
+    plot_flight_trace(flights[0], FIGURES / "flight-trace-apf-pf.png")
+    plot_flight_trace(flights[1], FIGURES / "flight-trace-raw-apf.png")
+    plot_compute_time(flights[0], FIGURES / "flight-compute-apf-pf.png")
+    summary = cable_test(FIGURES / "cable-test-run", frames=150, seed=0, progress=False)
+    (FIGURES / "cable-test-run" / "cable-test.png").replace(FIGURES / "cable-test.png")
+    for leftover in (FIGURES / "cable-test-run").iterdir():
+        leftover.unlink()
+    (FIGURES / "cable-test-run").rmdir()
+    print("cable test ordering:", {k: v["holds"] for k, v in summary["ordering"].items()})
+
 
 if __name__ == "__main__":
     main()

@@ -100,9 +100,10 @@ def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = F
     # 2. The thin-cable test (paper §V-A).
     print("[2/4] cable test: a static robot facing an 8 mm cable, four noise conditions")
     cable = cable_test(report / "cable-test", frames=30 if quick else 150, seed=0, progress=True)
-    cable_rows = [(c["name"], f"{c['detection_rate']:.2f}", f"{c['mean_confidence']:.3f}",
+    cable_rows = [(c["name"], f"{c['detection_rate']:.2f}", f"{c['mean_confidence']:.3f}", f"{c['mean_cable_belief']:.3f}",
                    f"{c['mean_p_free']:.2f}") for c in cable["conditions"]]
-    cable_table = _table(("noise", "detection rate", "mean confidence", "mean P(free)"), cable_rows)
+    cable_table = _table(("noise", "detection rate", "mean confidence (top voxel)", "mean belief on the cable", "mean P(free)"),
+                         cable_rows)
     ordering = ", ".join(f"{k}: {'holds' if v['holds'] else 'fails'}" for k, v in cable["ordering"].items())
     statement = cable.get("flight_comparison", {}).get("statement", "")
     summary["cable_test"] = {k: cable[k] for k in ("conditions", "ordering") if k in cable}

@@ -49,3 +49,5 @@ def test_cli_examples_run(tmp_path):
     assert (tmp_path / "room" / "perception.png").stat().st_size > 10_000
     assert (tmp_path / "bench.json").is_file()
     assert (tmp_path / "render" / "tunnel-depth.png").is_file()
+    assert (tmp_path / "fly-cd" / "metrics.json").is_file() and (tmp_path / "fly-cd" / "depth-trace.png").is_file()
+    assert (tmp_path / "cable" / "cable-test.json").is_file()
