@@ -177,10 +177,15 @@ def fly_batch(
                    time_limit_s=time_limit_s)
 
     bar = None
+    plain_every = 0
     if progress is True:
+        import sys
+
         from tqdm import tqdm
 
         bar = tqdm(total=len(jobs), desc=f"fly-batch {scenario}", unit="flight", disable=None)
+        if bar.disable:  # not a terminal (a log file, CI): a plain line every ~5 %
+            bar, plain_every = None, max(1, len(jobs) // 20)
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
     kept: list[FlightResult] = []
     counts = {c: {"ok": 0, "collisions": 0} for c in controllers}
@@ -194,9 +199,13 @@ def fly_batch(
                 c = counts[result.controller]
                 c["ok"] += int(result.success)
                 c["collisions"] += int(result.failure == "collision")
+                status = ", ".join(f"{k}: {v['ok']} ok, {v['collisions']} coll." for k, v in counts.items())
                 if bar is not None:
-                    bar.set_postfix_str(", ".join(f"{k}: {v['ok']} ok, {v['collisions']} coll." for k, v in counts.items()), refresh=False)
+                    bar.set_postfix_str(status, refresh=False)
                     bar.update(1)
+                elif plain_every and (done % plain_every == 0 or done == len(jobs)):
+                    print(f"fly-batch {scenario}: {done}/{len(jobs)} flights, {time.perf_counter() - started:.0f} s; {status}",
+                          file=sys.stderr, flush=True)
                 elif callable(progress):
                     progress(done, len(jobs), row)
     finally:

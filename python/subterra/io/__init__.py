@@ -1,4 +1,4 @@
-"""Reading real sensor data: depth images and camera intrinsics.
+"""Reading real sensor data: depth images, camera intrinsics, point clouds and poses.
 
 * :mod:`subterra.io.depth`: :func:`read_depth` (16-bit PNG, 16-bit binary PGM, ``.npy``,
   ``.npz``) returning a :class:`DepthImage` (``uint16`` raw units with a scale in
@@ -8,6 +8,14 @@
   height [px]), :func:`read_intrinsics` (plain JSON, Open3D JSON, ROS
   camera_calibration YAML, ``sensor_msgs/CameraInfo`` dumps), :func:`intrinsics_from_dict`
   and the presets :data:`KNOWN_CAMERAS`.
+* :mod:`subterra.io.clouds`: :func:`read_cloud` (PCD ascii / binary /
+  binary_compressed, PLY ascii / binary, KITTI ``.bin``, ``.npy``) returning a
+  :class:`PointCloud` (``float32`` ``(N, 3)`` points [m], NaN points kept, and the
+  other per-point fields as separate arrays); :func:`write_pcd` and :func:`write_ply`.
+* :mod:`subterra.io.poses`: :func:`read_trajectory` (KITTI 3x4 poses, TUM ``t tx ty tz
+  qx qy qz qw``) returning a :class:`Trajectory` (``world_from_body`` ``(M, 4, 4)``
+  and the times for TUM), and :func:`read_poses` (the poses alone); every pose is
+  checked to be rigid.
 
 This package needs only NumPy, Pillow and PyYAML, not the compiled core. Every error is
 a :class:`subterra.errors.SubterraError`; a bad file raises
@@ -16,6 +24,14 @@ a :class:`subterra.errors.SubterraError`; a bad file raises
 
 from __future__ import annotations
 
+from .clouds import (
+    CLOUD_EXTENSIONS,
+    CLOUD_FORMATS,
+    PointCloud,
+    read_cloud,
+    write_pcd,
+    write_ply,
+)
 from .depth import (
     DEFAULT_UINT16_SCALE_M_PER_UNIT,
     DEPTH_EXTENSIONS,
@@ -31,17 +47,35 @@ from .intrinsics import (
     intrinsics_from_dict,
     read_intrinsics,
 )
+from .poses import (
+    DEFAULT_ROTATION_TOLERANCE,
+    POSE_FORMATS,
+    Trajectory,
+    read_poses,
+    read_trajectory,
+)
 
 __all__ = [
+    "CLOUD_EXTENSIONS",
+    "CLOUD_FORMATS",
+    "DEFAULT_ROTATION_TOLERANCE",
     "DEFAULT_UINT16_SCALE_M_PER_UNIT",
     "DEPTH_EXTENSIONS",
     "INTRINSICS_EXTENSIONS",
     "KNOWN_CAMERAS",
+    "POSE_FORMATS",
     "DepthImage",
     "Intrinsics",
+    "PointCloud",
+    "Trajectory",
     "intrinsics_from_dict",
     "list_depth_files",
+    "read_cloud",
     "read_depth",
     "read_intrinsics",
+    "read_poses",
+    "read_trajectory",
     "write_depth_png",
+    "write_pcd",
+    "write_ply",
 ]
