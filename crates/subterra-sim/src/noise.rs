@@ -381,39 +381,57 @@ fn flying_pixels<R: Rng + ?Sized>(depth: &mut [f32], width: usize, edge_jump_m: 
     let before = depth.to_vec();
     let height = before.len() / width;
     let jump = edge_jump_m as f32;
+    // Pass 1: mark the pixels with a return that have a 4-neighbour with a return more than
+    // `jump` away (each pair is tested once). Most pixels are not on an edge; only the
+    // marked ones take the per-pixel path below, in pixel order, so the random stream is
+    // consumed exactly as a plain scan over every pixel would.
+    let jumps = |a: f32, b: f32| a > 0.0 && b > 0.0 && (a - b).abs() > jump;
+    let mut edge = vec![false; before.len()];
     for v in 0..height {
-        let row = v * width;
-        for u in 0..width {
-            let p = row + u;
-            let z = before[p];
-            if z <= 0.0 {
-                continue;
+        let row = &before[v * width..(v + 1) * width];
+        for u in 0..width.saturating_sub(1) {
+            if jumps(row[u], row[u + 1]) {
+                edge[v * width + u] = true;
+                edge[v * width + u + 1] = true;
             }
-            // The 4-neighbour with a return and the largest jump above `jump`, if any.
-            let mut largest = jump;
-            let mut other = 0.0_f32;
-            let mut consider = |zq: f32| {
-                if zq > 0.0 && (zq - z).abs() > largest {
-                    largest = (zq - z).abs();
-                    other = zq;
+        }
+        if v + 1 < height {
+            let next = &before[(v + 1) * width..(v + 2) * width];
+            for u in 0..width {
+                if jumps(row[u], next[u]) {
+                    edge[v * width + u] = true;
+                    edge[(v + 1) * width + u] = true;
                 }
-            };
-            if u > 0 {
-                consider(before[p - 1]);
             }
-            if u + 1 < width {
-                consider(before[p + 1]);
+        }
+    }
+    for (p, _) in edge.iter().enumerate().filter(|(_, &e)| e) {
+        let (v, u) = (p / width, p % width);
+        let z = before[p];
+        // The 4-neighbour with a return and the largest jump above `jump`.
+        let mut largest = jump;
+        let mut other = 0.0_f32;
+        let mut consider = |zq: f32| {
+            if zq > 0.0 && (zq - z).abs() > largest {
+                largest = (zq - z).abs();
+                other = zq;
             }
-            if v > 0 {
-                consider(before[p - width]);
-            }
-            if v + 1 < height {
-                consider(before[p + width]);
-            }
-            if other > 0.0 && uniform(rng) < probability {
-                let (z, zq) = (f64::from(z), f64::from(other));
-                depth[p] = (z + uniform(rng) * (zq - z)) as f32;
-            }
+        };
+        if u > 0 {
+            consider(before[p - 1]);
+        }
+        if u + 1 < width {
+            consider(before[p + 1]);
+        }
+        if v > 0 {
+            consider(before[p - width]);
+        }
+        if v + 1 < height {
+            consider(before[p + width]);
+        }
+        if other > 0.0 && uniform(rng) < probability {
+            let (z, zq) = (f64::from(z), f64::from(other));
+            depth[p] = (z + uniform(rng) * (zq - z)) as f32;
         }
     }
 }
