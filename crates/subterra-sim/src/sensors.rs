@@ -426,7 +426,9 @@ impl Lidar {
 
     /// One revolution from `world_from_sensor` (sensor frame FLU). A non-finite pose gives no return.
     pub fn scan(&self, world: &World, world_from_sensor: &Isometry3) -> LidarScan {
-        let mut out = LidarScan::default();
+        // Room for a return of every beam: no reallocation while the scan fills it.
+        let n = self.beams_sensor.len();
+        let mut out = LidarScan { points_sensor: Vec::with_capacity(n), ring: Vec::with_capacity(n), primitive: Vec::with_capacity(n) };
         self.scan_into(world, world_from_sensor, &mut out);
         out
     }

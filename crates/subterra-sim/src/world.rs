@@ -19,7 +19,11 @@
 //! - The terrain is a parry3d [`HeightField`] for clearance queries; cells touching a hole are
 //!   removed. Rays walk its grid themselves (blocks of 8 x 8 cells with their height range,
 //!   then cells), testing the two f64 triangles of each cell they may meet; those are the
-//!   triangles [`World::ground_height`] interpolates.
+//!   triangles [`World::ground_height`] interpolates. Many rays from one origin (a lidar
+//!   scan, a depth frame) first get a `TerrainView` of the terrain from there: per azimuth
+//!   sector and bin of horizontal distance, the range of slopes under which the terrain is
+//!   seen. A ray keeps one sector and one slope, so it walks only the cells of the bins
+//!   whose range holds its slope: no walk at all above the horizon, a short one near its hit.
 //! - Planes are few and unbounded: handled analytically.
 //!
 //! Primitive ids ([`PrimitiveId`]) are stable: cylinders, capsules, boxes, spheres and solid
@@ -164,6 +168,9 @@ struct Terrain {
     hi: DVec3,
     /// Height pyramid, finest first: level `l` has blocks of `TERRAIN_BLOCK^(l + 1)` cells a side.
     levels: Vec<TerrainLevel>,
+    /// Height range of each cell, widened (beyond `z_range_meets`'s margin and the f32
+    /// rounding), `[r * (cols - 1) + c]`; empty (`lo > hi`) for a removed cell.
+    cell_z: Vec<SlopeRange>,
 }
 
 /// One level of the terrain's height pyramid.
@@ -324,10 +331,19 @@ impl World {
         R: Fn(usize) -> f64,
         S: FnMut(usize, DVec3, Option<RayHit>),
     {
-        self.cast_fan_from(origin, rotation, dirs, 0, range, sink);
+        let view = self.terrain_view(origin, dirs.len());
+        self.cast_fan_from(origin, rotation, dirs, 0, range, view.as_ref(), sink);
     }
 
-    fn cast_fan_from<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], first: usize, range: &R, sink: &mut S)
+    /// The terrain seen from `origin`, for `rays` rays from there; `None` when there is no
+    /// terrain or the rays are too few for it to pay.
+    fn terrain_view(&self, origin: DVec3, rays: usize) -> Option<TerrainView> {
+        let t = self.terrain.as_ref()?;
+        (t.any_cell && rays >= TERRAIN_VIEW_MIN_RAYS).then(|| TerrainView::new(t, origin))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn cast_fan_from<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], first: usize, range: &R, view: Option<&TerrainView>, sink: &mut S)
     where
         R: Fn(usize) -> f64,
         S: FnMut(usize, DVec3, Option<RayHit>),
@@ -336,7 +352,7 @@ impl World {
             for (k, dl) in dirs.iter().enumerate() {
                 let d = rotation * *dl;
                 let max_t = range(first + k);
-                let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit(origin, d, max_t) };
+                let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit_in(origin, d, max_t, view) };
                 sink(first + k, d, hit);
             }
             return;
@@ -345,14 +361,14 @@ impl World {
         let min_cos = dirs.iter().fold(f64::INFINITY, |acc, d| acc.min(d.dot(axis)));
         if min_cos.is_nan() || min_cos < FAN_MIN_COS {
             let mid = dirs.len() / 2;
-            self.cast_fan_from(origin, rotation, &dirs[..mid], first, range, sink);
-            self.cast_fan_from(origin, rotation, &dirs[mid..], first + mid, range, sink);
+            self.cast_fan_from(origin, rotation, &dirs[..mid], first, range, view, sink);
+            self.cast_fan_from(origin, rotation, &dirs[mid..], first + mid, range, view, sink);
             return;
         }
         let plan = FanPlan::new(self, origin, rotation, FanGeom::new(axis, dirs, first, range));
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
-            let hit = self.fan_ray(&plan, origin, d, range(first + k), plan.g.bin(*dl));
+            let hit = self.fan_ray(&plan, origin, d, range(first + k), plan.g.bin(*dl), view);
             sink(first + k, d, hit);
         }
     }
@@ -368,6 +384,8 @@ impl World {
             self.cast_fan(origin, rotation, dirs, range, sink);
             return;
         }
+        let view = self.terrain_view(origin, dirs.len());
+        let view = view.as_ref();
         for &(first, len, geom) in &layout.fans {
             let fan = &dirs[first..first + len];
             match geom {
@@ -375,7 +393,7 @@ impl World {
                     let plan = FanPlan::new(self, origin, rotation, g);
                     for (k, dl) in fan.iter().enumerate() {
                         let d = rotation * *dl;
-                        let hit = self.fan_ray(&plan, origin, d, range(first + k), layout.bins[first + k] as usize);
+                        let hit = self.fan_ray(&plan, origin, d, range(first + k), layout.bins[first + k] as usize, view);
                         sink(first + k, d, hit);
                     }
                 }
@@ -383,7 +401,7 @@ impl World {
                     for (k, dl) in fan.iter().enumerate() {
                         let d = rotation * *dl;
                         let max_t = range(first + k);
-                        let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit(origin, d, max_t) };
+                        let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit_in(origin, d, max_t, view) };
                         sink(first + k, d, hit);
                     }
                 }
@@ -393,7 +411,7 @@ impl World {
 
     /// One ray of a fan: world direction `d`, range `max_t`, bin `bin` of the plan's grid.
     #[inline]
-    fn fan_ray(&self, plan: &FanPlan, origin: DVec3, d: DVec3, max_t: f64, bin: usize) -> Option<RayHit> {
+    fn fan_ray(&self, plan: &FanPlan, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<RayHit> {
         if max_t.is_nan() || max_t < 0.0 {
             return None;
         }
@@ -427,11 +445,16 @@ impl World {
                 best = Some((hit, id));
             }
         }
-        self.finish(origin, d, max_t, best, plan.terrain)
+        self.finish(origin, d, max_t, best, plan.terrain, view)
     }
 
     /// [`World::cast_ray`] for a unit `d`.
     fn cast_unit(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<RayHit> {
+        self.cast_unit_in(o, d, max_t, None)
+    }
+
+    /// [`World::cast_unit`], the terrain culled through `view` (from `o`) when given.
+    fn cast_unit_in(&self, o: DVec3, d: DVec3, max_t: f64, view: Option<&TerrainView>) -> Option<RayHit> {
         let mut best = self.nearest_plane(o, d, max_t);
         let limit = best.map_or(max_t, |(h, _)| h.t);
         if let Some((id, hit)) = self.bvh.cast(&self.solids, o, d, limit) {
@@ -439,7 +462,7 @@ impl World {
                 best = Some((hit, id));
             }
         }
-        self.finish(o, d, max_t, best, true)
+        self.finish(o, d, max_t, best, true, view)
     }
 
     /// Nearest plane hit within `max_t` (planes are few and unbounded).
@@ -459,11 +482,15 @@ impl World {
 
     /// Adds the terrain (when `terrain`) to `best` and makes the [`RayHit`].
     #[inline]
-    fn finish(&self, o: DVec3, d: DVec3, max_t: f64, mut best: Option<(LeafHit, PrimitiveId)>, terrain: bool) -> Option<RayHit> {
+    fn finish(&self, o: DVec3, d: DVec3, max_t: f64, mut best: Option<(LeafHit, PrimitiveId)>, terrain: bool, view: Option<&TerrainView>) -> Option<RayHit> {
         if terrain {
             if let Some(t) = &self.terrain {
                 let limit = best.map_or(max_t, |(h, _)| h.t);
-                if let Some(hit) = t.cast(o, d, limit) {
+                let hit = match view {
+                    Some(view) => t.cast_in_view(view, o, d, limit),
+                    None => t.cast(o, d, limit),
+                };
+                if let Some(hit) = hit {
                     if best.is_none() || hit.t < limit {
                         best = Some((hit, t.id));
                     }
@@ -1447,12 +1474,24 @@ impl Terrain {
             }
             levels.push(TerrainLevel { nx, ny, size, z });
         }
+        let cell_z = (0..cells_y * cells_x)
+            .map(|i| {
+                let (r, c) = (i / cells_x, i % cells_x);
+                if removed[i] {
+                    return SlopeRange::EMPTY;
+                }
+                let h = [heights[r * cols + c], heights[r * cols + c + 1], heights[(r + 1) * cols + c], heights[(r + 1) * cols + c + 1]];
+                let (lo, hi) = h.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &z| (a.min(z), b.max(z)));
+                SlopeRange::outward(lo, hi)
+            })
+            .collect();
         let lo = DVec3::new(spec.origin[0], spec.origin[1], min_z);
         let hi = DVec3::new(spec.origin[0] + size_x, spec.origin[1] + size_y, max_z);
         Terrain {
             lo,
             hi,
             levels,
+            cell_z,
             id,
             origin: spec.origin,
             resolution: res,
@@ -1509,6 +1548,66 @@ impl Terrain {
     /// the blocks it crosses, skipping those whose height range it passes above or below,
     /// and inside the others the cells likewise; only cells it may meet are tested.
     fn cast(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<LeafHit> {
+        let (t0, t1) = self.clip(o, d, max_t)?;
+        let hit = self.walk(o, d, t0, t1)?;
+        (hit.t <= max_t).then_some(hit)
+    }
+
+    /// [`Terrain::cast`] from `view`'s origin `o`: the same answer, walking only the stretches
+    /// of the ray where `view` says the terrain may be met.
+    fn cast_in_view(&self, view: &TerrainView, o: DVec3, d: DVec3, max_t: f64) -> Option<LeafHit> {
+        let dxy = (d.x * d.x + d.y * d.y).sqrt();
+        if dxy.is_nan() || dxy <= TERRAIN_VIEW_MIN_DXY {
+            // (Nearly) vertical: the walk is short.
+            return self.cast(o, d, max_t);
+        }
+        if !self.any_cell {
+            return None;
+        }
+        // The view's bins hold the grid: no clipping to its box needed.
+        let (t0, t1) = (0.0, max_t);
+        let k = d.z / dxy;
+        let (row, group, tail) = view.row(d.x, d.y);
+        let scale = view.inv_w * dxy;
+        let last = row.len() - 1;
+        let j1 = if t1 * scale < last as f64 { (t1 * scale) as usize } else { last };
+        let mut ray: Option<TerrainRay> = None;
+        let mut j = 0;
+        while j <= j1 {
+            let g = j / TERRAIN_VIEW_GROUP;
+            if !tail[g].admits(k) {
+                return None;
+            }
+            if !group[g].admits(k) {
+                j = (g + 1) * TERRAIN_VIEW_GROUP;
+                continue;
+            }
+            if !row[j].admits(k) {
+                j += 1;
+                continue;
+            }
+            let ja = j;
+            while j < j1 && row[j + 1].admits(k) {
+                j += 1;
+            }
+            // Bins ja..=j, widened by a hair, within [t0, t1].
+            let ta = ((ja as f64 / scale) * (1.0 - 1.0e-9) - 1.0e-9).max(t0);
+            let tb = (((j + 1) as f64 / scale) * (1.0 + 1.0e-9) + 1.0e-9).min(t1);
+            if ta <= tb {
+                let ray = ray.get_or_insert_with(|| TerrainRay::new(self, o, d));
+                if let Some(hit) = self.walk_cells(ray, ta, tb) {
+                    return (hit.t <= max_t).then_some(hit);
+                }
+            }
+            j += 1;
+        }
+        None
+    }
+
+    /// The ray's part `[t0, t1]` (`t0 >= 0`, `t1 <= max_t`) inside the grid's box (widened by
+    /// a hair); `None` when it misses the box or there is no cell.
+    #[inline]
+    fn clip(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<(f64, f64)> {
         if !self.any_cell {
             return None;
         }
@@ -1530,19 +1629,48 @@ impl Terrain {
         if t0.is_nan() || t1.is_nan() || t0 > t1 {
             return None;
         }
-        let (px, py) = (o.x - self.origin[0], o.y - self.origin[1]);
+        Some((t0, t1))
+    }
+
+    /// The first hit of the ray over `[t0, t1]`, walking the pyramid from the top.
+    #[inline]
+    fn walk(&self, o: DVec3, d: DVec3, t0: f64, t1: f64) -> Option<LeafHit> {
+        self.walk_ray(&TerrainRay::new(self, o, d), t0, t1)
+    }
+
+    /// [`Terrain::walk`] of a prepared ray.
+    #[inline]
+    fn walk_ray(&self, ray: &TerrainRay, t0: f64, t1: f64) -> Option<LeafHit> {
         let top = self.levels.len() - 1;
         let level = &self.levels[top];
-        let hit = self.walk_level(o, d, px, py, top, (0, level.nx), (0, level.ny), t0, t1)?;
-        (hit.t <= max_t).then_some(hit)
+        self.walk_level(ray, top, (0, level.nx), (0, level.ny), t0, t1)
+    }
+
+    /// The first hit of the ray over `[t0, t1]`, walking the cells (no pyramid): for short
+    /// stretches near the surface.
+    #[inline]
+    fn walk_cells(&self, ray: &TerrainRay, t0: f64, t1: f64) -> Option<LeafHit> {
+        let (cells_x, cells_y) = (self.cols - 1, self.rows - 1);
+        let (oz, dz) = (ray.o.z, ray.d.z);
+        walk_grid(ray, self.resolution, (0, cells_x), (0, cells_y), t0, t1, |c, r, ta, tb| {
+            // A quick, looser test than `cast_cell`'s own (which follows); removed cells fail it.
+            let z = self.cell_z[r * cells_x + c];
+            let (za, zb) = (oz + dz * ta, oz + dz * tb);
+            let (lo, hi) = if za <= zb { (za, zb) } else { (zb, za) };
+            if hi < f64::from(z.lo) || lo > f64::from(z.hi) {
+                return None;
+            }
+            self.cast_cell_ray(ray, r, c, ta, tb)
+        })
     }
 
     /// Walks the blocks of pyramid level `level` in the index ranges given, over `[ta, tb]`,
     /// descending into those whose height range the ray meets; the first hit found ends it.
     #[allow(clippy::too_many_arguments)]
-    fn walk_level(&self, o: DVec3, d: DVec3, px: f64, py: f64, level: usize, i_range: (usize, usize), j_range: (usize, usize), ta: f64, tb: f64) -> Option<LeafHit> {
+    fn walk_level(&self, ray: &TerrainRay, level: usize, i_range: (usize, usize), j_range: (usize, usize), ta: f64, tb: f64) -> Option<LeafHit> {
         let l = &self.levels[level];
-        walk_grid(px, py, d.x, d.y, l.size, i_range, j_range, ta, tb, |bx, by, ta, tb| {
+        let (o, d) = (ray.o, ray.d);
+        walk_grid(ray, l.size, i_range, j_range, ta, tb, |bx, by, ta, tb| {
             let (zlo, zhi) = l.z[by * l.nx + bx];
             if !z_range_meets(o.z, d.z, ta, tb, zlo, zhi) {
                 return None;
@@ -1551,31 +1679,40 @@ impl Terrain {
                 let (cells_x, cells_y) = (self.cols - 1, self.rows - 1);
                 let i_range = (bx * TERRAIN_BLOCK, ((bx + 1) * TERRAIN_BLOCK).min(cells_x));
                 let j_range = (by * TERRAIN_BLOCK, ((by + 1) * TERRAIN_BLOCK).min(cells_y));
-                walk_grid(px, py, d.x, d.y, self.resolution, i_range, j_range, ta, tb, |c, r, ta, tb| {
+                walk_grid(ray, self.resolution, i_range, j_range, ta, tb, |c, r, ta, tb| {
                     if self.removed[r * cells_x + c] {
                         return None;
                     }
-                    self.cast_cell(o, d, r, c, ta, tb)
+                    self.cast_cell_ray(ray, r, c, ta, tb)
                 })
             } else {
                 let child = &self.levels[level - 1];
                 let i_range = (bx * TERRAIN_BLOCK, ((bx + 1) * TERRAIN_BLOCK).min(child.nx));
                 let j_range = (by * TERRAIN_BLOCK, ((by + 1) * TERRAIN_BLOCK).min(child.ny));
-                self.walk_level(o, d, px, py, level - 1, i_range, j_range, ta, tb)
+                self.walk_level(ray, level - 1, i_range, j_range, ta, tb)
             }
         })
     }
 
     /// Ray against the two triangles of cell (r, c), whose part of the ray is `[ta, tb]`.
+    #[cfg(test)]
     fn cast_cell(&self, o: DVec3, d: DVec3, r: usize, c: usize, ta: f64, tb: f64) -> Option<LeafHit> {
-        let (h00, h10, h01, h11) = (self.h(r, c), self.h(r, c + 1), self.h(r + 1, c), self.h(r + 1, c + 1));
+        self.cast_cell_ray(&TerrainRay::new(self, o, d), r, c, ta, tb)
+    }
+
+    /// [`Terrain::cast_cell`] of a prepared ray.
+    #[inline]
+    fn cast_cell_ray(&self, ray: &TerrainRay, r: usize, c: usize, ta: f64, tb: f64) -> Option<LeafHit> {
+        let (o, d) = (ray.o, ray.d);
+        let at = r * self.cols + c;
+        let (h00, h10, h01, h11) = (self.heights[at], self.heights[at + 1], self.heights[at + self.cols], self.heights[at + self.cols + 1]);
         if !z_range_meets(o.z, d.z, ta, tb, h00.min(h10).min(h01.min(h11)), h00.max(h10).max(h01.max(h11))) {
             return None;
         }
         // Cell coordinates: u along x, v along y, both in [0, 1] over the cell.
         let res = self.resolution;
-        let (ou, ov) = ((o.x - self.origin[0]) / res - c as f64, (o.y - self.origin[1]) / res - r as f64);
-        let (du, dv) = (d.x / res, d.y / res);
+        let (ou, ov) = (ray.gu - c as f64, ray.gv - r as f64);
+        let (du, dv) = (ray.du, ray.dv);
         // Triangle A (u <= v): z = h00 + u (h11 - h01) + v (h01 - h00); B (u > v):
         // z = h00 + u (h10 - h00) + v (h11 - h10). A hit on the ray where z_ray = z_plane.
         const EDGE: f64 = 1.0e-12;
@@ -1614,6 +1751,192 @@ impl Terrain {
     }
 }
 
+/// Fans of at least this many rays cull the terrain through a [`TerrainView`].
+const TERRAIN_VIEW_MIN_RAYS: usize = 2048;
+/// Azimuth sectors of a [`TerrainView`].
+const TERRAIN_VIEW_SECTORS: usize = 256;
+/// Most distance bins of a [`TerrainView`] (a sector's row).
+const TERRAIN_VIEW_MAX_BINS: usize = 512;
+/// Rays whose horizontal part `hypot(d.x, d.y)` is below this walk the terrain without the view.
+const TERRAIN_VIEW_MIN_DXY: f64 = 1.0e-6;
+/// Bins of a [`TerrainView`] summarised together (to skip them at once).
+const TERRAIN_VIEW_GROUP: usize = 8;
+
+/// The terrain as seen from one origin `o`, for culling many rays from there: around `o`,
+/// azimuth sectors (of a pseudo-angle) by bins of horizontal distance `r`, each with the
+/// range of slopes `(z - o.z) / r` of the terrain points it holds (through the boxes of the
+/// pyramid's finest blocks, rounded outward). A ray from `o` stays in one sector, with a
+/// fixed slope `d.z / hypot(d.x, d.y)`: it may meet the terrain only in the bins whose slope
+/// range holds its own, and walks only those.
+#[derive(Debug, Clone)]
+struct TerrainView {
+    /// Bins per sector.
+    bins: usize,
+    /// 1 / bin width [1/m].
+    inv_w: f64,
+    /// `[sector * bins + bin]`.
+    slopes: Vec<SlopeRange>,
+    /// Groups per sector (`bins.div_ceil(TERRAIN_VIEW_GROUP)`).
+    groups: usize,
+    /// Union of each group of `TERRAIN_VIEW_GROUP` bins, `[sector * groups + group]`.
+    group: Vec<SlopeRange>,
+    /// Union of the bins from each group's first on, `[sector * groups + group]`.
+    tail: Vec<SlopeRange>,
+}
+
+/// Range of slopes of a bin of a [`TerrainView`]; empty (`lo > hi`) when it holds no terrain.
+#[derive(Debug, Clone, Copy)]
+struct SlopeRange {
+    lo: f32,
+    hi: f32,
+}
+
+impl SlopeRange {
+    const EMPTY: SlopeRange = SlopeRange { lo: f32::INFINITY, hi: f32::NEG_INFINITY };
+
+    /// `[lo, hi]` widened by more than 1e-9 and the f32 rounding.
+    fn outward(lo: f64, hi: f64) -> SlopeRange {
+        SlopeRange { lo: (lo - 1.0e-6 * (1.0 + lo.abs())) as f32, hi: (hi + 1.0e-6 * (1.0 + hi.abs())) as f32 }
+    }
+
+    fn union(self, other: SlopeRange) -> SlopeRange {
+        SlopeRange { lo: self.lo.min(other.lo), hi: self.hi.max(other.hi) }
+    }
+
+    #[inline(always)]
+    fn admits(self, k: f64) -> bool {
+        f64::from(self.lo) <= k && k <= f64::from(self.hi)
+    }
+}
+
+/// Pseudo-angle of the direction `(x, y)` in `[0, 4]`: monotonic in the angle from +x toward
+/// +y over `[0, 2π)` (0 for a zero vector).
+#[inline(always)]
+fn pseudo_angle(x: f64, y: f64) -> f64 {
+    let s = x.abs() + y.abs();
+    if s.is_nan() || s <= 0.0 {
+        return 0.0;
+    }
+    let a = x / s;
+    if y >= 0.0 {
+        1.0 - a
+    } else {
+        3.0 + a
+    }
+}
+
+fn sector_of(pa: f64) -> usize {
+    ((pa * (TERRAIN_VIEW_SECTORS as f64 / 4.0)) as usize).min(TERRAIN_VIEW_SECTORS - 1)
+}
+
+impl TerrainView {
+    fn new(t: &Terrain, o: DVec3) -> TerrainView {
+        let level = &t.levels[0];
+        let size = level.size;
+        let (ox, oy) = (o.x - t.origin[0], o.y - t.origin[1]);
+        // Farthest corner of the grid (blocks may overhang it: use theirs).
+        let (gx, gy) = (level.nx as f64 * size, level.ny as f64 * size);
+        let far = ox.abs().max((gx - ox).abs()).hypot(oy.abs().max((gy - oy).abs()));
+        let mut w = size;
+        if far / w >= TERRAIN_VIEW_MAX_BINS as f64 - 2.0 {
+            w = far / (TERRAIN_VIEW_MAX_BINS as f64 - 2.0);
+        }
+        let bins = ((far / w) as usize + 2).min(TERRAIN_VIEW_MAX_BINS);
+        let inv_w = 1.0 / w;
+        let mut view = TerrainView { bins, inv_w, slopes: vec![SlopeRange::EMPTY; TERRAIN_VIEW_SECTORS * bins], groups: 0, group: Vec::new(), tail: Vec::new() };
+        let pad = |x: f64| 1.0e-9 * (1.0 + x.abs());
+        for by in 0..level.ny {
+            for bx in 0..level.nx {
+                let (zlo, zhi) = level.z[by * level.nx + bx];
+                if zlo > zhi {
+                    continue;
+                }
+                let (zlo, zhi) = (zlo - pad(zlo) - o.z, zhi + pad(zhi) - o.z);
+                // The block's square relative to `o`.
+                let (x0, x1) = (bx as f64 * size - ox, (bx + 1) as f64 * size - ox);
+                let (y0, y1) = (by as f64 * size - oy, (by + 1) as f64 * size - oy);
+                let dx = if x0 > 0.0 { x0 } else if x1 < 0.0 { -x1 } else { 0.0 };
+                let dy = if y0 > 0.0 { y0 } else if y1 < 0.0 { -y1 } else { 0.0 };
+                let rmin = (dx.hypot(dy) * (1.0 - 1.0e-9) - 1.0e-9).max(0.0);
+                let rmax = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs())) * (1.0 + 1.0e-9) + 1.0e-9;
+                // Slopes (z - o.z) / r over the block: the extremes at rmin or rmax.
+                let hi = if zhi >= 0.0 {
+                    if rmin > 0.0 { zhi / rmin } else { f64::INFINITY }
+                } else {
+                    zhi / rmax
+                };
+                let lo = if zlo <= 0.0 {
+                    if rmin > 0.0 { zlo / rmin } else { f64::NEG_INFINITY }
+                } else {
+                    zlo / rmax
+                };
+                let range = SlopeRange::outward(lo, hi);
+                let (j0, j1) = (((rmin * inv_w) as usize).min(bins - 1), ((rmax * inv_w) as usize).min(bins - 1));
+                let mut mark = |s0: usize, s1: usize| {
+                    for s in s0..=s1 {
+                        for b in &mut view.slopes[s * bins + j0..=s * bins + j1] {
+                            b.lo = b.lo.min(range.lo);
+                            b.hi = b.hi.max(range.hi);
+                        }
+                    }
+                };
+                if x0 <= 0.0 && x1 >= 0.0 && y0 <= 0.0 && y1 >= 0.0 {
+                    // `o` is over the block: every direction.
+                    mark(0, TERRAIN_VIEW_SECTORS - 1);
+                    continue;
+                }
+                let corners = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)];
+                const EPS: f64 = 1.0e-9;
+                if y0 < 0.0 && y1 >= 0.0 && x0 > 0.0 {
+                    // Across the +x axis, where the pseudo-angle wraps from 4 to 0.
+                    let below = corners.iter().filter(|c| c.1 < 0.0).fold(4.0f64, |a, c| a.min(pseudo_angle(c.0, c.1)));
+                    let above = corners.iter().filter(|c| c.1 >= 0.0).fold(0.0f64, |a, c| a.max(pseudo_angle(c.0, c.1)));
+                    mark(sector_of((below - EPS).max(0.0)), TERRAIN_VIEW_SECTORS - 1);
+                    mark(0, sector_of(above + EPS));
+                } else {
+                    let (a, b) = corners.iter().fold((4.0f64, 0.0f64), |(a, b), c| {
+                        let p = pseudo_angle(c.0, c.1);
+                        (a.min(p), b.max(p))
+                    });
+                    let (a, b) = (a - EPS, b + EPS);
+                    mark(sector_of(a.max(0.0)), sector_of(b));
+                    // Next to the wrap, a hair on the other side.
+                    if a < 0.0 {
+                        mark(TERRAIN_VIEW_SECTORS - 1, TERRAIN_VIEW_SECTORS - 1);
+                    }
+                    if b >= 4.0 {
+                        mark(0, 0);
+                    }
+                }
+            }
+        }
+        let groups = bins.div_ceil(TERRAIN_VIEW_GROUP);
+        view.groups = groups;
+        view.group = vec![SlopeRange::EMPTY; TERRAIN_VIEW_SECTORS * groups];
+        view.tail = vec![SlopeRange::EMPTY; TERRAIN_VIEW_SECTORS * groups];
+        for s in 0..TERRAIN_VIEW_SECTORS {
+            let row = &view.slopes[s * bins..(s + 1) * bins];
+            for (g, chunk) in row.chunks(TERRAIN_VIEW_GROUP).enumerate() {
+                view.group[s * groups + g] = chunk.iter().fold(SlopeRange::EMPTY, |a, b| a.union(*b));
+            }
+            let mut acc = SlopeRange::EMPTY;
+            for g in (0..groups).rev() {
+                acc = acc.union(view.group[s * groups + g]);
+                view.tail[s * groups + g] = acc;
+            }
+        }
+        view
+    }
+
+    /// The bins, groups and tails of the sector of the horizontal direction `(x, y)`.
+    #[inline]
+    fn row(&self, x: f64, y: f64) -> (&[SlopeRange], &[SlopeRange], &[SlopeRange]) {
+        let s = sector_of(pseudo_angle(x, y));
+        let g = s * self.groups..(s + 1) * self.groups;
+        (&self.slopes[s * self.bins..(s + 1) * self.bins], &self.group[g.clone()], &self.tail[g])
+    }
+}
+
 /// Whether the ray's height over `[ta, tb]` meets `[zlo, zhi]` (widened by a hair).
 #[inline]
 fn z_range_meets(oz: f64, dz: f64, ta: f64, tb: f64, zlo: f64, zhi: f64) -> bool {
@@ -1622,16 +1945,39 @@ fn z_range_meets(oz: f64, dz: f64, ta: f64, tb: f64, zlo: f64, zhi: f64) -> bool
     za.max(zb) >= zlo - pad && za.min(zb) <= zhi + pad
 }
 
+/// A ray against the terrain, with the terms its walk and cell tests share.
+struct TerrainRay {
+    o: DVec3,
+    d: DVec3,
+    /// The origin relative to the grid's corner (x, y) [m].
+    px: f64,
+    py: f64,
+    /// `1 / d.x`, `1 / d.y`.
+    ix: f64,
+    iy: f64,
+    /// The origin and direction in cells (x / resolution).
+    gu: f64,
+    gv: f64,
+    du: f64,
+    dv: f64,
+}
+
+impl TerrainRay {
+    #[inline]
+    fn new(t: &Terrain, o: DVec3, d: DVec3) -> TerrainRay {
+        let (px, py) = (o.x - t.origin[0], o.y - t.origin[1]);
+        let res = t.resolution;
+        TerrainRay { o, d, px, py, ix: 1.0 / d.x, iy: 1.0 / d.y, gu: px / res, gv: py / res, du: d.x / res, dv: d.y / res }
+    }
+}
+
 /// Walks the square cells (side `size`, cell (i, j) spans `[i, i + 1) · size` along x) that
 /// the ray `p + t·d` (x, y only; `p` relative to the grid's corner) crosses for `t` in
 /// `[t0, t1]`, in order, within the index ranges `[i0, i1) x [j0, j1)`; `visit(i, j, ta, tb)`
 /// gets each cell and the ray's part in it, and the first `Some` it returns ends the walk.
-#[allow(clippy::too_many_arguments)]
+#[inline]
 fn walk_grid<T>(
-    px: f64,
-    py: f64,
-    dx: f64,
-    dy: f64,
+    ray: &TerrainRay,
     size: f64,
     (i0, i1): (usize, usize),
     (j0, j1): (usize, usize),
@@ -1644,9 +1990,9 @@ fn walk_grid<T>(
     }
     // `as usize` truncates and saturates (NaN gives 0): with the clamp at `lo >= 0` this is
     // the floor (no libm call).
+    let (px, py, dx, dy, ix, iy) = (ray.px, ray.py, ray.d.x, ray.d.y, ray.ix, ray.iy);
     let start = |p: f64, d: f64, lo: usize, hi: usize| (((p + d * t0) / size).max(lo as f64) as usize).min(hi - 1);
     let (mut i, mut j) = (start(px, dx, i0, i1), start(py, dy, j0, j1));
-    let (ix, iy) = (1.0 / dx, 1.0 / dy);
     // Distance at which the ray leaves cell index `k` along an axis.
     let exit = |p: f64, d: f64, inv: f64, k: usize| {
         if d > 0.0 {
@@ -2182,6 +2528,41 @@ mod tests {
         assert_eq!(out[0], w.cast_ray(origin, dirs[0], 4.0));
         assert!(matches!(w.cast_rays(origin, &dirs, &ranges[..3], &mut out), Err(SimError::InvalidInput { argument, .. }) if argument == "max_ranges"));
         assert!(matches!(w.cast_rays(origin, &dirs, &ranges, &mut out[..3]), Err(SimError::InvalidInput { argument, .. }) if argument == "out"));
+    }
+
+    #[test]
+    fn terrain_view_gives_the_single_ray_answers_near_the_ground() {
+        // Lidar-like fans from just above the terrain (where grazing rays walk far), and from
+        // below it: the culled walk must find exactly the hits of the full walk.
+        let lidar: Vec<DVec3> = (0..512)
+            .flat_map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / 512.0;
+                (0..8).map(move |r| {
+                    let e = (-20.0 + 25.0 * r as f64 / 7.0).to_radians();
+                    DVec3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin())
+                })
+            })
+            .collect();
+        let mut state = 21u64;
+        for name in ["mine", "subway"] {
+            let w = world(crate::scenarios::generate(name, 2).expect("scenario"));
+            let (lo, hi) = w.bounds();
+            let mut terrain_hits = 0;
+            for i in 0..5 {
+                let (x, y) = (lo.x + (hi.x - lo.x) * next(&mut state), lo.y + (hi.y - lo.y) * next(&mut state));
+                let ground = w.ground_height(x, y).unwrap_or(0.0);
+                let z = if i == 4 { ground - 0.3 } else { ground + 0.05 + 1.5 * next(&mut state) };
+                let origin = DVec3::new(x, y, z);
+                let rotation = DMat3::from_rotation_z(next(&mut state) * 6.3) * DMat3::from_rotation_x(0.2 * (next(&mut state) - 0.5));
+                let max = |k: usize| 60.0 * (0.3 + (k % 5) as f64 / 6.0);
+                let terrain = (w.primitive_count() - 1) as PrimitiveId;
+                w.cast_fan(origin, rotation, &lidar, &max, &mut |k, d, hit| {
+                    assert_eq!(hit, w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
+                    terrain_hits += usize::from(hit.is_some_and(|h| h.primitive == terrain));
+                });
+            }
+            assert!(terrain_hits > 2000, "{name}: {terrain_hits} terrain hits");
+        }
     }
 
     #[test]
