@@ -183,10 +183,10 @@ def _fly_batch(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         raise InputError(f"argument --seeds must be >= 1, got {args.seeds}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    out = Path(args.out or f"runs/fly-batch-{args.scenario}-{time.strftime('%Y%m%d-%H%M%S')}")
     result = fly_batch(args.scenario, args.routes, seeds, controllers=[c.strip() for c in args.controllers.split(",") if c.strip()],
                        noises=[n.strip() for n in args.noise.split(",") if n.strip()], preset=args.preset, rate_hz=args.rate,
-                       workers=args.workers)
-    out = Path(args.out or f"runs/fly-batch-{args.scenario}-{time.strftime('%Y%m%d-%H%M%S')}")
+                       workers=args.workers, log_path=out / "flights.jsonl")
     paths = result.save(out, plots=not args.no_plots)
     print(result.markdown())
     print(f"{len(result.rows)} flights in {result.wall_s:.0f} s")

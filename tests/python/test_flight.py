@@ -144,11 +144,15 @@ def test_run_folder_has_every_file(easy_flight, tmp_path):
     assert traj.size == easy_flight.path.shape[0]
 
 
-def test_batch_summarises_both_controllers():
+def test_batch_summarises_both_controllers(tmp_path):
     world_routes = ["A-B"]
+    log = tmp_path / "flights.jsonl"
     b = flight.fly_batch("highbay", world_routes, [7], controllers=("apf-pf", "raw-apf"), noises=("none",),
-                         workers=2, progress=False, rate_hz=10.0)
+                         workers=2, progress=False, rate_hz=10.0, time_limit_s=25.0, log_path=log)
     assert len(b.rows) == 2
+    # Every flight is logged as it finishes (an interrupted batch keeps what it flew).
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    assert logged == b.rows
     assert {r["controller"] for r in b.rows} == {"apf-pf", "raw-apf"}
     totals = [t for t in b.table if t["route"] == "all"]
     assert len(totals) == 2

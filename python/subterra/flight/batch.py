@@ -141,6 +141,7 @@ def fly_batch(
     workers: int | None = None,
     keep_seed: int | None = None,
     progress: bool | Callable[[int, int, dict[str, Any]], None] = True,
+    log_path: str | os.PathLike[str] | None = None,
 ) -> BatchResult:
     """Flies every (noise, seed, route, controller) combination and summarises them.
 
@@ -189,11 +190,18 @@ def fly_batch(
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
     kept: list[FlightResult] = []
     counts = {c: {"ok": 0, "collisions": 0} for c in controllers}
+    log = None
+    if log_path is not None:
+        Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+        log = Path(log_path).open("a", encoding="utf-8")
     try:
         with ThreadPoolExecutor(max_workers=workers) as pool:
             for done, (n, result) in enumerate(zip(range(len(jobs)), pool.map(run, jobs)), start=1):
                 row = result.summary()
                 rows[n] = row
+                if log is not None:
+                    log.write(json.dumps(row) + "\n")
+                    log.flush()
                 if result.seed == keep:
                     kept.append(result)
                 c = counts[result.controller]
@@ -211,6 +219,8 @@ def fly_batch(
     finally:
         if bar is not None:
             bar.close()
+        if log is not None:
+            log.close()
     final_rows = [r for r in rows if r is not None]
     settings = {"routes": route_list, "seeds": seed_list, "controllers": list(controllers), "noises": list(noises),
                 "preset": preset, "rate_hz": rate_hz, "time_limit_s": time_limit_s, "workers": workers}
