@@ -12,8 +12,16 @@
 
 pub mod cloud;
 pub mod config;
+pub mod fusion;
+pub mod grid;
 pub mod ground;
+pub mod mapper;
+pub mod risk;
 
 pub use cloud::{Prefilter, PrefilterStats};
 pub use config::{FusionConfig, GroundConfig, LayerConfig, MapConfig, PrefilterConfig, Ramp, RiskConfig, RobotConfig, TerrainConfig, UncertaintyConfig};
+pub use fusion::{check_rigid, ScanWindow, StoredScan};
+pub use grid::{cvar_factor, CellIndex, GridGeometry, Layer, RiskMap};
 pub use ground::{segment_ground, GroundLine, GroundSegmenter, PolarBin};
+pub use mapper::{TerrainMapper, TerrainOutput, TerrainStats, TerrainTimings};
+pub use risk::MissionItem;
