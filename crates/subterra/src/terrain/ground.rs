@@ -44,7 +44,9 @@
 //!    it is ground iff `|h| <= max_dist_to_line_m`. Points without a bin are obstacles with
 //!    `h = NaN`.
 //!
-//! Byproducts per bin (not part of the labels): the lowest point's z (`floor_z`), and the
+//! Byproducts per bin (not part of the labels): *coverage* of a position at radius r in a
+//! covered bin holds when r also lies between the radii of the line's first and last
+//! prototype; the lowest point's z (`floor_z`), and the
 //! steepest downward ray slope `min(z / r)` over the points of all *farther* bins of the
 //! sector: a ray from the sensor to such a point passed over this bin at height
 //! `slope · r`, so the floor here is at most that high.
@@ -67,12 +69,17 @@ pub struct GroundLine {
     pub first_bin: u32,
     /// Last bin covered.
     pub last_bin: u32,
+    /// Radius of the first prototype [m].
+    pub first_r_m: f64,
+    /// Radius of the last prototype [m].
+    pub last_r_m: f64,
 }
 
 /// What the segmentation knows about one polar bin (see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PolarBin {
-    /// Whether an accepted line covers the bin.
+    /// Whether an accepted line covers the bin and the queried radius lies between the
+    /// line's first and last prototype.
     pub covered: bool,
     /// Ground height of the bin's line at the queried radius [m, sensor-centred].
     pub ground_z: f64,
@@ -145,6 +152,8 @@ pub struct GroundSegmenter {
     line_m: Vec<f64>,
     line_b: Vec<f64>,
     covered: Vec<bool>,
+    /// Per polar bin: the radii of its line's first and last prototype if covered.
+    cover_r: Vec<(f64, f64)>,
     /// Accepted lines of every sector, and each sector's range in it.
     lines: Vec<GroundLine>,
     sector_lines: Vec<(u32, u32)>,
@@ -168,6 +177,7 @@ impl GroundSegmenter {
             line_m: vec![0.0; polar],
             line_b: vec![0.0; polar],
             covered: vec![false; polar],
+            cover_r: vec![(f64::INFINITY, f64::NEG_INFINITY); polar],
             lines: Vec::new(),
             sector_lines: vec![(0, 0); config.sectors as usize],
             sensor_height_m: 0.0,
@@ -232,7 +242,8 @@ impl GroundSegmenter {
         let sb = s * self.bins + k;
         let ground_z = self.line_m[sb] * r + self.line_b[sb];
         let floor_bound_z = self.proto_z[sb].min(self.ray_slope[sb] * r);
-        Some(PolarBin { covered: self.covered[sb], ground_z, floor_bound_z })
+        let (lo, hi) = self.cover_r[sb];
+        Some(PolarBin { covered: self.covered[sb] && r >= lo && r <= hi, ground_z, floor_bound_z })
     }
 
     fn bin_points(&mut self, points: &[[f32; 3]]) {
@@ -360,7 +371,8 @@ impl GroundSegmenter {
         if lines.is_empty() {
             self.line_m[row.clone()].fill(0.0);
             self.line_b[row.clone()].fill(-self.sensor_height_m);
-            self.covered[row].fill(false);
+            self.covered[row.clone()].fill(false);
+            self.cover_r[row].fill((f64::INFINITY, f64::NEG_INFINITY));
             return;
         }
         let mut j = 0; // the first line whose last bin is >= k
@@ -390,6 +402,7 @@ impl GroundSegmenter {
             self.line_m[s * bins + k] = chosen.m;
             self.line_b[s * bins + k] = chosen.b;
             self.covered[s * bins + k] = covered;
+            self.cover_r[s * bins + k] = if covered { (chosen.first_r_m, chosen.last_r_m) } else { (f64::INFINITY, f64::NEG_INFINITY) };
         }
     }
 }
@@ -401,7 +414,7 @@ fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut f64
     }
     let Some((m, b, _)) = sums.fit() else { return };
     let (last_r, _, last_bin) = seg[seg.len() - 1];
-    lines.push(GroundLine { m, b, first_bin: seg[0].2, last_bin });
+    lines.push(GroundLine { m, b, first_bin: seg[0].2, last_bin, first_r_m: seg[0].0, last_r_m: last_r });
     *g = m * last_r + b;
 }
 
