@@ -88,6 +88,32 @@ pub struct PolarBin {
     pub floor_bound_z: f64,
 }
 
+/// A polar bin's prototype and steepest ray, gathered while binning.
+#[derive(Debug, Clone, Copy)]
+struct BinAccumulator {
+    proto_r: f64,
+    proto_z: f64,
+    /// Smallest `z/r` of the bin's points; after the sweep, of the farther bins' points.
+    ray_slope: f64,
+}
+
+impl BinAccumulator {
+    const EMPTY: Self = Self { proto_r: 0.0, proto_z: f64::INFINITY, ray_slope: f64::INFINITY };
+}
+
+/// A polar bin's ground line and the radii it covers (empty range if not covered).
+#[derive(Debug, Clone, Copy)]
+struct BinLine {
+    m: f64,
+    b: f64,
+    cover_lo: f64,
+    cover_hi: f64,
+}
+
+impl BinLine {
+    const NONE: Self = Self { m: 0.0, b: 0.0, cover_lo: f64::INFINITY, cover_hi: f64::NEG_INFINITY };
+}
+
 /// Running least-squares sums of a segment, centred on its first point.
 #[derive(Debug, Clone, Copy, Default)]
 struct LineSums {
@@ -143,20 +169,15 @@ pub struct GroundSegmenter {
     point_bin: Vec<u32>,
     /// Per point: its horizontal range [m].
     point_r: Vec<f32>,
-    /// Per polar bin: the prototype (lowest point).
-    proto_r: Vec<f64>,
-    proto_z: Vec<f64>,
-    /// Per polar bin: smallest `z/r` of its points, then (after the sweep) of farther bins.
-    ray_slope: Vec<f64>,
-    /// Per polar bin: the line's coefficients and whether a line covers it.
-    line_m: Vec<f64>,
-    line_b: Vec<f64>,
-    covered: Vec<bool>,
-    /// Per polar bin: the radii of its line's first and last prototype if covered.
-    cover_r: Vec<(f64, f64)>,
+    /// Per polar bin: the prototype (lowest point) and the steepest ray.
+    acc: Vec<BinAccumulator>,
+    /// Per polar bin: its line and the radii it covers.
+    line: Vec<BinLine>,
     /// Accepted lines of every sector, and each sector's range in it.
     lines: Vec<GroundLine>,
     sector_lines: Vec<(u32, u32)>,
+    /// Unit vectors of the sector boundaries at angles `-π + s·2π/S`, `s = 0..=S`.
+    sector_edges: Vec<(f64, f64)>,
     sensor_height_m: f64,
 }
 
@@ -171,15 +192,16 @@ impl GroundSegmenter {
             bins,
             point_bin: Vec::new(),
             point_r: Vec::new(),
-            proto_r: vec![0.0; polar],
-            proto_z: vec![f64::INFINITY; polar],
-            ray_slope: vec![f64::INFINITY; polar],
-            line_m: vec![0.0; polar],
-            line_b: vec![0.0; polar],
-            covered: vec![false; polar],
-            cover_r: vec![(f64::INFINITY, f64::NEG_INFINITY); polar],
+            acc: vec![BinAccumulator::EMPTY; polar],
+            line: vec![BinLine::NONE; polar],
             lines: Vec::new(),
             sector_lines: vec![(0, 0); config.sectors as usize],
+            sector_edges: (0..=config.sectors)
+                .map(|s| {
+                    let a = -std::f64::consts::PI + s as f64 * std::f64::consts::TAU / config.sectors as f64;
+                    (a.cos(), a.sin())
+                })
+                .collect(),
             sensor_height_m: 0.0,
         })
     }
@@ -208,7 +230,8 @@ impl GroundSegmenter {
             }
             let sb = sb as usize;
             let r = self.point_r[i] as f64;
-            heights_out.push((p[2] as f64 - (self.line_m[sb] * r + self.line_b[sb])) as f32);
+            let line = &self.line[sb];
+            heights_out.push((p[2] as f64 - (line.m * r + line.b)) as f32);
         }
         Ok(())
     }
@@ -240,10 +263,10 @@ impl GroundSegmenter {
         let s = (((fast_atan2(y, x) + std::f64::consts::PI) * (sectors as f64 / std::f64::consts::TAU)) as usize).min(sectors - 1);
         let k = ((r / self.config.bin_m) as usize).min(self.bins - 1);
         let sb = s * self.bins + k;
-        let ground_z = self.line_m[sb] * r + self.line_b[sb];
-        let floor_bound_z = self.proto_z[sb].min(self.ray_slope[sb] * r);
-        let (lo, hi) = self.cover_r[sb];
-        Some(PolarBin { covered: self.covered[sb] && r >= lo && r <= hi, ground_z, floor_bound_z })
+        let (line, acc) = (&self.line[sb], &self.acc[sb]);
+        let ground_z = line.m * r + line.b;
+        let floor_bound_z = acc.proto_z.min(acc.ray_slope * r);
+        Some(PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z })
     }
 
     fn bin_points(&mut self, points: &[[f32; 3]]) {
@@ -253,8 +276,7 @@ impl GroundSegmenter {
         let sector_scale = c.sectors as f64 / std::f64::consts::TAU;
         let inv_bin = 1.0 / c.bin_m;
         let max_r = c.max_range_m;
-        self.proto_z.fill(f64::INFINITY);
-        self.ray_slope.fill(f64::INFINITY);
+        self.acc.fill(BinAccumulator::EMPTY);
         self.point_bin.clear();
         self.point_r.clear();
         self.point_bin.reserve(points.len());
@@ -267,31 +289,54 @@ impl GroundSegmenter {
                 self.point_r.push(r as f32);
                 continue;
             }
-            let s = (((y.atan2(x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
+            let s = self.sector_of(x, y, sector_scale);
             let k = ((r * inv_bin) as usize).min(bins - 1);
             let sb = s * bins + k;
             self.point_bin.push(sb as u32);
             self.point_r.push(r as f32);
-            if z < self.proto_z[sb] {
-                self.proto_z[sb] = z;
-                self.proto_r[sb] = r;
+            let acc = &mut self.acc[sb];
+            if z < acc.proto_z {
+                acc.proto_z = z;
+                acc.proto_r = r;
             }
             if r > 0.0 {
                 let slope = z / r;
-                if slope < self.ray_slope[sb] {
-                    self.ray_slope[sb] = slope;
+                if slope < acc.ray_slope {
+                    acc.ray_slope = slope;
                 }
             }
         }
         // Per bin: the steepest ray to any point of a farther bin of the sector.
         for s in 0..sectors {
-            let row = &mut self.ray_slope[s * bins..(s + 1) * bins];
+            let row = &mut self.acc[s * bins..(s + 1) * bins];
             let mut farther = f64::INFINITY;
-            for k in (0..bins).rev() {
-                let own = row[k];
-                row[k] = farther;
+            for bin in row.iter_mut().rev() {
+                let own = bin.ray_slope;
+                bin.ray_slope = farther;
                 farther = farther.min(own);
             }
+        }
+    }
+
+    /// `min(floor((atan2(y, x) + π) / (2π/S)), S - 1)`: a fast `atan2` gives the sector to
+    /// within one, and two cross products with the boundary vectors settle it (they agree with
+    /// libm's `atan2` except within ~1e-15 rad of a boundary).
+    #[inline]
+    fn sector_of(&self, x: f64, y: f64, sector_scale: f64) -> usize {
+        let sectors = self.sector_edges.len() - 1;
+        if sectors < 8 {
+            return (((y.atan2(x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
+        }
+        let s = (((fast_atan2(y, x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
+        let (lx, ly) = self.sector_edges[s];
+        if lx * y - ly * x < 0.0 {
+            return s.saturating_sub(1);
+        }
+        let (ux, uy) = self.sector_edges[s + 1];
+        if ux * y - uy * x >= 0.0 && s + 1 < sectors {
+            s + 1
+        } else {
+            s
         }
     }
 
@@ -308,11 +353,11 @@ impl GroundSegmenter {
             let mut sums = LineSums::default();
             for k in 0..bins {
                 let sb = s * bins + k;
-                let z = self.proto_z[sb];
+                let z = self.acc[sb].proto_z;
                 if !z.is_finite() {
                     continue;
                 }
-                let r = self.proto_r[sb];
+                let r = self.acc[sb].proto_r;
                 loop {
                     let Some(&(qr, qz, _)) = seg.last() else {
                         seg.push((r, z, k as u32));
@@ -369,10 +414,7 @@ impl GroundSegmenter {
         let lines = &self.lines[a as usize..b as usize];
         let row = s * bins..(s + 1) * bins;
         if lines.is_empty() {
-            self.line_m[row.clone()].fill(0.0);
-            self.line_b[row.clone()].fill(-self.sensor_height_m);
-            self.covered[row.clone()].fill(false);
-            self.cover_r[row].fill((f64::INFINITY, f64::NEG_INFINITY));
+            self.line[row].fill(BinLine { b: -self.sensor_height_m, ..BinLine::NONE });
             return;
         }
         let mut j = 0; // the first line whose last bin is >= k
@@ -399,10 +441,8 @@ impl GroundSegmenter {
                     (line, false)
                 }
             };
-            self.line_m[s * bins + k] = chosen.m;
-            self.line_b[s * bins + k] = chosen.b;
-            self.covered[s * bins + k] = covered;
-            self.cover_r[s * bins + k] = if covered { (chosen.first_r_m, chosen.last_r_m) } else { (f64::INFINITY, f64::NEG_INFINITY) };
+            let (cover_lo, cover_hi) = if covered { (chosen.first_r_m, chosen.last_r_m) } else { (f64::INFINITY, f64::NEG_INFINITY) };
+            self.line[s * bins + k] = BinLine { m: chosen.m, b: chosen.b, cover_lo, cover_hi };
         }
     }
 }
@@ -500,6 +540,24 @@ mod tests {
         let (m, b, rmse) = LineSums::start(0.0, 0.0).with(1.0, 0.0).with(2.0, 0.3).fit().unwrap();
         assert!((m - 0.15).abs() < 1e-12 && (b + 0.05).abs() < 1e-12);
         assert!((rmse - (0.015f64 / 3.0).sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn sectors_agree_with_libm_atan2() {
+        let config = GroundConfig::default();
+        let seg = GroundSegmenter::new(config).unwrap();
+        let scale = config.sectors as f64 / std::f64::consts::TAU;
+        let exact = |x: f64, y: f64| (((y.atan2(x) + std::f64::consts::PI) * scale) as usize).min(config.sectors as usize - 1);
+        let mut state = 12345u64;
+        for i in 0..200_000 {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let a = (state >> 11) as f64 / (1u64 << 53) as f64 * std::f64::consts::TAU - std::f64::consts::PI;
+            // Every 4th point sits within 1e-9 rad of a sector boundary.
+            let a = if i % 4 == 0 { -std::f64::consts::PI + ((a + std::f64::consts::PI) * scale).round() / scale + 1e-9 * a.signum() } else { a };
+            let r = 0.5 + (i % 97) as f64 * 0.3;
+            let (x, y) = (r * a.cos(), r * a.sin());
+            assert_eq!(seg.sector_of(x, y, scale), exact(x, y), "angle {a}");
+        }
     }
 
     #[test]

@@ -72,24 +72,39 @@ pub(crate) struct NewestPolar<'a> {
     pub sensor_level: DVec3,
 }
 
-/// One settling triangle: corners `i, j, k` bear the body, `o` is lifted.
+/// One settling triangle: corners `i, j, k` bear the body, the fourth is lifted.
 #[derive(Debug, Clone, Copy)]
 struct Triangle {
     i: usize,
     j: usize,
     k: usize,
-    o: usize,
     /// `A⁻¹` with `A = [[p_j - p_i], [p_k - p_i]]` (rows), so `∇z = A⁻¹ [Δ_j, Δ_k]`.
     inv: [[f64; 2]; 2],
-    /// `(p_o - p_i)ᵀ A⁻¹`: the plane's height at `o` is `h_i + w·[Δ_j, Δ_k]`.
-    w: [f64; 2],
 }
 
-/// The footprint's four corner cells at one heading.
+/// The footprint's four corner cells at one heading. Rounding is symmetric, so the corners
+/// are `±u, ±v` (FL = -RR, FR = -RL): a parallelogram centred on the cell.
 #[derive(Debug, Clone)]
 struct HeadingStencil {
     offsets: [(i64, i64); 4],
-    triangles: Vec<Triangle>,
+    /// The triangle lifting each corner (index = the lifted corner); `None` if degenerate.
+    triangles: [Option<Triangle>; 4],
+}
+
+/// What the points of one cell add up to (one cache line per cell while binning).
+#[derive(Debug, Clone, Copy)]
+struct CellAccumulator {
+    count: u32,
+    ground_n: u32,
+    collision_n: u32,
+    ground_sum: f32,
+    min_z: f32,
+    max_z: f32,
+    min_age: f32,
+}
+
+impl CellAccumulator {
+    const EMPTY: Self = Self { count: 0, ground_n: 0, collision_n: 0, ground_sum: 0.0, min_z: f32::INFINITY, max_z: f32::NEG_INFINITY, min_age: f32::INFINITY };
 }
 
 /// Builds maps of one geometry with reusable buffers.
@@ -104,13 +119,7 @@ pub(crate) struct MapBuilder {
     plane_half: usize,
     patch_half: usize,
     stencils: Vec<HeadingStencil>,
-    count: Vec<u32>,
-    ground_n: Vec<u32>,
-    ground_sum: Vec<f32>,
-    min_z: Vec<f32>,
-    max_z: Vec<f32>,
-    collision_n: Vec<u32>,
-    min_age: Vec<f32>,
+    cells: Vec<CellAccumulator>,
     height: Vec<f32>,
     patch_tmp: Vec<f32>,
     patch_max: Vec<f32>,
@@ -133,13 +142,7 @@ impl MapBuilder {
             plane_half: odd_half(layers.plane_window_m),
             patch_half: odd_half(layers.wheel_patch_m),
             stencils,
-            count: Vec::new(),
-            ground_n: Vec::new(),
-            ground_sum: Vec::new(),
-            min_z: Vec::new(),
-            max_z: Vec::new(),
-            collision_n: Vec::new(),
-            min_age: Vec::new(),
+            cells: Vec::new(),
             height: Vec::new(),
             patch_tmp: Vec::new(),
             patch_max: Vec::new(),
@@ -153,20 +156,8 @@ impl MapBuilder {
         let mut map = RiskMap::zeros(geometry, stamp_s);
         map.scans = sources.len();
         let n = geometry.cells();
-        self.count.clear();
-        self.count.resize(n, 0);
-        self.ground_n.clear();
-        self.ground_n.resize(n, 0);
-        self.ground_sum.clear();
-        self.ground_sum.resize(n, 0.0);
-        self.min_z.clear();
-        self.min_z.resize(n, f32::INFINITY);
-        self.max_z.clear();
-        self.max_z.resize(n, f32::NEG_INFINITY);
-        self.collision_n.clear();
-        self.collision_n.resize(n, 0);
-        self.min_age.clear();
-        self.min_age.resize(n, f32::INFINITY);
+        self.cells.clear();
+        self.cells.resize(n, CellAccumulator::EMPTY);
         // Map corner relative to the body, level frame.
         let corner = geometry.origin_m() - body_world.truncate();
         map.points = self.bin_points(&geometry, corner, sources);
@@ -198,18 +189,18 @@ impl MapBuilder {
                 if !(u >= 0.0 && u < nx && v >= 0.0 && v < ny) {
                     continue;
                 }
-                let c = v as usize * nxu + u as usize;
+                let cell = &mut self.cells[v as usize * nxu + u as usize];
                 let z = p[2] + oz;
                 binned += 1;
-                self.count[c] += 1;
-                self.min_z[c] = self.min_z[c].min(z);
-                self.max_z[c] = self.max_z[c].max(z);
-                self.min_age[c] = self.min_age[c].min(age);
+                cell.count += 1;
+                cell.min_z = cell.min_z.min(z);
+                cell.max_z = cell.max_z.max(z);
+                cell.min_age = cell.min_age.min(age);
                 if h.abs() <= thr {
-                    self.ground_n[c] += 1;
-                    self.ground_sum[c] += z;
+                    cell.ground_n += 1;
+                    cell.ground_sum += z;
                 } else if h > lo && h <= hi {
-                    self.collision_n[c] += 1;
+                    cell.collision_n += 1;
                 }
             }
         }
@@ -223,11 +214,11 @@ impl MapBuilder {
         self.height.resize(n, f32::NAN);
         let mut observed = vec![0.0f32; n];
         let mut depth = vec![0.0f32; n];
-        for c in 0..n {
-            if self.ground_n[c] > 0 {
-                self.height[c] = self.ground_sum[c] / self.ground_n[c] as f32;
+        for (c, cell) in self.cells.iter().enumerate() {
+            if cell.ground_n > 0 {
+                self.height[c] = cell.ground_sum / cell.ground_n as f32;
             }
-            if self.count[c] > 0 {
+            if cell.count > 0 {
                 observed[c] = 1.0;
             }
         }
@@ -241,7 +232,7 @@ impl MapBuilder {
                     let c = iy * g.nx + ix;
                     if bin.covered {
                         observed[c] = 1.0;
-                        if self.ground_n[c] == 0 {
+                        if self.cells[c].ground_n == 0 {
                             self.height[c] = (bin.ground_z + s.z) as f32;
                         }
                     }
@@ -412,16 +403,17 @@ impl MapBuilder {
         let mut out = map.layers_mut();
         let get = |l: Layer| l as usize;
         for c in 0..n {
-            let count = self.count[c];
+            let cell = self.cells[c];
+            let count = cell.count;
             out[get(Layer::Count)][c] = count as f32;
-            out[get(Layer::GroundCount)][c] = self.ground_n[c] as f32;
+            out[get(Layer::GroundCount)][c] = cell.ground_n as f32;
             out[get(Layer::GroundHeight)][c] = self.height[c] + z0;
             let has = count > 0;
-            out[get(Layer::MinHeight)][c] = if has { self.min_z[c] + z0 } else { f32::NAN };
-            out[get(Layer::MaxHeight)][c] = if has { self.max_z[c] + z0 } else { f32::NAN };
-            out[get(Layer::Age)][c] = if has { self.min_age[c] } else { f32::NAN };
+            out[get(Layer::MinHeight)][c] = if has { cell.min_z + z0 } else { f32::NAN };
+            out[get(Layer::MaxHeight)][c] = if has { cell.max_z + z0 } else { f32::NAN };
+            out[get(Layer::Age)][c] = if has { cell.min_age } else { f32::NAN };
             let observed = out[get(Layer::Observed)][c] > 0.0;
-            let collision = r.collision_points.eval(self.collision_n[c] as f64);
+            let collision = r.collision_points.eval(cell.collision_n as f64);
             let step = r.step_m.eval(out[get(Layer::StepHeight)][c] as f64);
             let negative = r.negative_m.eval(out[get(Layer::NegativeDepth)][c] as f64);
             let tilt = tilt_ramp.eval(out[get(Layer::TiltAngle)][c] as f64);
@@ -436,7 +428,7 @@ impl MapBuilder {
             }
             out[get(Layer::Risk)][c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
             let sigma = if observed {
-                let age = if has { self.min_age[c] as f64 } else { 0.0 };
+                let age = if has { cell.min_age as f64 } else { 0.0 };
                 let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
                 (var_h.sqrt() / u.height_span_m).min(u.max_sigma)
             } else {
@@ -455,7 +447,8 @@ fn heading_stencil(robot: &RobotConfig, res: f64, yaw: f64) -> HeadingStencil {
     let corners = [(a, b), (a, -b), (-a, b), (-a, -b)];
     let offsets = corners.map(|(x, y)| (((c * x - s * y) / res).round() as i64, ((s * x + c * y) / res).round() as i64));
     let pos = offsets.map(|(i, j)| DVec2::new(i as f64 * res, j as f64 * res));
-    let mut triangles = Vec::new();
+    debug_assert!(offsets[0] == (-offsets[3].0, -offsets[3].1) && offsets[1] == (-offsets[2].0, -offsets[2].1));
+    let mut triangles = [None; 4];
     for o in 0..4 {
         let rest: Vec<usize> = (0..4).filter(|&q| q != o).collect();
         let (i, j, k) = (rest[0], rest[1], rest[2]);
@@ -466,40 +459,26 @@ fn heading_stencil(robot: &RobotConfig, res: f64, yaw: f64) -> HeadingStencil {
         }
         // A = [[dj.x, dj.y], [dk.x, dk.y]]; ∇z solves A ∇z = [Δj, Δk].
         let inv = [[dk.y / det, -dj.y / det], [-dk.x / det, dj.x / det]];
-        let po = pos[o] - pos[i];
-        let w = [po.x * inv[0][0] + po.y * inv[1][0], po.x * inv[0][1] + po.y * inv[1][1]];
-        triangles.push(Triangle { i, j, k, o, inv, w });
+        triangles[o] = Some(Triangle { i, j, k, inv });
     }
     HeadingStencil { offsets, triangles }
 }
 
-/// The worst `tan²(tilt)` over the triangles the body can rest on (the fourth corner at or
-/// below their plane).
-fn settle_tan2(triangles: &[Triangle], h: &[f64; 4]) -> f64 {
-    /// Slack when testing whether the lifted corner is below the plane [m].
-    const SUPPORT_TOLERANCE_M: f64 = 1e-4;
+/// The worst `tan²(tilt)` over the poses the body can rest in. On the parallelogram of
+/// corners FL, FR, RL, RR (heights `h`), the body rests on the higher diagonal: with
+/// `d = h_FL + h_RR - h_FR - h_RL >= 0` on FL-RR and either FR or RL (lifting RL or FR),
+/// else on FR-RL and either FL or RR. Both poses of the pair are stable (it rocks).
+fn settle_tan2(triangles: &[Option<Triangle>; 4], h: &[f64; 4]) -> f64 {
+    let d = h[0] + h[3] - h[1] - h[2];
+    let lifted = if d >= 0.0 { [1, 2] } else { [0, 3] };
     let mut worst = -1.0f64;
-    let mut any_support = false;
-    let mut flattest = f64::INFINITY;
-    for t in triangles {
+    for t in lifted.iter().filter_map(|&o| triangles[o].as_ref()) {
         let (dj, dk) = (h[t.j] - h[t.i], h[t.k] - h[t.i]);
         let gx = t.inv[0][0] * dj + t.inv[0][1] * dk;
         let gy = t.inv[1][0] * dj + t.inv[1][1] * dk;
-        let tan2 = gx * gx + gy * gy;
-        flattest = flattest.min(tan2);
-        let predicted = h[t.i] + t.w[0] * dj + t.w[1] * dk;
-        if h[t.o] <= predicted + SUPPORT_TOLERANCE_M {
-            any_support = true;
-            worst = worst.max(tan2);
-        }
+        worst = worst.max(gx * gx + gy * gy);
     }
-    if any_support {
-        worst
-    } else if flattest.is_finite() {
-        flattest
-    } else {
-        -1.0
-    }
+    worst
 }
 
 /// Least-squares plane through window sums `s = [n, Σx, Σy, Σz, Σxx, Σxy, Σyy, Σxz, Σyz, Σzz]`,
