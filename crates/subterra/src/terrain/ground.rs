@@ -46,10 +46,10 @@
 //!
 //! Byproducts per bin (not part of the labels): *coverage* of a position at radius r in a
 //! covered bin holds when r also lies between the radii of the line's first and last
-//! prototype; the lowest point's z (`floor_z`), and the
-//! steepest downward ray slope `min(z / r)` over the points of all *farther* bins of the
-//! sector: a ray from the sensor to such a point passed over this bin at height
-//! `slope · r`, so the floor here is at most that high.
+//! prototype; the lowest point's z (`floor_z`), and the steepest downward ray slope
+//! `min(z / r)` over the prototypes of all *farther* bins of the sector: a ray from the
+//! sensor to such a point passed over this bin at height `slope · r`, so the floor here is
+//! at most that high.
 
 use super::config::GroundConfig;
 use crate::error::{Error, Result};
@@ -92,13 +92,14 @@ pub struct PolarBin {
 #[derive(Debug, Clone, Copy)]
 struct BinAccumulator {
     proto_r: f64,
-    proto_z: f64,
-    /// Smallest `z/r` of the bin's points; after the sweep, of the farther bins' points.
-    ray_slope: f64,
+    /// The prototype's z (an input `f32`, so exact).
+    proto_z: f32,
+    /// After the sweep: the smallest prototype `z/r` of the farther bins.
+    ray_slope: f32,
 }
 
 impl BinAccumulator {
-    const EMPTY: Self = Self { proto_r: 0.0, proto_z: f64::INFINITY, ray_slope: f64::INFINITY };
+    const EMPTY: Self = Self { proto_r: 0.0, proto_z: f32::INFINITY, ray_slope: f32::INFINITY };
 }
 
 /// A polar bin's ground line and the radii it covers (empty range if not covered).
@@ -167,8 +168,6 @@ pub struct GroundSegmenter {
     bins: usize,
     /// Per point: flat polar bin `s·B + k`, or [`NO_BIN`].
     point_bin: Vec<u32>,
-    /// Per point: its horizontal range [m].
-    point_r: Vec<f32>,
     /// Per polar bin: the prototype (lowest point) and the steepest ray.
     acc: Vec<BinAccumulator>,
     /// Per polar bin: its line and the radii it covers.
@@ -179,6 +178,8 @@ pub struct GroundSegmenter {
     /// Unit vectors of the sector boundaries at angles `-π + s·2π/S`, `s = 0..=S`.
     sector_edges: Vec<(f64, f64)>,
     sensor_height_m: f64,
+    /// `1 / bin_m`.
+    inv_bin: f64,
 }
 
 impl GroundSegmenter {
@@ -191,7 +192,6 @@ impl GroundSegmenter {
             config,
             bins,
             point_bin: Vec::new(),
-            point_r: Vec::new(),
             acc: vec![BinAccumulator::EMPTY; polar],
             line: vec![BinLine::NONE; polar],
             lines: Vec::new(),
@@ -203,6 +203,7 @@ impl GroundSegmenter {
                 })
                 .collect(),
             sensor_height_m: 0.0,
+            inv_bin: 1.0 / config.bin_m,
         })
     }
 
@@ -229,7 +230,8 @@ impl GroundSegmenter {
                 continue;
             }
             let sb = sb as usize;
-            let r = self.point_r[i] as f64;
+            let (x, y) = (p[0] as f64, p[1] as f64);
+            let r = (x * x + y * y).sqrt();
             let line = &self.line[sb];
             heights_out.push((p[2] as f64 - (line.m * r + line.b)) as f32);
         }
@@ -261,11 +263,11 @@ impl GroundSegmenter {
         }
         let sectors = self.config.sectors as usize;
         let s = (((fast_atan2(y, x) + std::f64::consts::PI) * (sectors as f64 / std::f64::consts::TAU)) as usize).min(sectors - 1);
-        let k = ((r / self.config.bin_m) as usize).min(self.bins - 1);
+        let k = ((r * self.inv_bin) as usize).min(self.bins - 1);
         let sb = s * self.bins + k;
         let (line, acc) = (&self.line[sb], &self.acc[sb]);
         let ground_z = line.m * r + line.b;
-        let floor_bound_z = acc.proto_z.min(acc.ray_slope * r);
+        let floor_bound_z = (acc.proto_z as f64).min(acc.ray_slope as f64 * r);
         Some(PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z })
     }
 
@@ -274,44 +276,33 @@ impl GroundSegmenter {
         let bins = self.bins;
         let sectors = c.sectors as usize;
         let sector_scale = c.sectors as f64 / std::f64::consts::TAU;
-        let inv_bin = 1.0 / c.bin_m;
         let max_r = c.max_range_m;
         self.acc.fill(BinAccumulator::EMPTY);
         self.point_bin.clear();
-        self.point_r.clear();
         self.point_bin.reserve(points.len());
-        self.point_r.reserve(points.len());
         for p in points {
             let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
             let r = (x * x + y * y).sqrt();
             if !(r < max_r) || !z.is_finite() {
                 self.point_bin.push(NO_BIN);
-                self.point_r.push(r as f32);
                 continue;
             }
             let s = self.sector_of(x, y, sector_scale);
-            let k = ((r * inv_bin) as usize).min(bins - 1);
+            let k = ((r / c.bin_m) as usize).min(bins - 1);
             let sb = s * bins + k;
             self.point_bin.push(sb as u32);
-            self.point_r.push(r as f32);
             let acc = &mut self.acc[sb];
-            if z < acc.proto_z {
-                acc.proto_z = z;
+            if p[2] < acc.proto_z {
+                acc.proto_z = p[2];
                 acc.proto_r = r;
-            }
-            if r > 0.0 {
-                let slope = z / r;
-                if slope < acc.ray_slope {
-                    acc.ray_slope = slope;
-                }
             }
         }
         // Per bin: the steepest ray to any point of a farther bin of the sector.
         for s in 0..sectors {
             let row = &mut self.acc[s * bins..(s + 1) * bins];
-            let mut farther = f64::INFINITY;
+            let mut farther = f32::INFINITY;
             for bin in row.iter_mut().rev() {
-                let own = bin.ray_slope;
+                let own = if bin.proto_z.is_finite() && bin.proto_r > 0.0 { (bin.proto_z as f64 / bin.proto_r) as f32 } else { f32::INFINITY };
                 bin.ray_slope = farther;
                 farther = farther.min(own);
             }
@@ -353,7 +344,7 @@ impl GroundSegmenter {
             let mut sums = LineSums::default();
             for k in 0..bins {
                 let sb = s * bins + k;
-                let z = self.acc[sb].proto_z;
+                let z = self.acc[sb].proto_z as f64;
                 if !z.is_finite() {
                     continue;
                 }
