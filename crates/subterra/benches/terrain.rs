@@ -69,8 +69,7 @@ fn bench_terrain(c: &mut Criterion) {
     let points = lidar.scan(&scene, &world_from_body.compose(&mount()));
     assert!(points.len() / 3 > 95_000, "{} points", points.len() / 3);
 
-    let mut coarse_only = TerrainConfig::default();
-    coarse_only.fine_enabled = false;
+    let coarse_only = TerrainConfig { fine_enabled: false, ..TerrainConfig::default() };
     let mut mapper = TerrainMapper::new(RobotConfig::default(), coarse_only).unwrap();
     let mut stamp = 0.0;
     print_stage_medians("one scan, coarse only", &mut mapper, &points);

@@ -67,7 +67,7 @@ impl Prefilter {
         let mut stats = PrefilterStats { input: points_sensor.len(), ..Default::default() };
         out_body.clear();
         out_body.reserve(points_sensor.len());
-        let rotation = Mat3::from(body_from_sensor.rotation.as_mat3());
+        let rotation: Mat3 = body_from_sensor.rotation.as_mat3();
         let translation = body_from_sensor.translation.as_vec3();
         let (min_sq, max_sq) = ((c.min_range_m * c.min_range_m) as f32, (c.max_range_m * c.max_range_m) as f32);
         let (lo, hi) = (self.box_min, self.box_max);
