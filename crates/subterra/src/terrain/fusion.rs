@@ -4,7 +4,10 @@
 //! axes, and each point's height above its own ground line. Re-expressing a scan in the
 //! current robot-centred frame is then a translation by `t_k + s_k - t_now` (scan body
 //! position plus its sensor offset, minus the current body position), exact for rigid poses
-//! because every scan is already in world-aligned axes.
+//! because every scan is already in world-aligned axes. Since the coarse map's cells are
+//! aligned to the world, each scan is also binned once on arrival into global cells
+//! ([`BinnedCell`]); fusing is then merging those cell sums, shifted by the difference of the
+//! body heights, instead of re-binning every point of every scan.
 //!
 //! The window holds scans at most `window_s` older than the newest (and at most
 //! `max_scans`). At odometry confidence `c` in [0, 1], only scans at most `c·window_s` older
@@ -15,6 +18,7 @@ use std::collections::VecDeque;
 use glam::{DMat3, DVec3};
 
 use super::config::FusionConfig;
+use super::risk::BinnedCell;
 use crate::error::{Error, Result};
 use crate::frames::Isometry3;
 
@@ -49,6 +53,8 @@ pub struct StoredScan {
     pub points: Vec<[f32; 3]>,
     /// Each point's height above its ground line [m] (NaN: no line).
     pub heights: Vec<f32>,
+    /// The points binned once into the coarse map's global cells.
+    pub binned: Vec<BinnedCell>,
 }
 
 impl StoredScan {

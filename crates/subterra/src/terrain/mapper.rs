@@ -10,7 +10,7 @@ use super::config::{RobotConfig, TerrainConfig};
 use super::fusion::{check_rigid, ScanWindow};
 use super::grid::RiskMap;
 use super::ground::GroundSegmenter;
-use super::risk::{MapBuilder, MissionItem, NewestPolar, ScanSource};
+use super::risk::{BinnedSource, MapBuilder, MissionItem, NewestPolar, ScanSource};
 use crate::error::{Error, Result};
 use crate::frames::Isometry3;
 
@@ -77,7 +77,7 @@ impl TerrainMapper {
         robot.validate()?;
         config.validate()?;
         let thr = config.ground.max_dist_to_line_m;
-        let builder = |map| MapBuilder::new(map, robot, config.layers, config.risk, config.uncertainty, thr);
+        let builder = |map| MapBuilder::new(map, robot, config.layers, config.risk, config.uncertainty, thr, config.fusion.window_s);
         Ok(Self {
             robot,
             config,
@@ -190,23 +190,27 @@ impl TerrainMapper {
         self.segmenter.segment(&scan.points, sensor_level.z, &mut scan.heights)?;
         stats.ground_points = scan.heights.iter().filter(|&&h| self.segmenter.is_ground(h)).count();
         stats.obstacle_points = scan.heights.len() - stats.ground_points;
+        let mut binned = std::mem::take(&mut scan.binned);
+        self.coarse.bin_scan(&scan.points, &scan.heights, scan.body_world + sensor_level, sensor_level.z, &mut binned);
+        scan.binned = binned;
         self.window.push(scan);
         let t_coarse = Instant::now();
         timings.segment_s = (t_coarse - t_segment).as_secs_f64();
 
         let body_world = world_from_body.translation;
         let polar = NewestPolar { segmenter: &self.segmenter, sensor_level };
-        let sources: Vec<ScanSource<'_>> = self
+        let binned: Vec<BinnedSource<'_>> = self
             .window
             .fused(confidence)
-            .map(|s| ScanSource { points_level: &s.points, heights: &s.heights, offset: s.offset_from(body_world).as_vec3(), age_s: (stamp_s - s.stamp_s) as f32 })
+            .map(|s| BinnedSource { cells: &s.binned, dz: (s.body_world.z - body_world.z) as f32, age_s: (stamp_s - s.stamp_s) as f32 })
             .collect();
-        stats.fused_scans = sources.len();
-        stats.fused_points = sources.iter().map(|s| s.points_level.len()).sum();
-        let coarse = self.coarse.build(body_world, stamp_s, &sources, Some(&polar), &self.missions);
+        stats.fused_scans = binned.len();
+        stats.fused_points = self.window.fused(confidence).map(|s| s.points.len()).sum();
+        let coarse = self.coarse.build(body_world, stamp_s, &[], &binned, Some(&polar), &self.missions);
         let t_fine = Instant::now();
         timings.coarse_s = (t_fine - t_coarse).as_secs_f64();
-        let fine = self.fine.as_mut().map(|builder| builder.build(body_world, stamp_s, &sources[..1], Some(&polar), &self.missions));
+        let newest = self.window.newest().map(|s| ScanSource { points_level: &s.points, heights: &s.heights, offset: s.offset_from(body_world).as_vec3(), age_s: 0.0 });
+        let fine = self.fine.as_mut().map(|builder| builder.build(body_world, stamp_s, newest.as_slice(), &[], Some(&polar), &self.missions));
         let done = Instant::now();
         timings.fine_s = (done - t_fine).as_secs_f64();
         timings.total_s = (done - started).as_secs_f64();

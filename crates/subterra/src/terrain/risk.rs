@@ -1,8 +1,9 @@
 //! From labelled points to a [`RiskMap`]: binning, geometric layers, risk layers and
 //! their uncertainty (DESIGN §2 steps 4-6).
 //!
-//! Every pass is O(points) or O(cells): points are binned into cells once; the plane fits
-//! use summed-area tables, so their cost does not grow with the window.
+//! Every pass is O(points) or O(cells): points are binned into cells once (a fused scan
+//! once in its life, see [`super::fusion`]); the plane fits use summed-area tables, so their
+//! cost does not grow with the window.
 //!
 //! # The layers, exactly
 //! Heights below are relative to the current body origin, world axes (the *level frame*);
@@ -65,6 +66,26 @@ pub(crate) struct ScanSource<'a> {
     pub age_s: f32,
 }
 
+/// One non-empty cell of a scan binned once when it arrived: its global cell index and the
+/// sums of its points, heights relative to that scan's body origin.
+#[derive(Debug, Clone, Copy)]
+pub struct BinnedCell {
+    /// Global cell index along x (`floor(x_world / res)`).
+    pub gx: i64,
+    /// Global cell index along y.
+    pub gy: i64,
+    acc: CellAccumulator,
+}
+
+/// A pre-binned scan as the coarse map sees it.
+pub(crate) struct BinnedSource<'a> {
+    pub cells: &'a [BinnedCell],
+    /// The scan's body z minus the current body z [m].
+    pub dz: f32,
+    /// Age of the scan [s].
+    pub age_s: f32,
+}
+
 /// The newest scan's polar ground knowledge and where its sensor was.
 pub(crate) struct NewestPolar<'a> {
     pub segmenter: &'a GroundSegmenter,
@@ -104,6 +125,20 @@ struct CellAccumulator {
 }
 
 impl CellAccumulator {
+    /// Adds a point at height `z` [m] whose height above its ground line is `h` [m].
+    #[inline]
+    fn add(&mut self, z: f32, h: f32, ground_threshold: f32, collision_lo: f32, collision_hi: f32) {
+        self.count += 1;
+        self.min_z = self.min_z.min(z);
+        self.max_z = self.max_z.max(z);
+        if h.abs() <= ground_threshold {
+            self.ground_n += 1;
+            self.ground_sum += z;
+        } else if h > collision_lo && h <= collision_hi {
+            self.collision_n += 1;
+        }
+    }
+
     const EMPTY: Self = Self { count: 0, ground_n: 0, collision_n: 0, ground_sum: 0.0, min_z: f32::INFINITY, max_z: f32::NEG_INFINITY, min_age: f32::INFINITY };
 }
 
@@ -120,6 +155,11 @@ pub(crate) struct MapBuilder {
     patch_half: usize,
     stencils: Vec<HeadingStencil>,
     cells: Vec<CellAccumulator>,
+    /// Dense scratch of [`bin_scan`](Self::bin_scan), kept all-empty between calls.
+    scratch: Vec<CellAccumulator>,
+    /// Extent of that scratch around a scan: the map plus the farthest the robot can drive
+    /// within the fusion window.
+    scratch_map: MapConfig,
     height: Vec<f32>,
     patch_tmp: Vec<f32>,
     patch_max: Vec<f32>,
@@ -128,7 +168,10 @@ pub(crate) struct MapBuilder {
 
 impl MapBuilder {
     /// Configs are trusted (validated by the mapper).
-    pub fn new(map: MapConfig, robot: RobotConfig, layers: LayerConfig, risk: RiskConfig, uncertainty: UncertaintyConfig, ground_threshold: f64) -> Self {
+    pub fn new(map: MapConfig, robot: RobotConfig, layers: LayerConfig, risk: RiskConfig, uncertainty: UncertaintyConfig, ground_threshold: f64, window_s: f64) -> Self {
+        // The robot cannot leave this margin within the window; 1 m of slack for odometry.
+        let margin = robot.max_speed_m_s * window_s + 1.0;
+        let scratch_map = MapConfig { size_x_m: map.size_x_m + 2.0 * margin, size_y_m: map.size_y_m + 2.0 * margin, ..map };
         let res = map.resolution_m;
         let odd_half = |size: f64| ((size / res).round() as usize).max(1) / 2;
         let stencils = (0..layers.tilt_headings).map(|j| heading_stencil(&robot, res, j as f64 * std::f64::consts::PI / layers.tilt_headings as f64)).collect();
@@ -143,6 +186,8 @@ impl MapBuilder {
             patch_half: odd_half(layers.wheel_patch_m),
             stencils,
             cells: Vec::new(),
+            scratch: Vec::new(),
+            scratch_map,
             height: Vec::new(),
             patch_tmp: Vec::new(),
             patch_max: Vec::new(),
@@ -151,16 +196,60 @@ impl MapBuilder {
     }
 
     /// The map centred on `body_world` from `sources`, with the newest scan's polar ground.
-    pub fn build(&mut self, body_world: DVec3, stamp_s: f64, sources: &[ScanSource<'_>], polar: Option<&NewestPolar<'_>>, missions: &[MissionItem]) -> RiskMap {
+    /// Bins one scan's points once, into the global cells around `origin_world` (the scan's
+    /// sensor, world frame): `out` gets the non-empty cells. `sensor_above_body_m` lifts the
+    /// sensor-centred heights to the scan's body origin.
+    pub fn bin_scan(&mut self, points: &[[f32; 3]], heights: &[f32], origin_world: DVec3, sensor_above_body_m: f64, out: &mut Vec<BinnedCell>) {
+        let g = GridGeometry::centred_on(&self.scratch_map, origin_world.x, origin_world.y);
+        let n = g.cells();
+        if self.scratch.len() != n {
+            self.scratch.clear();
+            self.scratch.resize(n, CellAccumulator::EMPTY);
+        }
+        let res = g.resolution_m;
+        let (nx, ny) = (g.nx as i64, g.ny as i64);
+        let thr = self.ground_threshold;
+        let lo = self.robot.ground_clearance_m as f32;
+        let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
+        let dz = sensor_above_body_m as f32;
+        for (p, &h) in points.iter().zip(heights) {
+            // The same formula as GridGeometry::cell_of, so every scan agrees on the cells.
+            let ix = ((p[0] as f64 + origin_world.x) / res).floor() as i64 - g.origin_cell.0;
+            let iy = ((p[1] as f64 + origin_world.y) / res).floor() as i64 - g.origin_cell.1;
+            if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
+                continue;
+            }
+            let cell = &mut self.scratch[(iy * nx + ix) as usize];
+            cell.add(p[2] + dz, h, thr, lo, hi);
+        }
+        out.clear();
+        for (c, cell) in self.scratch.iter_mut().enumerate() {
+            if cell.count > 0 {
+                let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);
+                out.push(BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: *cell });
+                *cell = CellAccumulator::EMPTY;
+            }
+        }
+    }
+
+    pub fn build(
+        &mut self,
+        body_world: DVec3,
+        stamp_s: f64,
+        sources: &[ScanSource<'_>],
+        binned: &[BinnedSource<'_>],
+        polar: Option<&NewestPolar<'_>>,
+        missions: &[MissionItem],
+    ) -> RiskMap {
         let geometry = GridGeometry::centred_on(&self.map, body_world.x, body_world.y);
         let mut map = RiskMap::zeros(geometry, stamp_s);
-        map.scans = sources.len();
+        map.scans = sources.len() + binned.len();
         let n = geometry.cells();
         self.cells.clear();
         self.cells.resize(n, CellAccumulator::EMPTY);
         // Map corner relative to the body, level frame.
         let corner = geometry.origin_m() - body_world.truncate();
-        map.points = self.bin_points(&geometry, corner, sources);
+        map.points = self.bin_points(&geometry, corner, sources) + self.merge_binned(&geometry, binned);
         self.ground_heights(&geometry, corner, polar, &mut map);
         self.plane_fits(&geometry, &mut map);
         self.steps(&geometry, &mut map);
@@ -190,21 +279,37 @@ impl MapBuilder {
                     continue;
                 }
                 let cell = &mut self.cells[v as usize * nxu + u as usize];
-                let z = p[2] + oz;
                 binned += 1;
-                cell.count += 1;
-                cell.min_z = cell.min_z.min(z);
-                cell.max_z = cell.max_z.max(z);
+                cell.add(p[2] + oz, h, thr, lo, hi);
                 cell.min_age = cell.min_age.min(age);
-                if h.abs() <= thr {
-                    cell.ground_n += 1;
-                    cell.ground_sum += z;
-                } else if h > lo && h <= hi {
-                    cell.collision_n += 1;
-                }
             }
         }
         binned
+    }
+
+    fn merge_binned(&mut self, g: &GridGeometry, binned: &[BinnedSource<'_>]) -> usize {
+        let (nx, ny) = (g.nx as i64, g.ny as i64);
+        let mut points = 0;
+        for src in binned {
+            let dz = src.dz;
+            for b in src.cells {
+                let (ix, iy) = (b.gx - g.origin_cell.0, b.gy - g.origin_cell.1);
+                if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
+                    continue;
+                }
+                let a = &b.acc;
+                let cell = &mut self.cells[(iy * nx + ix) as usize];
+                points += a.count as usize;
+                cell.count += a.count;
+                cell.ground_n += a.ground_n;
+                cell.collision_n += a.collision_n;
+                cell.ground_sum += a.ground_sum + a.ground_n as f32 * dz;
+                cell.min_z = cell.min_z.min(a.min_z + dz);
+                cell.max_z = cell.max_z.max(a.max_z + dz);
+                cell.min_age = cell.min_age.min(src.age_s);
+            }
+        }
+        points
     }
 
     fn ground_heights(&mut self, g: &GridGeometry, corner: DVec2, polar: Option<&NewestPolar<'_>>, map: &mut RiskMap) {
