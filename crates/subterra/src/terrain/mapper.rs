@@ -21,7 +21,7 @@ pub struct TerrainTimings {
     pub prefilter_s: f64,
     /// Ground segmentation.
     pub segment_s: f64,
-    /// The coarse fused map.
+    /// The coarse fused map (binning the new scan once, merging the window, the layers).
     pub coarse_s: f64,
     /// The fine map.
     pub fine_s: f64,
@@ -190,12 +190,12 @@ impl TerrainMapper {
         self.segmenter.segment(&scan.points, sensor_level.z, &mut scan.heights)?;
         stats.ground_points = scan.heights.iter().filter(|&&h| self.segmenter.is_ground(h)).count();
         stats.obstacle_points = scan.heights.len() - stats.ground_points;
+        let t_coarse = Instant::now();
+        timings.segment_s = (t_coarse - t_segment).as_secs_f64();
         let mut binned = std::mem::take(&mut scan.binned);
         self.coarse.bin_scan(&scan.points, &scan.heights, scan.body_world + sensor_level, sensor_level.z, &mut binned);
         scan.binned = binned;
         self.window.push(scan);
-        let t_coarse = Instant::now();
-        timings.segment_s = (t_coarse - t_segment).as_secs_f64();
 
         let body_world = world_from_body.translation;
         let polar = NewestPolar { segmenter: &self.segmenter, sensor_level };
