@@ -214,8 +214,8 @@ impl MapBuilder {
         let dz = sensor_above_body_m as f32;
         for (p, &h) in points.iter().zip(heights) {
             // The same formula as GridGeometry::cell_of, so every scan agrees on the cells.
-            let ix = ((p[0] as f64 + origin_world.x) / res).floor() as i64 - g.origin_cell.0;
-            let iy = ((p[1] as f64 + origin_world.y) / res).floor() as i64 - g.origin_cell.1;
+            let ix = floor_i64((p[0] as f64 + origin_world.x) / res) - g.origin_cell.0;
+            let iy = floor_i64((p[1] as f64 + origin_world.y) / res) - g.origin_cell.1;
             if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
                 continue;
             }
@@ -544,6 +544,18 @@ impl MapBuilder {
     }
 }
 
+/// `floor(x)` as an integer without a libm call (x86-64 without SSE4.1 has no inline
+/// floor); saturates like `as` for huge or NaN inputs (NaN gives 0).
+#[inline]
+fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x {
+        t - 1
+    } else {
+        t
+    }
+}
+
 /// The footprint corners at heading `yaw` as cell offsets, and the four settling triangles.
 fn heading_stencil(robot: &RobotConfig, res: f64, yaw: f64) -> HeadingStencil {
     let (a, b) = (robot.length_m / 2.0, robot.width_m / 2.0);
@@ -641,6 +653,13 @@ fn stamp_mission(g: &GridGeometry, item: &MissionItem, margin_m: f64, out: &mut 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn floor_without_libm() {
+        for x in [-2.5, -2.0, -1e-300, 0.0, 0.3, 1.0, 1.9999999999999998, 7.5e15] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+    }
 
     #[test]
     fn plane_fit_by_hand() {
