@@ -4,6 +4,8 @@
 //!
 //! - [`depth`]: APF-PF, a particle filter over a 2.5D voxel grid of a depth image
 //!   (Ahmad, Sunberg, Humbert, ACC 2021), and [`apf`], the potential fields it weights.
+//! - [`terrain`]: multi-layer terrain risk maps from lidar scans for a ground robot
+//!   (DESIGN §2).
 //! - [`camera`], [`frames`], [`config`]: the shared vocabulary.
 //!
 //! No I/O, no printing, no global state: every stage takes arrays and returns values,
@@ -17,6 +19,7 @@ pub mod config;
 pub mod depth;
 pub mod error;
 pub mod frames;
+pub mod terrain;
 
 pub use apf::{ApfController, Command};
 pub use camera::PinholeCamera;
@@ -24,3 +27,4 @@ pub use config::PerceptionConfig;
 pub use depth::{DepthImage, DepthPerception, PerceptionOutput};
 pub use error::{Error, Result};
 pub use frames::Isometry3;
+pub use terrain::{RobotConfig, TerrainConfig};

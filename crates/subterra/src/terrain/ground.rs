@@ -1,0 +1,570 @@
+//! Ground segmentation by line fits in cylindrical coordinates (Himmelsbach, Hundelshausen,
+//! Wuensche, "Fast segmentation of 3D point clouds for ground vehicles", IEEE IV 2010).
+//!
+//! In: points in a gravity-aligned frame centred on the sensor. Out: each point's height
+//! above its sector's ground line, hence a ground / obstacle label, and per polar bin the
+//! ground line and the lowest evidence of where the floor can be (used by the `negative`
+//! risk layer and to fill the ground height between scan rings).
+//!
+//! # The algorithm, exactly
+//!
+//! Inputs: points `(x, y, z)` (f32, converted to f64 for every computation below) in a frame
+//! whose z axis points up and whose origin is the sensor; `H = sensor_height_m`, the origin's
+//! height above the ground near it; a [`GroundConfig`] (`S = sectors`, `Δ = bin_m`,
+//! `R = max_range_m`, `B = ceil(R / Δ)` bins).
+//!
+//! 1. **Polar bins.** `r = sqrt(x² + y²)`. A point with `r >= R` (or a non-finite coordinate)
+//!    gets no bin. Otherwise sector `s = min(floor((atan2(y, x) + π) / (2π / S)), S - 1)` and
+//!    bin `k = min(floor(r / Δ), B - 1)`.
+//! 2. **Prototypes.** Each non-empty bin's prototype is its lowest point `(r, z)` (smallest
+//!    z; on a tie, the first in input order).
+//! 3. **Line fits, per sector**, visiting its prototypes `p = (r, z)` in increasing bin order.
+//!    State: the ground estimate `g` (starts at `-H`), the current segment `seg` (a list of
+//!    prototypes, starts empty), the sector's accepted lines. `fit(P)` is the least-squares
+//!    line `z = m·r + b` through the points `P`; `rmse(P)` is `sqrt(Σ (z - m·r - b)² / |P|)`
+//!    of that fit. For each prototype `p`:
+//!    - if `seg` is empty: `seg = [p]`;
+//!    - else if `p.r - last(seg).r > max_gap_m`: `close(seg)`, then `seg = [p]`;
+//!    - else if `|seg| = 1` (`q` its point): if `|q.z - g| <= max_start_height_m` and
+//!      `|p.z - q.z| <= max_slope · (p.r - q.r)`, append `p`; otherwise `seg = [p]`;
+//!    - else (`|seg| >= 2`): with `(m0, b0) = fit(seg)` and `(m1, b1) = fit(seg + [p])`,
+//!      append `p` if `|p.z - (m0·p.r + b0)| <= max_prediction_error_m` and
+//!      `|m1| <= max_slope` and `rmse(seg + [p]) <= max_rmse_m`. Otherwise `close(seg)`, set
+//!      `seg = [last(seg)]` (the break point starts the next segment) and handle `p` again
+//!      by the rules above (it now meets the `|seg| = 1` rule).
+//!
+//!    After the last prototype, `close(seg)`. `close(seg)`: if `|seg| >= min_line_points`,
+//!    accept the line `(m, b) = fit(seg)` covering bins `[bin(first(seg)), bin(last(seg))]`
+//!    and set `g = m·last(seg).r + b`; otherwise discard it.
+//! 4. **Line of each bin.** Bin `k` of a sector takes the first accepted line (in order of
+//!    acceptance) whose bin interval contains `k` (the bin is then *covered*); if none does,
+//!    the line whose interval is nearest in bins (distance `first - k` or `k - last`; on a tie
+//!    the earlier line). A sector without lines uses the flat line `m = 0, b = -H`.
+//! 5. **Labels.** A point's height above ground is `h = z - (m·r + b)` with its bin's line;
+//!    it is ground iff `|h| <= max_dist_to_line_m`. Points without a bin are obstacles with
+//!    `h = NaN`.
+//!
+//! Byproducts per bin (not part of the labels): *coverage* of a position at radius r in a
+//! covered bin holds when r also lies between the radii of the line's first and last
+//! prototype; the lowest point's z (`floor_z`), and the steepest downward ray slope
+//! `min(z / r)` over the prototypes of all *farther* bins of the sector: a ray from the
+//! sensor to such a point passed over this bin at height `slope · r`, so the floor here is
+//! at most that high.
+
+use super::config::GroundConfig;
+use crate::error::{Error, Result};
+use crate::terrain::cloud::as_points;
+
+/// Marks a point without a polar bin.
+const NO_BIN: u32 = u32::MAX;
+
+/// One accepted ground line of a sector.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GroundLine {
+    /// Slope dz/dr [1].
+    pub m: f64,
+    /// Height at r = 0 [m].
+    pub b: f64,
+    /// First bin covered.
+    pub first_bin: u32,
+    /// Last bin covered.
+    pub last_bin: u32,
+    /// Radius of the first prototype [m].
+    pub first_r_m: f64,
+    /// Radius of the last prototype [m].
+    pub last_r_m: f64,
+}
+
+/// What the segmentation knows about one polar bin (see the module doc).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PolarBin {
+    /// Whether an accepted line covers the bin and the queried radius lies between the
+    /// line's first and last prototype.
+    pub covered: bool,
+    /// Ground height of the bin's line at the queried radius [m, sensor-centred].
+    pub ground_z: f64,
+    /// Upper bound of the floor at the queried radius: the lower of the bin's lowest point
+    /// and the lowest ray that passed over it; `+inf` without evidence [m, sensor-centred].
+    pub floor_bound_z: f64,
+}
+
+/// A polar bin's prototype and steepest ray, gathered while binning.
+#[derive(Debug, Clone, Copy)]
+struct BinAccumulator {
+    proto_r: f64,
+    /// The prototype's z (an input `f32`, so exact).
+    proto_z: f32,
+    /// After the sweep: the smallest prototype `z/r` of the farther bins.
+    ray_slope: f32,
+}
+
+impl BinAccumulator {
+    const EMPTY: Self = Self { proto_r: 0.0, proto_z: f32::INFINITY, ray_slope: f32::INFINITY };
+}
+
+/// A polar bin's ground line and the radii it covers (empty range if not covered).
+#[derive(Debug, Clone, Copy)]
+struct BinLine {
+    m: f64,
+    b: f64,
+    cover_lo: f64,
+    cover_hi: f64,
+}
+
+impl BinLine {
+    const NONE: Self = Self { m: 0.0, b: 0.0, cover_lo: f64::INFINITY, cover_hi: f64::NEG_INFINITY };
+}
+
+/// Running least-squares sums of a segment, centred on its first point.
+#[derive(Debug, Clone, Copy, Default)]
+struct LineSums {
+    n: f64,
+    r0: f64,
+    z0: f64,
+    sr: f64,
+    sz: f64,
+    srr: f64,
+    srz: f64,
+    szz: f64,
+}
+
+impl LineSums {
+    fn start(r: f64, z: f64) -> Self {
+        Self { n: 1.0, r0: r, z0: z, ..Default::default() }
+    }
+
+    fn with(&self, r: f64, z: f64) -> Self {
+        let (dr, dz) = (r - self.r0, z - self.z0);
+        Self {
+            n: self.n + 1.0,
+            sr: self.sr + dr,
+            sz: self.sz + dz,
+            srr: self.srr + dr * dr,
+            srz: self.srz + dr * dz,
+            szz: self.szz + dz * dz,
+            ..*self
+        }
+    }
+
+    /// `(m, b, rmse)` of the least-squares line; `None` when degenerate.
+    fn fit(&self) -> Option<(f64, f64, f64)> {
+        let denom = self.n * self.srr - self.sr * self.sr;
+        if !(denom > 0.0) {
+            return None;
+        }
+        let m = (self.n * self.srz - self.sr * self.sz) / denom;
+        let bc = (self.sz - m * self.sr) / self.n;
+        let sse = self.szz - 2.0 * m * self.srz - 2.0 * bc * self.sz + m * m * self.srr + 2.0 * m * bc * self.sr + self.n * bc * bc;
+        let b = bc + self.z0 - m * self.r0;
+        Some((m, b, (sse.max(0.0) / self.n).sqrt()))
+    }
+}
+
+/// Ground segmentation with reusable buffers. The config is trusted once [`new`](Self::new)
+/// has validated it.
+#[derive(Debug, Clone)]
+pub struct GroundSegmenter {
+    config: GroundConfig,
+    bins: usize,
+    /// Per point: flat polar bin `s·B + k`, or [`NO_BIN`].
+    point_bin: Vec<u32>,
+    /// Per polar bin: the prototype (lowest point) and the steepest ray.
+    acc: Vec<BinAccumulator>,
+    /// Per polar bin: its line and the radii it covers.
+    line: Vec<BinLine>,
+    /// Accepted lines of every sector, and each sector's range in it.
+    lines: Vec<GroundLine>,
+    sector_lines: Vec<(u32, u32)>,
+    /// Unit vectors of the sector boundaries at angles `-π + s·2π/S`, `s = 0..=S`.
+    sector_edges: Vec<(f64, f64)>,
+    sensor_height_m: f64,
+    /// `1 / bin_m`.
+    inv_bin: f64,
+}
+
+impl GroundSegmenter {
+    /// Validates `config` and sizes the polar tables.
+    pub fn new(config: GroundConfig) -> Result<Self> {
+        config.validate()?;
+        let bins = config.bins();
+        let polar = config.sectors as usize * bins;
+        Ok(Self {
+            config,
+            bins,
+            point_bin: Vec::new(),
+            acc: vec![BinAccumulator::EMPTY; polar],
+            line: vec![BinLine::NONE; polar],
+            lines: Vec::new(),
+            sector_lines: vec![(0, 0); config.sectors as usize],
+            sector_edges: (0..=config.sectors)
+                .map(|s| {
+                    let a = -std::f64::consts::PI + s as f64 * std::f64::consts::TAU / config.sectors as f64;
+                    (a.cos(), a.sin())
+                })
+                .collect(),
+            sensor_height_m: 0.0,
+            inv_bin: 1.0 / config.bin_m,
+        })
+    }
+
+    /// The config.
+    pub fn config(&self) -> &GroundConfig {
+        &self.config
+    }
+
+    /// Segments `points` (sensor-centred, z up; see the module doc) and writes each point's
+    /// height above its ground line to `heights_out` (NaN for points without a bin).
+    pub fn segment(&mut self, points: &[[f32; 3]], sensor_height_m: f64, heights_out: &mut Vec<f32>) -> Result<()> {
+        if !sensor_height_m.is_finite() {
+            return Err(Error::input("sensor_height_m", format!("must be finite, got {sensor_height_m}")));
+        }
+        self.sensor_height_m = sensor_height_m;
+        self.bin_points(points);
+        self.fit_lines();
+        heights_out.clear();
+        heights_out.reserve(points.len());
+        for (i, p) in points.iter().enumerate() {
+            let sb = self.point_bin[i];
+            if sb == NO_BIN {
+                heights_out.push(f32::NAN);
+                continue;
+            }
+            let sb = sb as usize;
+            let (x, y) = (p[0] as f64, p[1] as f64);
+            let r = (x * x + y * y).sqrt();
+            let line = &self.line[sb];
+            heights_out.push((p[2] as f64 - (line.m * r + line.b)) as f32);
+        }
+        Ok(())
+    }
+
+    /// Whether a height above ground (from [`segment`](Self::segment)) is ground.
+    #[inline]
+    pub fn is_ground(&self, height_above_ground_m: f32) -> bool {
+        height_above_ground_m.abs() <= self.config.max_dist_to_line_m as f32
+    }
+
+    /// The accepted lines of `sector`, in order of radius.
+    pub fn lines(&self, sector: usize) -> &[GroundLine] {
+        match self.sector_lines.get(sector) {
+            Some(&(a, b)) => &self.lines[a as usize..b as usize],
+            None => &[],
+        }
+    }
+
+    /// What the last segmentation knows at the sensor-centred horizontal position
+    /// `(x, y)` [m]; `None` outside the polar range. Uses a fast `atan2` (error < 2e-5 rad),
+    /// so a position within that of a sector boundary may be given the neighbouring sector.
+    #[inline]
+    pub fn query(&self, x: f64, y: f64) -> Option<PolarBin> {
+        let r = (x * x + y * y).sqrt();
+        if !(r < self.config.max_range_m) {
+            return None;
+        }
+        let sectors = self.config.sectors as usize;
+        let s = (((fast_atan2(y, x) + std::f64::consts::PI) * (sectors as f64 / std::f64::consts::TAU)) as usize).min(sectors - 1);
+        let k = ((r * self.inv_bin) as usize).min(self.bins - 1);
+        let sb = s * self.bins + k;
+        let (line, acc) = (&self.line[sb], &self.acc[sb]);
+        let ground_z = line.m * r + line.b;
+        let floor_bound_z = (acc.proto_z as f64).min(acc.ray_slope as f64 * r);
+        Some(PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z })
+    }
+
+    fn bin_points(&mut self, points: &[[f32; 3]]) {
+        let c = &self.config;
+        let bins = self.bins;
+        let sectors = c.sectors as usize;
+        let sector_scale = c.sectors as f64 / std::f64::consts::TAU;
+        let max_r = c.max_range_m;
+        self.acc.fill(BinAccumulator::EMPTY);
+        self.point_bin.clear();
+        self.point_bin.reserve(points.len());
+        for p in points {
+            let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
+            let r = (x * x + y * y).sqrt();
+            if !(r < max_r) || !z.is_finite() {
+                self.point_bin.push(NO_BIN);
+                continue;
+            }
+            let s = self.sector_of(x, y, sector_scale);
+            let k = ((r / c.bin_m) as usize).min(bins - 1);
+            let sb = s * bins + k;
+            self.point_bin.push(sb as u32);
+            let acc = &mut self.acc[sb];
+            if p[2] < acc.proto_z {
+                acc.proto_z = p[2];
+                acc.proto_r = r;
+            }
+        }
+        // Per bin: the steepest ray to any point of a farther bin of the sector.
+        for s in 0..sectors {
+            let row = &mut self.acc[s * bins..(s + 1) * bins];
+            let mut farther = f32::INFINITY;
+            for bin in row.iter_mut().rev() {
+                let own = if bin.proto_z.is_finite() && bin.proto_r > 0.0 { (bin.proto_z as f64 / bin.proto_r) as f32 } else { f32::INFINITY };
+                bin.ray_slope = farther;
+                farther = farther.min(own);
+            }
+        }
+    }
+
+    /// `min(floor((atan2(y, x) + π) / (2π/S)), S - 1)`: a fast `atan2` gives the sector to
+    /// within one, and two cross products with the boundary vectors settle it (they agree with
+    /// libm's `atan2` except within ~1e-15 rad of a boundary).
+    #[inline]
+    fn sector_of(&self, x: f64, y: f64, sector_scale: f64) -> usize {
+        let sectors = self.sector_edges.len() - 1;
+        if sectors < 8 {
+            return (((y.atan2(x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
+        }
+        let s = (((fast_atan2(y, x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
+        let (lx, ly) = self.sector_edges[s];
+        if lx * y - ly * x < 0.0 {
+            return s.saturating_sub(1);
+        }
+        let (ux, uy) = self.sector_edges[s + 1];
+        if ux * y - uy * x >= 0.0 && s + 1 < sectors {
+            s + 1
+        } else {
+            s
+        }
+    }
+
+    fn fit_lines(&mut self) {
+        let c = self.config;
+        let bins = self.bins;
+        self.lines.clear();
+        // The segment: its prototypes' (r, z, bin) and running sums.
+        let mut seg: Vec<(f64, f64, u32)> = Vec::with_capacity(bins);
+        for s in 0..c.sectors as usize {
+            let first_line = self.lines.len();
+            let mut g = -self.sensor_height_m;
+            seg.clear();
+            let mut sums = LineSums::default();
+            for k in 0..bins {
+                let sb = s * bins + k;
+                let z = self.acc[sb].proto_z as f64;
+                if !z.is_finite() {
+                    continue;
+                }
+                let r = self.acc[sb].proto_r;
+                loop {
+                    let Some(&(qr, qz, _)) = seg.last() else {
+                        seg.push((r, z, k as u32));
+                        sums = LineSums::start(r, z);
+                        break;
+                    };
+                    if r - qr > c.max_gap_m {
+                        close(&c, &seg, &sums, &mut g, &mut self.lines);
+                        seg.clear();
+                        seg.push((r, z, k as u32));
+                        sums = LineSums::start(r, z);
+                        break;
+                    }
+                    if seg.len() == 1 {
+                        if (qz - g).abs() <= c.max_start_height_m && (z - qz).abs() <= c.max_slope * (r - qr) {
+                            seg.push((r, z, k as u32));
+                            sums = sums.with(r, z);
+                        } else {
+                            seg.clear();
+                            seg.push((r, z, k as u32));
+                            sums = LineSums::start(r, z);
+                        }
+                        break;
+                    }
+                    let grown = sums.with(r, z);
+                    let accept = match (sums.fit(), grown.fit()) {
+                        (Some((m0, b0, _)), Some((m1, _, rmse1))) => {
+                            (z - (m0 * r + b0)).abs() <= c.max_prediction_error_m && m1.abs() <= c.max_slope && rmse1 <= c.max_rmse_m
+                        }
+                        _ => false,
+                    };
+                    if accept {
+                        seg.push((r, z, k as u32));
+                        sums = grown;
+                        break;
+                    }
+                    close(&c, &seg, &sums, &mut g, &mut self.lines);
+                    let keep = seg[seg.len() - 1];
+                    seg.clear();
+                    seg.push(keep);
+                    sums = LineSums::start(keep.0, keep.1);
+                }
+            }
+            close(&c, &seg, &sums, &mut g, &mut self.lines);
+            self.sector_lines[s] = (first_line as u32, self.lines.len() as u32);
+            self.assign_lines(s);
+        }
+    }
+
+    /// Step 4: the line of each bin of sector `s`.
+    fn assign_lines(&mut self, s: usize) {
+        let bins = self.bins;
+        let (a, b) = self.sector_lines[s];
+        let lines = &self.lines[a as usize..b as usize];
+        let row = s * bins..(s + 1) * bins;
+        if lines.is_empty() {
+            self.line[row].fill(BinLine { b: -self.sensor_height_m, ..BinLine::NONE });
+            return;
+        }
+        let mut j = 0; // the first line whose last bin is >= k
+        for k in 0..bins {
+            while j + 1 < lines.len() && (lines[j].last_bin as usize) < k {
+                j += 1;
+            }
+            let line = &lines[j];
+            let (first, last) = (line.first_bin as usize, line.last_bin as usize);
+            let (chosen, covered) = if k >= first && k <= last {
+                (line, true)
+            } else if k > last {
+                // Beyond the last line.
+                (line, false)
+            } else if j == 0 {
+                // Before the first line.
+                (line, false)
+            } else {
+                // In the gap between lines j-1 and j: the nearer, the earlier on a tie.
+                let prev = &lines[j - 1];
+                if k - prev.last_bin as usize <= first - k {
+                    (prev, false)
+                } else {
+                    (line, false)
+                }
+            };
+            let (cover_lo, cover_hi) = if covered { (chosen.first_r_m, chosen.last_r_m) } else { (f64::INFINITY, f64::NEG_INFINITY) };
+            self.line[s * bins + k] = BinLine { m: chosen.m, b: chosen.b, cover_lo, cover_hi };
+        }
+    }
+}
+
+/// `close(seg)` of the module doc.
+fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut f64, lines: &mut Vec<GroundLine>) {
+    if seg.len() < c.min_line_points as usize {
+        return;
+    }
+    let Some((m, b, _)) = sums.fit() else { return };
+    let (last_r, _, last_bin) = seg[seg.len() - 1];
+    lines.push(GroundLine { m, b, first_bin: seg[0].2, last_bin, first_r_m: seg[0].0, last_r_m: last_r });
+    *g = m * last_r + b;
+}
+
+/// Labels each point of `points` (row-major `(N, 3)`, sensor-centred, z up) ground (`true`)
+/// or obstacle (`false`) by the algorithm of the [module doc](self); `sensor_height_m` is
+/// the origin's height above the ground near it [m].
+pub fn segment_ground(points: &[f32], config: &GroundConfig, sensor_height_m: f64) -> Result<Vec<bool>> {
+    let points = as_points("points", points)?;
+    let mut segmenter = GroundSegmenter::new(*config)?;
+    let mut heights = Vec::new();
+    segmenter.segment(points, sensor_height_m, &mut heights)?;
+    Ok(heights.iter().map(|&h| segmenter.is_ground(h)).collect())
+}
+
+/// `atan2(y, x)` to within 2e-5 rad (a minimax polynomial on [0, 1] and octant folding).
+#[inline]
+pub(crate) fn fast_atan2(y: f64, x: f64) -> f64 {
+    use std::f64::consts::{FRAC_PI_2, PI};
+    let (ax, ay) = (x.abs(), y.abs());
+    let (num, den, swap) = if ay > ax { (ax, ay, true) } else { (ay, ax, false) };
+    if den == 0.0 {
+        return 0.0;
+    }
+    let t = num / den;
+    let t2 = t * t;
+    // Minimax coefficients for atan on [0, 1], |error| <= 1e-5 (Abramowitz & Stegun 4.4.49); with rounding < 2e-5.
+    let mut a = t * (0.999_866_0 + t2 * (-0.330_299_5 + t2 * (0.180_141_0 + t2 * (-0.085_133_0 + t2 * 0.020_835_1))));
+    if swap {
+        a = FRAC_PI_2 - a;
+    }
+    if x < 0.0 {
+        a = PI - a;
+    }
+    if y < 0.0 {
+        -a
+    } else {
+        a
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn flat_ring_cloud(height: f32) -> Vec<f32> {
+        let mut flat = Vec::new();
+        for ring in 0..12 {
+            let r = 1.0 + ring as f32 * 0.7;
+            for a in 0..360 {
+                let t = (a as f32).to_radians();
+                flat.extend_from_slice(&[r * t.cos(), r * t.sin(), -height]);
+            }
+        }
+        flat
+    }
+
+    #[test]
+    fn flat_ground_is_all_ground() {
+        let flat = flat_ring_cloud(0.6);
+        let labels = segment_ground(&flat, &GroundConfig::default(), 0.6).unwrap();
+        assert!(labels.iter().all(|&g| g));
+    }
+
+    #[test]
+    fn a_pole_above_flat_ground_is_obstacle() {
+        let mut flat = flat_ring_cloud(0.6);
+        let n_ground = flat.len() / 3;
+        for i in 0..10 {
+            flat.extend_from_slice(&[3.05, 0.05, -0.6 + 0.15 * (i + 1) as f32]);
+        }
+        let labels = segment_ground(&flat, &GroundConfig::default(), 0.6).unwrap();
+        assert!(labels[..n_ground].iter().all(|&g| g));
+        assert!(labels[n_ground..].iter().all(|&g| !g), "{:?}", &labels[n_ground..]);
+    }
+
+    #[test]
+    fn line_sums_fit_by_hand() {
+        // z = 0.5 r - 1 through three points, then one 0.3 m off.
+        let s = LineSums::start(1.0, -0.5).with(2.0, 0.0).with(3.0, 0.5);
+        let (m, b, rmse) = s.fit().unwrap();
+        assert!((m - 0.5).abs() < 1e-12 && (b + 1.0).abs() < 1e-12 && rmse < 1e-9);
+        // Points (0,0), (1,0), (2,0.3): m = 0.15, b = -0.05, residuals 0.05, -0.1, 0.05.
+        let (m, b, rmse) = LineSums::start(0.0, 0.0).with(1.0, 0.0).with(2.0, 0.3).fit().unwrap();
+        assert!((m - 0.15).abs() < 1e-12 && (b + 0.05).abs() < 1e-12);
+        assert!((rmse - (0.015f64 / 3.0).sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn sectors_agree_with_libm_atan2() {
+        let config = GroundConfig::default();
+        let seg = GroundSegmenter::new(config).unwrap();
+        let scale = config.sectors as f64 / std::f64::consts::TAU;
+        let exact = |x: f64, y: f64| (((y.atan2(x) + std::f64::consts::PI) * scale) as usize).min(config.sectors as usize - 1);
+        let mut state = 12345u64;
+        for i in 0..200_000 {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let a = (state >> 11) as f64 / (1u64 << 53) as f64 * std::f64::consts::TAU - std::f64::consts::PI;
+            // Every 4th point sits within 1e-9 rad of a sector boundary.
+            let a = if i % 4 == 0 { -std::f64::consts::PI + ((a + std::f64::consts::PI) * scale).round() / scale + 1e-9 * a.signum() } else { a };
+            let r = 0.5 + (i % 97) as f64 * 0.3;
+            let (x, y) = (r * a.cos(), r * a.sin());
+            assert_eq!(seg.sector_of(x, y, scale), exact(x, y), "angle {a}");
+        }
+    }
+
+    #[test]
+    fn fast_atan2_is_close() {
+        for i in 0..1000 {
+            let t = i as f64 * 0.0123 - 6.0;
+            let (y, x) = (t.sin() * 3.0, t.cos() * 3.0);
+            assert!((fast_atan2(y, x) - y.atan2(x)).abs() < 2e-5, "{t}");
+        }
+    }
+
+    #[test]
+    fn wrong_inputs_name_their_argument() {
+        assert!(segment_ground(&[1.0, 2.0], &GroundConfig::default(), 0.5).unwrap_err().to_string().contains("points"));
+        assert!(segment_ground(&[1.0, 2.0, 3.0], &GroundConfig::default(), f64::NAN).unwrap_err().to_string().contains("sensor_height_m"));
+        let config = GroundConfig { sectors: 0, ..GroundConfig::default() };
+        assert!(segment_ground(&[], &config, 0.5).unwrap_err().to_string().contains("ground.sectors"));
+    }
+}

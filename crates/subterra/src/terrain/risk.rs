@@ -1,0 +1,697 @@
+//! From labelled points to a [`RiskMap`]: binning, geometric layers, risk layers and
+//! their uncertainty (DESIGN §2 steps 4-6).
+//!
+//! Every pass is O(points) or O(cells): points are binned into cells once (a fused scan
+//! once in its life, see [`super::fusion`]); the plane fits use summed-area tables, so their
+//! cost does not grow with the window.
+//!
+//! # The layers, exactly
+//! Heights below are relative to the current body origin, world axes (the *level frame*);
+//! the height layers add the body's world z. `thr = ground.max_dist_to_line_m`; a point's
+//! `h` is its height above its scan's ground line ([`GroundSegmenter`]).
+//! - `count`, `min_height`, `max_height`, `age`: over all points in the cell.
+//! - `ground_count`: points with `|h| <= thr`; `ground_height` = their mean z, else (no
+//!   ground point) the newest scan's ground line at the cell centre if a line covers the
+//!   cell's polar bin, else NaN. `observed` = 1 if the cell has a point or is so covered.
+//! - `slope`, `plane_residual`: least-squares plane `z = a·x + b·y + c` through the ground
+//!   heights of the cells with one in the `w x w` window centred on the cell (`w` = the odd
+//!   cell count nearest `layers.plane_window_m / res`, clipped at the map's edge), needing
+//!   `layers.plane_min_cells` of them; slope `atan(sqrt(a² + b²))`, residual
+//!   `sqrt(SSE / n)`. NaN for cells without a ground height.
+//! - `step_height`: `max |H(n) - H(c)|` over the 8 neighbours n with a ground height.
+//! - `negative_depth`: at the cell centre, in the newest scan's polar bin: the bin's ground
+//!   line height minus the floor bound (the lower of the bin's lowest point and the
+//!   lowest ray that passed over the cell's radius), floored at 0; 0 without evidence.
+//! - `tilt_angle`: *settling*. Each wheel rests on the highest ground in a square patch
+//!   (`layers.wheel_patch_m`) around its corner of the footprint (`robot.length_m x
+//!   robot.width_m`, corners rounded to cell centres) at heading ψ; the rigid body rests on
+//!   three of the four corners whose plane passes at or above the fourth (for four corners
+//!   two such triangles exist: the robot can rock between them), and its tilt is the angle
+//!   of that plane from horizontal, `atan |∇z|`. The layer is the worst over both rocking
+//!   poses and the `layers.tilt_headings` headings `ψ = j·180°/J`. Where some corner patch
+//!   has no ground at every heading, the plane-fit slope stands in; else NaN.
+//! - risks: `collision` = ramp(number of points with `clearance < h <= height + head_margin`),
+//!   `step` = ramp(`step_height`), `negative` = ramp(`negative_depth`), `tilt` =
+//!   ramp(`tilt_angle`) with the robot's tilt ramp, `roughness` = ramp(`plane_residual`),
+//!   `unknown` = `risk.unknown` where not observed, `mission` = 1 within an item's radius of
+//!   its centre, falling linearly to 0 over `risk.mission_margin_m` (NaN inputs give 0).
+//!   `risk = 1 - Π(1 - r_k)`.
+//! - `risk_variance` = σ², `σ = min(sqrt(σ_range²/max(n, 1) + (drift·age)²) / height_span,
+//!   max_sigma)` for observed cells (n = `count`, age = `age` or 0), `max_sigma` otherwise.
+
+use glam::{DVec2, DVec3, Vec3};
+
+use super::config::{LayerConfig, MapConfig, RiskConfig, RobotConfig, UncertaintyConfig};
+use super::grid::{GridGeometry, Layer, RiskMap};
+use super::ground::GroundSegmenter;
+
+/// A keep-out circle around a mission item (a dropped comm node, another robot).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MissionItem {
+    /// Centre, world frame [m].
+    pub position_world: DVec2,
+    /// Radius of the lethal circle [m].
+    pub radius_m: f64,
+}
+
+/// One scan's points as the map sees them.
+pub(crate) struct ScanSource<'a> {
+    /// Points relative to the scan's own body position, world axes [m].
+    pub points_level: &'a [[f32; 3]],
+    /// Each point's height above its ground line [m] (NaN: no ground line).
+    pub heights: &'a [f32],
+    /// The scan's body position minus the current body position, world axes [m].
+    pub offset: Vec3,
+    /// Age of the scan [s].
+    pub age_s: f32,
+}
+
+/// One non-empty cell of a scan binned once when it arrived: its global cell index and the
+/// sums of its points, heights relative to that scan's body origin.
+#[derive(Debug, Clone, Copy)]
+pub struct BinnedCell {
+    /// Global cell index along x (`floor(x_world / res)`).
+    pub gx: i64,
+    /// Global cell index along y.
+    pub gy: i64,
+    acc: CellAccumulator,
+}
+
+/// A pre-binned scan as the coarse map sees it.
+pub(crate) struct BinnedSource<'a> {
+    pub cells: &'a [BinnedCell],
+    /// The scan's body z minus the current body z [m].
+    pub dz: f32,
+    /// Age of the scan [s].
+    pub age_s: f32,
+}
+
+/// The newest scan's polar ground knowledge and where its sensor was.
+pub(crate) struct NewestPolar<'a> {
+    pub segmenter: &'a GroundSegmenter,
+    /// Sensor position relative to the current body origin, world axes [m].
+    pub sensor_level: DVec3,
+}
+
+/// One settling triangle: corners `i, j, k` bear the body, the fourth is lifted.
+#[derive(Debug, Clone, Copy)]
+struct Triangle {
+    i: usize,
+    j: usize,
+    k: usize,
+    /// `A⁻¹` with `A = [[p_j - p_i], [p_k - p_i]]` (rows), so `∇z = A⁻¹ [Δ_j, Δ_k]`.
+    inv: [[f64; 2]; 2],
+}
+
+/// The footprint's four corner cells at one heading. Rounding is symmetric, so the corners
+/// are `±u, ±v` (FL = -RR, FR = -RL): a parallelogram centred on the cell.
+#[derive(Debug, Clone)]
+struct HeadingStencil {
+    offsets: [(i64, i64); 4],
+    /// The triangle lifting each corner (index = the lifted corner); `None` if degenerate.
+    triangles: [Option<Triangle>; 4],
+}
+
+/// What the points of one cell add up to (one cache line per cell while binning).
+#[derive(Debug, Clone, Copy)]
+struct CellAccumulator {
+    count: u32,
+    ground_n: u32,
+    collision_n: u32,
+    ground_sum: f32,
+    min_z: f32,
+    max_z: f32,
+    min_age: f32,
+}
+
+impl CellAccumulator {
+    /// Adds a point at height `z` [m] whose height above its ground line is `h` [m].
+    #[inline]
+    fn add(&mut self, z: f32, h: f32, ground_threshold: f32, collision_lo: f32, collision_hi: f32) {
+        self.count += 1;
+        self.min_z = self.min_z.min(z);
+        self.max_z = self.max_z.max(z);
+        if h.abs() <= ground_threshold {
+            self.ground_n += 1;
+            self.ground_sum += z;
+        } else if h > collision_lo && h <= collision_hi {
+            self.collision_n += 1;
+        }
+    }
+
+    const EMPTY: Self = Self { count: 0, ground_n: 0, collision_n: 0, ground_sum: 0.0, min_z: f32::INFINITY, max_z: f32::NEG_INFINITY, min_age: f32::INFINITY };
+}
+
+/// Builds maps of one geometry with reusable buffers.
+#[derive(Debug, Clone)]
+pub(crate) struct MapBuilder {
+    map: MapConfig,
+    robot: RobotConfig,
+    layers: LayerConfig,
+    risk: RiskConfig,
+    uncertainty: UncertaintyConfig,
+    ground_threshold: f32,
+    plane_half: usize,
+    patch_half: usize,
+    stencils: Vec<HeadingStencil>,
+    cells: Vec<CellAccumulator>,
+    /// Dense scratch of [`bin_scan`](Self::bin_scan), kept all-empty between calls.
+    scratch: Vec<CellAccumulator>,
+    /// Extent of that scratch around a scan: the map plus the farthest the robot can drive
+    /// within the fusion window.
+    scratch_map: MapConfig,
+    height: Vec<f32>,
+    patch_tmp: Vec<f32>,
+    patch_max: Vec<f32>,
+    integral: Vec<[f64; 10]>,
+}
+
+impl MapBuilder {
+    /// Configs are trusted (validated by the mapper).
+    pub fn new(map: MapConfig, robot: RobotConfig, layers: LayerConfig, risk: RiskConfig, uncertainty: UncertaintyConfig, ground_threshold: f64, window_s: f64) -> Self {
+        // The robot cannot leave this margin within the window; 1 m of slack for odometry.
+        let margin = robot.max_speed_m_s * window_s + 1.0;
+        let scratch_map = MapConfig { size_x_m: map.size_x_m + 2.0 * margin, size_y_m: map.size_y_m + 2.0 * margin, ..map };
+        let res = map.resolution_m;
+        let odd_half = |size: f64| ((size / res).round() as usize).max(1) / 2;
+        let stencils = (0..layers.tilt_headings).map(|j| heading_stencil(&robot, res, j as f64 * std::f64::consts::PI / layers.tilt_headings as f64)).collect();
+        Self {
+            map,
+            robot,
+            layers,
+            risk,
+            uncertainty,
+            ground_threshold: ground_threshold as f32,
+            plane_half: odd_half(layers.plane_window_m),
+            patch_half: odd_half(layers.wheel_patch_m),
+            stencils,
+            cells: Vec::new(),
+            scratch: Vec::new(),
+            scratch_map,
+            height: Vec::new(),
+            patch_tmp: Vec::new(),
+            patch_max: Vec::new(),
+            integral: Vec::new(),
+        }
+    }
+
+    /// The map centred on `body_world` from `sources`, with the newest scan's polar ground.
+    /// Bins one scan's points once, into the global cells around `origin_world` (the scan's
+    /// sensor, world frame): `out` gets the non-empty cells. `sensor_above_body_m` lifts the
+    /// sensor-centred heights to the scan's body origin.
+    pub fn bin_scan(&mut self, points: &[[f32; 3]], heights: &[f32], origin_world: DVec3, sensor_above_body_m: f64, out: &mut Vec<BinnedCell>) {
+        let g = GridGeometry::centred_on(&self.scratch_map, origin_world.x, origin_world.y);
+        let n = g.cells();
+        if self.scratch.len() != n {
+            self.scratch.clear();
+            self.scratch.resize(n, CellAccumulator::EMPTY);
+        }
+        let res = g.resolution_m;
+        let (nx, ny) = (g.nx as i64, g.ny as i64);
+        let thr = self.ground_threshold;
+        let lo = self.robot.ground_clearance_m as f32;
+        let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
+        let dz = sensor_above_body_m as f32;
+        for (p, &h) in points.iter().zip(heights) {
+            // The same formula as GridGeometry::cell_of, so every scan agrees on the cells.
+            let ix = floor_i64((p[0] as f64 + origin_world.x) / res) - g.origin_cell.0;
+            let iy = floor_i64((p[1] as f64 + origin_world.y) / res) - g.origin_cell.1;
+            if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
+                continue;
+            }
+            let cell = &mut self.scratch[(iy * nx + ix) as usize];
+            cell.add(p[2] + dz, h, thr, lo, hi);
+        }
+        out.clear();
+        for (c, cell) in self.scratch.iter_mut().enumerate() {
+            if cell.count > 0 {
+                let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);
+                out.push(BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: *cell });
+                *cell = CellAccumulator::EMPTY;
+            }
+        }
+    }
+
+    pub fn build(
+        &mut self,
+        body_world: DVec3,
+        stamp_s: f64,
+        sources: &[ScanSource<'_>],
+        binned: &[BinnedSource<'_>],
+        polar: Option<&NewestPolar<'_>>,
+        missions: &[MissionItem],
+    ) -> RiskMap {
+        let geometry = GridGeometry::centred_on(&self.map, body_world.x, body_world.y);
+        let mut map = RiskMap::zeros(geometry, stamp_s);
+        map.scans = sources.len() + binned.len();
+        let n = geometry.cells();
+        self.cells.clear();
+        self.cells.resize(n, CellAccumulator::EMPTY);
+        // Map corner relative to the body, level frame.
+        let corner = geometry.origin_m() - body_world.truncate();
+        map.points = self.bin_points(&geometry, corner, sources) + self.merge_binned(&geometry, binned);
+        self.ground_heights(&geometry, corner, polar, &mut map);
+        self.plane_fits(&geometry, &mut map);
+        self.steps(&geometry, &mut map);
+        self.tilt(&geometry, &mut map);
+        self.risks(&geometry, body_world, missions, &mut map);
+        map
+    }
+
+    fn bin_points(&mut self, g: &GridGeometry, corner: DVec2, sources: &[ScanSource<'_>]) -> usize {
+        let inv = (1.0 / g.resolution_m) as f32;
+        let (nx, ny) = (g.nx as f32, g.ny as f32);
+        let nxu = g.nx;
+        let thr = self.ground_threshold;
+        let lo = self.robot.ground_clearance_m as f32;
+        let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
+        let mut binned = 0;
+        for src in sources {
+            // u = (x + offset - corner) / res.
+            let ox = (src.offset.x as f64 - corner.x) as f32;
+            let oy = (src.offset.y as f64 - corner.y) as f32;
+            let oz = src.offset.z;
+            let age = src.age_s;
+            for (p, &h) in src.points_level.iter().zip(src.heights) {
+                let u = (p[0] + ox) * inv;
+                let v = (p[1] + oy) * inv;
+                if !(u >= 0.0 && u < nx && v >= 0.0 && v < ny) {
+                    continue;
+                }
+                let cell = &mut self.cells[v as usize * nxu + u as usize];
+                binned += 1;
+                cell.add(p[2] + oz, h, thr, lo, hi);
+                cell.min_age = cell.min_age.min(age);
+            }
+        }
+        binned
+    }
+
+    fn merge_binned(&mut self, g: &GridGeometry, binned: &[BinnedSource<'_>]) -> usize {
+        let (nx, ny) = (g.nx as i64, g.ny as i64);
+        let mut points = 0;
+        for src in binned {
+            let dz = src.dz;
+            for b in src.cells {
+                let (ix, iy) = (b.gx - g.origin_cell.0, b.gy - g.origin_cell.1);
+                if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
+                    continue;
+                }
+                let a = &b.acc;
+                let cell = &mut self.cells[(iy * nx + ix) as usize];
+                points += a.count as usize;
+                cell.count += a.count;
+                cell.ground_n += a.ground_n;
+                cell.collision_n += a.collision_n;
+                cell.ground_sum += a.ground_sum + a.ground_n as f32 * dz;
+                cell.min_z = cell.min_z.min(a.min_z + dz);
+                cell.max_z = cell.max_z.max(a.max_z + dz);
+                cell.min_age = cell.min_age.min(src.age_s);
+            }
+        }
+        points
+    }
+
+    fn ground_heights(&mut self, g: &GridGeometry, corner: DVec2, polar: Option<&NewestPolar<'_>>, map: &mut RiskMap) {
+        let n = g.cells();
+        let res = g.resolution_m;
+        self.height.clear();
+        self.height.resize(n, f32::NAN);
+        let mut observed = vec![0.0f32; n];
+        let mut depth = vec![0.0f32; n];
+        for (c, cell) in self.cells.iter().enumerate() {
+            if cell.ground_n > 0 {
+                self.height[c] = cell.ground_sum / cell.ground_n as f32;
+            }
+            if cell.count > 0 {
+                observed[c] = 1.0;
+            }
+        }
+        if let Some(polar) = polar {
+            let s = polar.sensor_level;
+            for iy in 0..g.ny {
+                let y = corner.y + (iy as f64 + 0.5) * res - s.y;
+                for ix in 0..g.nx {
+                    let x = corner.x + (ix as f64 + 0.5) * res - s.x;
+                    let Some(bin) = polar.segmenter.query(x, y) else { continue };
+                    let c = iy * g.nx + ix;
+                    if bin.covered {
+                        observed[c] = 1.0;
+                        if self.cells[c].ground_n == 0 {
+                            self.height[c] = (bin.ground_z + s.z) as f32;
+                        }
+                    }
+                    if bin.floor_bound_z.is_finite() {
+                        depth[c] = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
+                    }
+                }
+            }
+        }
+        map.get_mut(Layer::Observed).copy_from_slice(&observed);
+        map.get_mut(Layer::NegativeDepth).copy_from_slice(&depth);
+    }
+
+    /// Slope and residual of the plane through the ground heights under the window.
+    fn plane_fits(&mut self, g: &GridGeometry, map: &mut RiskMap) {
+        let (nx, ny) = (g.nx, g.ny);
+        let res = g.resolution_m;
+        let w = nx + 1;
+        self.integral.clear();
+        self.integral.resize(w * (ny + 1), [0.0; 10]);
+        for iy in 0..ny {
+            let mut row = [0.0f64; 10];
+            for ix in 0..nx {
+                let z = self.height[iy * nx + ix];
+                if z.is_finite() {
+                    let (x, y, z) = (ix as f64 * res, iy as f64 * res, z as f64);
+                    let m = [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z];
+                    for k in 0..10 {
+                        row[k] += m[k];
+                    }
+                }
+                let above = self.integral[iy * w + ix + 1];
+                let cell = &mut self.integral[(iy + 1) * w + ix + 1];
+                for k in 0..10 {
+                    cell[k] = above[k] + row[k];
+                }
+            }
+        }
+        let hw = self.plane_half;
+        let min_cells = self.layers.plane_min_cells as f64;
+        let mut slope = vec![f32::NAN; nx * ny];
+        let mut residual = vec![f32::NAN; nx * ny];
+        for iy in 0..ny {
+            let (y0, y1) = (iy.saturating_sub(hw), (iy + hw + 1).min(ny));
+            for ix in 0..nx {
+                let c = iy * nx + ix;
+                if !self.height[c].is_finite() {
+                    continue;
+                }
+                let (x0, x1) = (ix.saturating_sub(hw), (ix + hw + 1).min(nx));
+                let (a, b, cc, d) = (&self.integral[y1 * w + x1], &self.integral[y0 * w + x1], &self.integral[y1 * w + x0], &self.integral[y0 * w + x0]);
+                let mut s = [0.0f64; 10];
+                for k in 0..10 {
+                    s[k] = a[k] - b[k] - cc[k] + d[k];
+                }
+                let n = s[0];
+                if n < min_cells {
+                    continue;
+                }
+                if let Some((grad, rms)) = fit_plane(&s, ix as f64 * res, iy as f64 * res) {
+                    slope[c] = grad.atan() as f32;
+                    residual[c] = rms as f32;
+                }
+            }
+        }
+        map.get_mut(Layer::Slope).copy_from_slice(&slope);
+        map.get_mut(Layer::PlaneResidual).copy_from_slice(&residual);
+    }
+
+    fn steps(&mut self, g: &GridGeometry, map: &mut RiskMap) {
+        let (nx, ny) = (g.nx, g.ny);
+        let out = map.get_mut(Layer::StepHeight);
+        for iy in 0..ny {
+            for ix in 0..nx {
+                let c = iy * nx + ix;
+                let h = self.height[c];
+                if !h.is_finite() {
+                    out[c] = f32::NAN;
+                    continue;
+                }
+                let mut worst = 0.0f32;
+                for jy in iy.saturating_sub(1)..(iy + 2).min(ny) {
+                    for jx in ix.saturating_sub(1)..(ix + 2).min(nx) {
+                        let d = (self.height[jy * nx + jx] - h).abs();
+                        if d > worst {
+                            worst = d;
+                        }
+                    }
+                }
+                out[c] = worst;
+            }
+        }
+    }
+
+    fn tilt(&mut self, g: &GridGeometry, map: &mut RiskMap) {
+        let (nx, ny) = (g.nx, g.ny);
+        let n = nx * ny;
+        // Highest ground in the wheel patch around each cell (separable max, NaN ignored).
+        let p = self.patch_half;
+        self.patch_tmp.clear();
+        self.patch_tmp.resize(n, f32::NAN);
+        self.patch_max.clear();
+        self.patch_max.resize(n, f32::NAN);
+        for iy in 0..ny {
+            let row = &self.height[iy * nx..(iy + 1) * nx];
+            for ix in 0..nx {
+                let m = row[ix.saturating_sub(p)..(ix + p + 1).min(nx)].iter().fold(f32::NAN, |m, &v| if v > m || m.is_nan() { v } else { m });
+                self.patch_tmp[iy * nx + ix] = m;
+            }
+        }
+        for iy in 0..ny {
+            for ix in 0..nx {
+                let mut m = f32::NAN;
+                for jy in iy.saturating_sub(p)..(iy + p + 1).min(ny) {
+                    let v = self.patch_tmp[jy * nx + ix];
+                    if v > m || m.is_nan() {
+                        m = v;
+                    }
+                }
+                self.patch_max[iy * nx + ix] = m;
+            }
+        }
+        let slope = map.get(Layer::Slope).to_vec();
+        let out = map.get_mut(Layer::TiltAngle);
+        for iy in 0..ny {
+            for ix in 0..nx {
+                let c = iy * nx + ix;
+                if !self.height[c].is_finite() {
+                    out[c] = f32::NAN;
+                    continue;
+                }
+                let mut worst_tan2 = -1.0f64;
+                for stencil in &self.stencils {
+                    let mut h = [0.0f64; 4];
+                    let mut complete = true;
+                    for (corner, &(dx, dy)) in stencil.offsets.iter().enumerate() {
+                        let (jx, jy) = (ix as i64 + dx, iy as i64 + dy);
+                        if jx < 0 || jy < 0 || jx >= nx as i64 || jy >= ny as i64 {
+                            complete = false;
+                            break;
+                        }
+                        let v = self.patch_max[jy as usize * nx + jx as usize];
+                        if !v.is_finite() {
+                            complete = false;
+                            break;
+                        }
+                        h[corner] = v as f64;
+                    }
+                    if complete {
+                        worst_tan2 = worst_tan2.max(settle_tan2(&stencil.triangles, &h));
+                    }
+                }
+                out[c] = if worst_tan2 >= 0.0 { worst_tan2.sqrt().atan() as f32 } else { slope[c] };
+            }
+        }
+    }
+
+    fn risks(&mut self, g: &GridGeometry, body_world: DVec3, missions: &[MissionItem], map: &mut RiskMap) {
+        let n = g.cells();
+        let r = self.risk;
+        let tilt_ramp = self.robot.tilt_ramp_rad();
+        let u = self.uncertainty;
+        let z0 = body_world.z as f32;
+        let mut mission = vec![0.0f32; n];
+        for item in missions {
+            stamp_mission(g, item, r.mission_margin_m, &mut mission);
+        }
+        let mut out = map.layers_mut();
+        let get = |l: Layer| l as usize;
+        for c in 0..n {
+            let cell = self.cells[c];
+            let count = cell.count;
+            out[get(Layer::Count)][c] = count as f32;
+            out[get(Layer::GroundCount)][c] = cell.ground_n as f32;
+            out[get(Layer::GroundHeight)][c] = self.height[c] + z0;
+            let has = count > 0;
+            out[get(Layer::MinHeight)][c] = if has { cell.min_z + z0 } else { f32::NAN };
+            out[get(Layer::MaxHeight)][c] = if has { cell.max_z + z0 } else { f32::NAN };
+            out[get(Layer::Age)][c] = if has { cell.min_age } else { f32::NAN };
+            let observed = out[get(Layer::Observed)][c] > 0.0;
+            let collision = r.collision_points.eval(cell.collision_n as f64);
+            let step = r.step_m.eval(out[get(Layer::StepHeight)][c] as f64);
+            let negative = r.negative_m.eval(out[get(Layer::NegativeDepth)][c] as f64);
+            let tilt = tilt_ramp.eval(out[get(Layer::TiltAngle)][c] as f64);
+            let rough = r.roughness_m.eval(out[get(Layer::PlaneResidual)][c] as f64);
+            let unknown = if observed { 0.0 } else { r.unknown };
+            let m = mission[c] as f64;
+            let risks = [collision, step, negative, tilt, rough, unknown, m];
+            let mut keep = 1.0;
+            for (layer, value) in Layer::RISKS.iter().zip(risks) {
+                out[get(*layer)][c] = value as f32;
+                keep *= 1.0 - value;
+            }
+            out[get(Layer::Risk)][c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
+            let sigma = if observed {
+                let age = if has { cell.min_age as f64 } else { 0.0 };
+                let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
+                (var_h.sqrt() / u.height_span_m).min(u.max_sigma)
+            } else {
+                u.max_sigma
+            };
+            out[get(Layer::RiskVariance)][c] = (sigma * sigma) as f32;
+        }
+    }
+}
+
+/// `floor(x)` as an integer without a libm call (x86-64 without SSE4.1 has no inline
+/// floor); saturates like `as` for huge or NaN inputs (NaN gives 0).
+#[inline]
+fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x {
+        t - 1
+    } else {
+        t
+    }
+}
+
+/// The footprint corners at heading `yaw` as cell offsets, and the four settling triangles.
+fn heading_stencil(robot: &RobotConfig, res: f64, yaw: f64) -> HeadingStencil {
+    let (a, b) = (robot.length_m / 2.0, robot.width_m / 2.0);
+    let (s, c) = yaw.sin_cos();
+    // Front-left, front-right, rear-left, rear-right.
+    let corners = [(a, b), (a, -b), (-a, b), (-a, -b)];
+    let offsets = corners.map(|(x, y)| (((c * x - s * y) / res).round() as i64, ((s * x + c * y) / res).round() as i64));
+    let pos = offsets.map(|(i, j)| DVec2::new(i as f64 * res, j as f64 * res));
+    debug_assert!(offsets[0] == (-offsets[3].0, -offsets[3].1) && offsets[1] == (-offsets[2].0, -offsets[2].1));
+    let mut triangles = [None; 4];
+    for o in 0..4 {
+        let rest: Vec<usize> = (0..4).filter(|&q| q != o).collect();
+        let (i, j, k) = (rest[0], rest[1], rest[2]);
+        let (dj, dk) = (pos[j] - pos[i], pos[k] - pos[i]);
+        let det = dj.x * dk.y - dj.y * dk.x;
+        if det.abs() < 1e-9 {
+            continue;
+        }
+        // A = [[dj.x, dj.y], [dk.x, dk.y]]; ∇z solves A ∇z = [Δj, Δk].
+        let inv = [[dk.y / det, -dj.y / det], [-dk.x / det, dj.x / det]];
+        triangles[o] = Some(Triangle { i, j, k, inv });
+    }
+    HeadingStencil { offsets, triangles }
+}
+
+/// The worst `tan²(tilt)` over the poses the body can rest in. On the parallelogram of
+/// corners FL, FR, RL, RR (heights `h`), the body rests on the higher diagonal: with
+/// `d = h_FL + h_RR - h_FR - h_RL >= 0` on FL-RR and either FR or RL (lifting RL or FR),
+/// else on FR-RL and either FL or RR. Both poses of the pair are stable (it rocks).
+fn settle_tan2(triangles: &[Option<Triangle>; 4], h: &[f64; 4]) -> f64 {
+    let d = h[0] + h[3] - h[1] - h[2];
+    let lifted = if d >= 0.0 { [1, 2] } else { [0, 3] };
+    let mut worst = -1.0f64;
+    for t in lifted.iter().filter_map(|&o| triangles[o].as_ref()) {
+        let (dj, dk) = (h[t.j] - h[t.i], h[t.k] - h[t.i]);
+        let gx = t.inv[0][0] * dj + t.inv[0][1] * dk;
+        let gy = t.inv[1][0] * dj + t.inv[1][1] * dk;
+        worst = worst.max(gx * gx + gy * gy);
+    }
+    worst
+}
+
+/// Least-squares plane through window sums `s = [n, Σx, Σy, Σz, Σxx, Σxy, Σyy, Σxz, Σyz, Σzz]`,
+/// centred at `(xc, yc)`; returns `(|∇z|, rms residual)`.
+fn fit_plane(s: &[f64; 10], xc: f64, yc: f64) -> Option<(f64, f64)> {
+    let [n, sx, sy, sz, sxx, sxy, syy, sxz, syz, szz] = *s;
+    let x = sx - n * xc;
+    let y = sy - n * yc;
+    let xx = sxx - 2.0 * xc * sx + n * xc * xc;
+    let yy = syy - 2.0 * yc * sy + n * yc * yc;
+    let xy = sxy - xc * sy - yc * sx + n * xc * yc;
+    let xz = sxz - xc * sz;
+    let yz = syz - yc * sz;
+    // Normal equations [xx xy x; xy yy y; x y n] [a b c] = [xz yz sz], by Cramer's rule.
+    let det = xx * (yy * n - y * y) - xy * (xy * n - y * x) + x * (xy * y - yy * x);
+    // Relative to the product of the diagonal: ~0 when the cells are collinear.
+    if !(det.abs() > 1e-9 * (xx * yy * n).abs()) {
+        return None;
+    }
+    let a = (xz * (yy * n - y * y) - xy * (yz * n - y * sz) + x * (yz * y - yy * sz)) / det;
+    let b = (xx * (yz * n - y * sz) - xz * (xy * n - y * x) + x * (xy * sz - yz * x)) / det;
+    let c = (xx * (yy * sz - y * yz) - xy * (xy * sz - yz * x) + xz * (xy * y - yy * x)) / det;
+    let sse = szz - a * xz - b * yz - c * sz;
+    Some(((a * a + b * b).sqrt(), (sse.max(0.0) / n).sqrt()))
+}
+
+fn stamp_mission(g: &GridGeometry, item: &MissionItem, margin_m: f64, out: &mut [f32]) {
+    let reach = item.radius_m + margin_m;
+    if !(reach.is_finite() && item.position_world.is_finite() && item.radius_m >= 0.0) {
+        return;
+    }
+    let res = g.resolution_m;
+    let origin = g.origin_m();
+    let lo = ((item.position_world - reach - origin) / res).floor();
+    let hi = ((item.position_world + reach - origin) / res).ceil();
+    let (x0, x1) = (lo.x.max(0.0) as usize, (hi.x.max(0.0) as usize).min(g.nx));
+    let (y0, y1) = (lo.y.max(0.0) as usize, (hi.y.max(0.0) as usize).min(g.ny));
+    for iy in y0..y1 {
+        for ix in x0..x1 {
+            let centre = origin + (DVec2::new(ix as f64, iy as f64) + 0.5) * res;
+            let d = (centre - item.position_world).length();
+            let value = if d <= item.radius_m {
+                1.0
+            } else if margin_m > 0.0 {
+                (1.0 - (d - item.radius_m) / margin_m).max(0.0)
+            } else {
+                0.0
+            };
+            let c = iy * g.nx + ix;
+            out[c] = out[c].max(value as f32);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn floor_without_libm() {
+        for x in [-2.5, -2.0, -1e-300, 0.0, 0.3, 1.0, 1.9999999999999998, 7.5e15] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+    }
+
+    #[test]
+    fn plane_fit_by_hand() {
+        // z = 0.1 x - 0.2 y + 1 on a 3x3 grid of unit cells: slope sqrt(0.05), no residual.
+        let mut s = [0.0; 10];
+        for i in 0..3 {
+            for j in 0..3 {
+                let (x, y) = (i as f64, j as f64);
+                let z = 0.1 * x - 0.2 * y + 1.0;
+                let m = [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z];
+                for k in 0..10 {
+                    s[k] += m[k];
+                }
+            }
+        }
+        let (grad, rms) = fit_plane(&s, 1.0, 1.0).unwrap();
+        assert!((grad - 0.05f64.sqrt()).abs() < 1e-9 && rms < 1e-6, "{grad} {rms}");
+    }
+
+    #[test]
+    fn settling_on_a_plane_and_on_a_bump() {
+        let robot = RobotConfig::default();
+        let stencil = heading_stencil(&robot, 0.1, 0.0);
+        assert_eq!(stencil.offsets, [(5, 3), (5, -3), (-5, 3), (-5, -3)]);
+        // A plane rising 0.2 per metre along x: every support has that slope.
+        let h = stencil.offsets.map(|(i, _)| 0.2 * i as f64 * 0.1);
+        assert!((settle_tan2(&stencil.triangles, &h) - 0.04).abs() < 1e-12);
+        // Front-left wheel on a 0.1 m block: the body rocks on the FL-RR diagonal, resting
+        // either on FL, FR, RR (rolled: ∇ = (0, 0.1/0.6)) or on FL, RL, RR (pitched:
+        // ∇ = (0.1/1.0, 0)); FL, FR, RL would leave RR in the air. The worst is the roll.
+        let h = [0.1, 0.0, 0.0, 0.0];
+        let tan2 = settle_tan2(&stencil.triangles, &h);
+        assert!((tan2 - (0.1f64 / 0.6).powi(2)).abs() < 1e-12, "{tan2}");
+    }
+}
