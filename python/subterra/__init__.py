@@ -12,6 +12,9 @@ artificial potential fields that command an aerial robot.
 
 Frames and units follow ROS REP 103/105: body FLU, camera optical (x right, y down,
 z forward), metres, seconds, radians. Every error is a :class:`subterra.errors.SubterraError`.
+
+Terrain risk for ground robots (DESIGN §2, :mod:`subterra.terrain`): ``TerrainMapper``
+turns lidar scans into a multi-layer ``RiskMap``; ``segment_ground`` labels ground points.
 """
 
 from __future__ import annotations
@@ -28,8 +31,13 @@ from subterra._core import (
     PerceptionConfig,
     PerceptionOutput,
     PinholeCamera,
+    RiskMap,
+    RobotConfig,
+    TerrainConfig,
+    TerrainMapper,
     __version__,
     preset_names,
+    segment_ground,
 )
 
 __all__ = [
@@ -40,10 +48,15 @@ __all__ = [
     "PerceptionConfig",
     "PerceptionOutput",
     "PinholeCamera",
+    "RiskMap",
+    "RobotConfig",
+    "TerrainConfig",
+    "TerrainMapper",
     "__version__",
     "errors",
     "load_config",
     "preset_names",
+    "segment_ground",
 ]
 
 

@@ -5,6 +5,7 @@
 mod convert;
 mod errors;
 mod sim;
+mod terrain;
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
@@ -562,5 +563,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyCommand>()?;
     m.add_function(wrap_pyfunction!(preset_names, m)?)?;
     sim::register(m)?;
+    terrain::register(m)?;
     Ok(())
 }

@@ -1,0 +1,649 @@
+//! Bindings of `subterra::terrain`: configs, `TerrainMapper`, `RiskMap`, `segment_ground`.
+//!
+//! Conversions, error mapping and GIL release only; every algorithm lives in the core crate.
+//! The one per-cell loop here, [`PyRiskMap::to_image`], is a colour lookup for display.
+
+use std::borrow::Cow;
+
+use glam::DVec2;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyString};
+use serde_json::Value;
+use subterra::terrain::{segment_ground as core_segment_ground, GroundConfig, Layer, MissionItem, RiskMap, RobotConfig, TerrainConfig, TerrainMapper, TerrainStats, TerrainTimings};
+use subterra::Isometry3;
+
+use crate::convert::{isometry, type_name};
+use crate::errors::{config_error, input_error, raise, IntoPyResult};
+
+/// Time between scans when `update` is not given a stamp [s] (a 10 Hz lidar).
+const DEFAULT_SCAN_PERIOD_S: f64 = 0.1;
+/// Colour of a risk-0 cell in [`PyRiskMap::to_image`] (green).
+const SAFE_RGB: [f64; 3] = [0.0, 200.0, 0.0];
+/// Colour of a lethal (risk-1) cell (red).
+const LETHAL_RGB: [f64; 3] = [220.0, 0.0, 0.0];
+/// Colour of an unobserved cell (grey).
+const UNKNOWN_RGB: [u8; 3] = [128, 128, 128];
+
+// ---------------------------------------------------------------- dict / JSON conversions
+
+/// A Python value as JSON through `json.dumps` (numpy scalars become numbers).
+fn to_json_value(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<Value> {
+    let text: String = py
+        .import("json")?
+        .call_method1("dumps", (value,))
+        .map_err(|e| config_error(py, format!("argument `{argument}` cannot be serialised to JSON: {e}")))?
+        .extract()?;
+    serde_json::from_str(&text).map_err(|e| config_error(py, format!("argument `{argument}` could not be parsed: {e}")))
+}
+
+/// Overlays `patch` on `base`: objects merge key by key (recursively), anything else replaces.
+fn merge(base: &mut Value, patch: Value) {
+    match (base, patch) {
+        (Value::Object(b), Value::Object(p)) => {
+            for (k, v) in p {
+                match b.get_mut(&k) {
+                    Some(slot) => merge(slot, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (slot, v) => *slot = v,
+    }
+}
+
+/// `base` (a config as JSON) with the (partial, nested) dict `d` laid over it; the caller
+/// deserialises the result, so unknown keys are a `ConfigError` naming them.
+fn merged(py: Python<'_>, argument: &str, base: serde_json::Result<Value>, d: &Bound<'_, PyAny>) -> PyResult<Value> {
+    let mut base = base.map_err(|e| config_error(py, e.to_string()))?;
+    let patch = to_json_value(py, argument, d)?;
+    if !patch.is_object() {
+        return Err(config_error(py, format!("argument `{argument}` must be a dict, got {}", type_name(d))));
+    }
+    merge(&mut base, patch);
+    Ok(base)
+}
+
+fn parse_error(py: Python<'_>, argument: &str, e: serde_json::Error) -> PyErr {
+    config_error(py, format!("argument `{argument}`: config could not be parsed: {e}"))
+}
+
+/// A config as a Python dict (through JSON).
+fn to_py_dict<'py>(py: Python<'py>, json: serde_json::Result<String>) -> PyResult<Bound<'py, PyAny>> {
+    let text = json.map_err(|e| config_error(py, e.to_string()))?;
+    py.import("json")?.call_method1("loads", (text,))
+}
+
+/// The path of a `str` or `os.PathLike`, else `None`.
+fn as_path(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<Option<String>> {
+    if value.is_instance_of::<PyString>() || value.hasattr("__fspath__")? {
+        let p = py.import("os")?.call_method1("fspath", (value,))?;
+        return Ok(Some(p.extract()?));
+    }
+    Ok(None)
+}
+
+fn read_config_file(py: Python<'_>, path: &str) -> PyResult<TerrainConfig> {
+    let text = std::fs::read_to_string(path).map_err(|e| raise(py, "FileFormatError", format!("cannot read config file: {e}: {path}")))?;
+    TerrainConfig::from_toml_str(&text).map_err(|e| raise(py, "ConfigError", format!("{e}: {path}")))
+}
+
+// ---------------------------------------------------------------- configs
+
+/// The ground robot: footprint, height, clearance, speed, tilt limits (Husky by default).
+#[pyclass(name = "RobotConfig", module = "subterra._core", frozen, eq)]
+#[derive(Clone, PartialEq)]
+pub struct PyRobotConfig {
+    inner: RobotConfig,
+}
+
+#[pymethods]
+impl PyRobotConfig {
+    /// The Husky-like default, with the fields of the optional dict `d` changed.
+    #[new]
+    #[pyo3(signature = (d = None))]
+    fn new(py: Python<'_>, d: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        match d {
+            None => Ok(Self::husky()),
+            Some(d) => Self::from_dict(py, d),
+        }
+    }
+
+    /// The Clearpath Husky-like robot of DESIGN §2 (0.99 x 0.67 x 0.4 m, clearance 0.13 m).
+    #[staticmethod]
+    fn husky() -> Self {
+        Self { inner: RobotConfig::husky() }
+    }
+
+    /// Validates a (partial) dict of fields laid over the Husky default.
+    #[staticmethod]
+    fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let value = merged(py, "robot", serde_json::to_value(RobotConfig::husky()), d)?;
+        let inner: RobotConfig = serde_json::from_value(value).map_err(|e| parse_error(py, "robot", e))?;
+        inner.validate().py_err(py)?;
+        Ok(Self { inner })
+    }
+
+    /// The fields as a dict (`length_m`, `width_m`, `height_m`, ...).
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py_dict(py, serde_json::to_string(&self.inner))
+    }
+
+    fn __repr__(&self) -> String {
+        format!("RobotConfig({})", serde_json::to_string(&self.inner).unwrap_or_default())
+    }
+}
+
+/// Settings of the terrain pipeline (layout of `configs/terrain.toml`).
+#[pyclass(name = "TerrainConfig", module = "subterra._core", frozen, eq)]
+#[derive(Clone, PartialEq)]
+pub struct PyTerrainConfig {
+    inner: TerrainConfig,
+}
+
+#[pymethods]
+impl PyTerrainConfig {
+    /// The default, with the fields of the optional nested dict `d` changed.
+    #[new]
+    #[pyo3(signature = (d = None))]
+    fn new(py: Python<'_>, d: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        match d {
+            None => Ok(Self { inner: TerrainConfig::default() }),
+            Some(d) => Self::from_dict(py, d),
+        }
+    }
+
+    /// Parses and validates a TOML document laid out like `configs/terrain.toml` (all fields).
+    #[staticmethod]
+    fn from_toml(py: Python<'_>, text: &str) -> PyResult<Self> {
+        Ok(Self { inner: TerrainConfig::from_toml_str(text).py_err(py)? })
+    }
+
+    /// Reads and validates a TOML file; errors end with the path.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let path = as_path(py, path)?.ok_or_else(|| input_error(py, format!("argument `path` must be a str or os.PathLike, got {}", type_name(path))))?;
+        Ok(Self { inner: read_config_file(py, &path)? })
+    }
+
+    /// Validates a (partial, nested) dict laid over the default: `{"coarse": {"resolution_m": 0.2}}`.
+    #[staticmethod]
+    fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let value = merged(py, "config", serde_json::to_value(TerrainConfig::default()), d)?;
+        let inner: TerrainConfig = serde_json::from_value(value).map_err(|e| parse_error(py, "config", e))?;
+        inner.validate().py_err(py)?;
+        Ok(Self { inner })
+    }
+
+    /// The config as a nested dict laid out like the TOML file.
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py_dict(py, serde_json::to_string(&self.inner))
+    }
+
+    /// The config as TOML text.
+    fn to_toml(&self) -> String {
+        self.inner.to_toml_string()
+    }
+
+    fn __repr__(&self) -> String {
+        format!("TerrainConfig({})", serde_json::to_string(&self.inner).unwrap_or_default())
+    }
+}
+
+fn resolve_robot(py: Python<'_>, robot: Option<&Bound<'_, PyAny>>) -> PyResult<RobotConfig> {
+    let Some(robot) = robot else { return Ok(RobotConfig::husky()) };
+    if let Ok(r) = robot.cast::<PyRobotConfig>() {
+        return Ok(r.get().inner);
+    }
+    if robot.cast::<PyDict>().is_ok() {
+        return Ok(PyRobotConfig::from_dict(py, robot)?.inner);
+    }
+    Err(config_error(py, format!("argument `robot` must be None, a dict or a RobotConfig, got {}", type_name(robot))))
+}
+
+fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<TerrainConfig> {
+    let Some(config) = config else { return Ok(TerrainConfig::default()) };
+    if let Ok(c) = config.cast::<PyTerrainConfig>() {
+        return Ok(c.get().inner);
+    }
+    if config.cast::<PyDict>().is_ok() {
+        return Ok(PyTerrainConfig::from_dict(py, config)?.inner);
+    }
+    if let Some(path) = as_path(py, config)? {
+        return read_config_file(py, &path);
+    }
+    Err(config_error(py, format!("argument `config` must be None, a dict, a TerrainConfig or a TOML path, got {}", type_name(config))))
+}
+
+// ---------------------------------------------------------------- points
+
+/// Calls `f` with the row-major coordinates of an `(N, 3)` numeric array (N >= 1). `float32`
+/// C-ordered arrays are borrowed; other numeric dtypes are converted and non-contiguous
+/// arrays copied.
+fn with_points<T>(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, f: impl FnOnce(&[f32]) -> T) -> PyResult<T> {
+    let converted;
+    let array = match value.cast::<PyArray2<f32>>() {
+        Ok(a) => a.clone(),
+        Err(_) => {
+            let np = py.import("numpy")?;
+            let raw = np
+                .call_method1("asarray", (value,))
+                .map_err(|_| input_error(py, format!("argument `{argument}` must be an (N, 3) array of numbers, got {}", type_name(value))))?;
+            let kind: String = raw.getattr("dtype")?.getattr("kind")?.extract()?;
+            if !matches!(kind.as_str(), "f" | "i" | "u") {
+                return Err(input_error(py, format!("argument `{argument}` must be an (N, 3) array of real numbers (float32 preferred), got {}", type_name(&raw))));
+            }
+            converted = raw.call_method1("astype", ("float32",))?;
+            converted
+                .cast::<PyArray2<f32>>()
+                .map_err(|_| input_error(py, format!("argument `{argument}` must have shape (N, 3), got {}", type_name(&raw))))?
+                .clone()
+        }
+    };
+    let view = array.readonly();
+    let shape = view.shape();
+    if shape[1] != 3 {
+        return Err(input_error(py, format!("argument `{argument}` must have shape (N, 3), got {shape:?}")));
+    }
+    if shape[0] == 0 {
+        return Err(input_error(py, format!("argument `{argument}` is empty (shape {shape:?}); a scan needs at least one point")));
+    }
+    let flat = match view.as_array().to_slice() {
+        Some(s) => Cow::Borrowed(s),
+        None => Cow::Owned(view.as_array().iter().copied().collect()),
+    };
+    Ok(f(&flat))
+}
+
+fn finite(py: Python<'_>, argument: &str, value: f64) -> PyResult<f64> {
+    if value.is_finite() {
+        Ok(value)
+    } else {
+        Err(input_error(py, format!("argument `{argument}` must be finite, got {value}")))
+    }
+}
+
+// ---------------------------------------------------------------- RiskMap
+
+/// A robot-centred, world-axis-aligned grid map with named layers (row-major `(ny, nx)`:
+/// row `iy` along world y, column `ix` along world x; plot with `origin="lower"`).
+#[pyclass(name = "RiskMap", module = "subterra._core", frozen)]
+pub struct PyRiskMap {
+    inner: RiskMap,
+    kind: &'static str,
+    stats: TerrainStats,
+    timings: TerrainTimings,
+}
+
+impl PyRiskMap {
+    fn dims(&self) -> [usize; 2] {
+        let g = self.inner.geometry();
+        [g.ny, g.nx]
+    }
+
+    fn grid<'py>(&self, py: Python<'py>, data: Vec<f32>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        data.into_pyarray(py).reshape(self.dims())
+    }
+}
+
+#[pymethods]
+impl PyRiskMap {
+    /// A copy of the layer `name` as a `float32` `(ny, nx)` array (see `layer_names`).
+    fn layer<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let data = self.inner.layer(name).py_err(py)?.to_vec();
+        self.grid(py, data)
+    }
+
+    /// Every layer's name, in storage order.
+    #[getter]
+    fn layer_names(&self) -> Vec<&'static str> {
+        RiskMap::layer_names().to_vec()
+    }
+
+    /// The combined risk at the world position `(x, y)` [m]; `None` outside the map.
+    fn risk_at(&self, py: Python<'_>, x: f64, y: f64) -> PyResult<Option<f32>> {
+        Ok(self.inner.risk_at(finite(py, "x", x)?, finite(py, "y", y)?))
+    }
+
+    /// The value of layer `name` at the world position `(x, y)` [m]; `None` outside the map.
+    fn value_at(&self, py: Python<'_>, name: &str, x: f64, y: f64) -> PyResult<Option<f32>> {
+        let layer = Layer::from_name(name).ok_or_else(|| {
+            input_error(py, format!("argument `name`: unknown layer `{name}`; known layers: {}", RiskMap::layer_names().join(", ")))
+        })?;
+        Ok(self.inner.value_at(layer, finite(py, "x", x)?, finite(py, "y", y)?))
+    }
+
+    /// `CVaR_alpha` of each cell's risk (normal approximation), `float32` `(ny, nx)` in [0, 1].
+    fn cvar<'py>(&self, py: Python<'py>, alpha: f64) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let data = self.inner.cvar(alpha).py_err(py)?;
+        self.grid(py, data)
+    }
+
+    /// An RGB `uint8` `(ny, nx, 3)` image of a risk layer (default the combined `risk`):
+    /// green (0) to red (1) linearly, grey where the cell was not observed. Row 0 is the
+    /// lowest y: show it with `origin="lower"`.
+    #[pyo3(signature = (layer = "risk"))]
+    fn to_image<'py>(&self, py: Python<'py>, layer: &str) -> PyResult<Bound<'py, PyArray3<u8>>> {
+        let values = self.inner.layer(layer).py_err(py)?;
+        let observed = self.inner.get(Layer::Observed);
+        let mut rgb = Vec::with_capacity(values.len() * 3);
+        for (&v, &seen) in values.iter().zip(observed) {
+            if seen > 0.0 {
+                let t = if v.is_nan() { 0.0 } else { (v as f64).clamp(0.0, 1.0) };
+                rgb.extend((0..3).map(|c| (SAFE_RGB[c] + t * (LETHAL_RGB[c] - SAFE_RGB[c])).round() as u8));
+            } else {
+                rgb.extend(UNKNOWN_RGB);
+            }
+        }
+        let [ny, nx] = self.dims();
+        rgb.into_pyarray(py).reshape([ny, nx, 3])
+    }
+
+    /// `"coarse"` (the fused long-range map) or `"fine"` (the newest scan, short range).
+    #[getter]
+    fn kind(&self) -> &'static str {
+        self.kind
+    }
+    /// Cell side [m].
+    #[getter]
+    fn resolution(&self) -> f64 {
+        self.inner.geometry().resolution_m
+    }
+    /// Cells along world x.
+    #[getter]
+    fn nx(&self) -> usize {
+        self.inner.geometry().nx
+    }
+    /// Cells along world y.
+    #[getter]
+    fn ny(&self) -> usize {
+        self.inner.geometry().ny
+    }
+    /// `(ny, nx)`, the shape of every layer.
+    #[getter]
+    fn shape(&self) -> (usize, usize) {
+        let [ny, nx] = self.dims();
+        (ny, nx)
+    }
+    /// World position `(x, y)` of the map's lower corner [m].
+    #[getter]
+    fn origin(&self) -> (f64, f64) {
+        let o = self.inner.geometry().origin_m();
+        (o.x, o.y)
+    }
+    /// Global cell index `(gx, gy)` of cell (0, 0): it covers `[gx·res, (gx+1)·res) x [gy·res, (gy+1)·res)`.
+    #[getter]
+    fn origin_cell(&self) -> (i64, i64) {
+        self.inner.geometry().origin_cell
+    }
+    /// `(x_min, x_max, y_min, y_max)` [m], for `imshow(..., extent=..., origin="lower")`.
+    #[getter]
+    fn extent(&self) -> (f64, f64, f64, f64) {
+        let g = self.inner.geometry();
+        let o = g.origin_m();
+        (o.x, o.x + g.nx as f64 * g.resolution_m, o.y, o.y + g.ny as f64 * g.resolution_m)
+    }
+    /// `(ix, iy)` of the cell holding the world position `(x, y)` [m]; `None` outside.
+    fn cell_of(&self, py: Python<'_>, x: f64, y: f64) -> PyResult<Option<(u32, u32)>> {
+        Ok(self.inner.geometry().cell_of(finite(py, "x", x)?, finite(py, "y", y)?).map(|c| (c.ix, c.iy)))
+    }
+    /// World x of the cell centres, `(nx,)` [m].
+    #[getter]
+    fn x_centres<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let g = self.inner.geometry();
+        (0..g.nx).map(|i| (g.origin_cell.0 as f64 + i as f64 + 0.5) * g.resolution_m).collect::<Vec<_>>().into_pyarray(py)
+    }
+    /// World y of the cell centres, `(ny,)` [m].
+    #[getter]
+    fn y_centres<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let g = self.inner.geometry();
+        (0..g.ny).map(|i| (g.origin_cell.1 as f64 + i as f64 + 0.5) * g.resolution_m).collect::<Vec<_>>().into_pyarray(py)
+    }
+    /// Time of the newest scan in the map [s].
+    #[getter]
+    fn stamp(&self) -> f64 {
+        self.inner.stamp_s
+    }
+    /// Scans fused into this map.
+    #[getter]
+    fn scans(&self) -> usize {
+        self.inner.scans
+    }
+    /// Points binned into this map (inside its extent).
+    #[getter]
+    fn points(&self) -> usize {
+        self.inner.points
+    }
+    /// Counts of the update that made this map.
+    #[getter]
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = &self.stats;
+        let p = &s.prefilter;
+        let d = PyDict::new(py);
+        for (k, v) in [
+            ("input_points", p.input),
+            ("non_finite", p.non_finite),
+            ("out_of_range", p.out_of_range),
+            ("self_hits", p.self_hits),
+            ("downsampled", p.downsampled),
+            ("outliers", p.outliers),
+            ("kept", p.kept),
+            ("ground_points", s.ground_points),
+            ("obstacle_points", s.obstacle_points),
+            ("fused_scans", s.fused_scans),
+            ("fused_points", s.fused_points),
+            ("map_points", self.inner.points),
+        ] {
+            d.set_item(k, v)?;
+        }
+        Ok(d)
+    }
+    /// Seconds per stage of the update that made this map.
+    #[getter]
+    fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let t = &self.timings;
+        let d = PyDict::new(py);
+        for (k, v) in [("prefilter_s", t.prefilter_s), ("segment_s", t.segment_s), ("coarse_s", t.coarse_s), ("fine_s", t.fine_s), ("total_s", t.total_s)] {
+            d.set_item(k, v)?;
+        }
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        let g = self.inner.geometry();
+        let o = g.origin_m();
+        format!(
+            "RiskMap(kind={:?}, shape=({}, {}), resolution={}, origin=({:.3}, {:.3}), scans={}, stamp={})",
+            self.kind, g.ny, g.nx, g.resolution_m, o.x, o.y, self.inner.scans, self.inner.stamp_s
+        )
+    }
+}
+
+// ---------------------------------------------------------------- TerrainMapper
+
+/// Points `(N, 3)` and their heights above ground `(N,)`.
+type PointsAndHeights<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<f32>>);
+
+/// Terrain risk mapping for one ground robot and one sensor stream.
+#[pyclass(name = "TerrainMapper", module = "subterra._core")]
+pub struct PyTerrainMapper {
+    inner: TerrainMapper,
+    last_stamp: Option<f64>,
+    last_coarse: Option<Py<PyRiskMap>>,
+    last_fine: Option<Py<PyRiskMap>>,
+}
+
+#[pymethods]
+impl PyTerrainMapper {
+    #[new]
+    #[pyo3(signature = (robot = None, config = None))]
+    fn new(py: Python<'_>, robot: Option<&Bound<'_, PyAny>>, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let robot = resolve_robot(py, robot)?;
+        let config = resolve_config(py, config)?;
+        let inner = TerrainMapper::new(robot, config).py_err(py)?;
+        Ok(Self { inner, last_stamp: None, last_coarse: None, last_fine: None })
+    }
+
+    /// Adds one scan and returns the coarse (fused) map; the fine map is `last_fine`.
+    ///
+    /// `points`: `(N, 3)` in the sensor frame [m] (float32; other real dtypes are converted);
+    /// NaN points are dropped and counted. `stamp` [s]: default 0.1 s after the previous
+    /// scan (0 for the first). Poses are 4x4 rigid matrices, default identity.
+    /// `confidence` in [0, 1] shrinks the fusion window (0: the newest scan alone).
+    /// Releases the GIL while it runs.
+    #[pyo3(signature = (points, *, stamp = None, world_from_body = None, body_from_sensor = None, confidence = 1.0))]
+    fn update(
+        &mut self,
+        py: Python<'_>,
+        points: &Bound<'_, PyAny>,
+        stamp: Option<f64>,
+        world_from_body: Option<&Bound<'_, PyAny>>,
+        body_from_sensor: Option<&Bound<'_, PyAny>>,
+        confidence: f64,
+    ) -> PyResult<Py<PyRiskMap>> {
+        let world_from_body = match world_from_body {
+            Some(m) => isometry(py, "world_from_body", m)?,
+            None => Isometry3::IDENTITY,
+        };
+        let body_from_sensor = match body_from_sensor {
+            Some(m) => isometry(py, "body_from_sensor", m)?,
+            None => Isometry3::IDENTITY,
+        };
+        let stamp_s = match stamp {
+            Some(s) => s,
+            None => self.last_stamp.map_or(0.0, |t| t + DEFAULT_SCAN_PERIOD_S),
+        };
+        let inner = &mut self.inner;
+        let result = with_points(py, "points", points, |flat| py.detach(|| inner.update(flat, stamp_s, &world_from_body, &body_from_sensor, confidence)))?;
+        let out = result.py_err(py)?;
+        self.last_stamp = Some(stamp_s);
+        let coarse = Py::new(py, PyRiskMap { inner: out.coarse, kind: "coarse", stats: out.stats, timings: out.timings })?;
+        self.last_fine = match out.fine {
+            Some(fine) => Some(Py::new(py, PyRiskMap { inner: fine, kind: "fine", stats: out.stats, timings: out.timings })?),
+            None => None,
+        };
+        self.last_coarse = Some(coarse.clone_ref(py));
+        Ok(coarse)
+    }
+
+    /// The coarse map of the last update, or None before the first.
+    #[getter]
+    fn last_coarse(&self, py: Python<'_>) -> Option<Py<PyRiskMap>> {
+        self.last_coarse.as_ref().map(|m| m.clone_ref(py))
+    }
+
+    /// The fine map of the last update, or None (before the first, or `fine_enabled = false`).
+    #[getter]
+    fn last_fine(&self, py: Python<'_>) -> Option<Py<PyRiskMap>> {
+        self.last_fine.as_ref().map(|m| m.clone_ref(py))
+    }
+
+    /// Replaces the keep-out circles of the `mission` layer. Each item is `(x, y, radius)`
+    /// [m, world frame] or a dict `{"position": (x, y), "radius": r}`; an empty list clears them.
+    fn set_mission_items(&mut self, py: Python<'_>, items: &Bound<'_, PyAny>) -> PyResult<()> {
+        let np = py.import("numpy")?;
+        let mut parsed = Vec::new();
+        let iter = items.try_iter().map_err(|_| input_error(py, format!("argument `items` must be a sequence, got {}", type_name(items))))?;
+        for (i, item) in iter.enumerate() {
+            let item = item?;
+            let numbers = |v: &Bound<'_, PyAny>| -> Option<Vec<f64>> {
+                np.call_method1("asarray", (v, "float64")).ok()?.call_method0("ravel").ok()?.call_method0("tolist").ok()?.extract().ok()
+            };
+            let values = if let Ok(d) = item.cast::<PyDict>() {
+                let position = d.get_item("position")?.and_then(|p| numbers(&p));
+                let radius = d.get_item("radius")?.and_then(|r| numbers(&r));
+                match (position, radius) {
+                    (Some(p), Some(r)) if p.len() == 2 && r.len() == 1 => Some(vec![p[0], p[1], r[0]]),
+                    _ => None,
+                }
+            } else {
+                numbers(&item).filter(|v| v.len() == 3)
+            };
+            let v = values.ok_or_else(|| {
+                input_error(py, format!("argument `items[{i}]` must be (x, y, radius) or {{\"position\": (x, y), \"radius\": r}}, got {}", type_name(&item)))
+            })?;
+            parsed.push(MissionItem { position_world: DVec2::new(v[0], v[1]), radius_m: v[2] });
+        }
+        self.inner.set_mission_items(&parsed).py_err(py)
+    }
+
+    /// Forgets every scan (the recovery behaviour "clear the map"); the next stamp may be any.
+    fn reset(&mut self) {
+        self.inner.reset();
+        self.last_stamp = None;
+    }
+
+    /// Scans held in the fusion window.
+    #[getter]
+    fn window_len(&self) -> usize {
+        self.inner.window_len()
+    }
+
+    /// The robot model.
+    #[getter]
+    fn robot(&self) -> PyRobotConfig {
+        PyRobotConfig { inner: *self.inner.robot() }
+    }
+
+    /// The config.
+    #[getter]
+    fn config(&self) -> PyTerrainConfig {
+        PyTerrainConfig { inner: *self.inner.config() }
+    }
+
+    /// The newest scan's kept points relative to the body origin, world-aligned axes
+    /// (`float32` `(N, 3)` [m]; add the body's world position for world coordinates), and
+    /// each one's height above its ground line (`float32` `(N,)` [m]; NaN: no line).
+    /// A point is ground iff `|height| <= config.ground.max_dist_to_line_m`. None before
+    /// the first update.
+    fn newest_points<'py>(&self, py: Python<'py>) -> PyResult<Option<PointsAndHeights<'py>>> {
+        let Some((points, heights)) = self.inner.newest_points_level() else { return Ok(None) };
+        let n = points.len();
+        let flat: Vec<f32> = points.into_iter().flatten().collect();
+        Ok(Some((flat.into_pyarray(py).reshape([n, 3])?, heights.to_vec().into_pyarray(py))))
+    }
+
+    fn __repr__(&self) -> String {
+        format!("TerrainMapper(window_len={}, last_stamp={:?})", self.inner.window_len(), self.last_stamp)
+    }
+}
+
+/// Labels each point of `points` (`(N, 3)` [m], sensor-centred, z up) ground (True) or
+/// obstacle (False) by line fits in cylindrical coordinates (Himmelsbach et al. 2010).
+/// `sensor_height` [m]: the sensor's height above the ground near it. `config`: None, a
+/// `TerrainConfig` (its `ground` section) or a dict of `ground` fields over the defaults.
+/// Releases the GIL while it runs.
+#[pyfunction]
+#[pyo3(signature = (points, *, sensor_height, config = None))]
+fn segment_ground<'py>(py: Python<'py>, points: &Bound<'_, PyAny>, sensor_height: f64, config: Option<&Bound<'_, PyAny>>) -> PyResult<Bound<'py, PyArray1<bool>>> {
+    let ground: GroundConfig = match config {
+        None => GroundConfig::default(),
+        Some(c) => {
+            if let Ok(t) = c.cast::<PyTerrainConfig>() {
+                t.get().inner.ground
+            } else if c.cast::<PyDict>().is_ok() {
+                let value = merged(py, "config", serde_json::to_value(GroundConfig::default()), c)?;
+                let g: GroundConfig = serde_json::from_value(value).map_err(|e| parse_error(py, "config", e))?;
+                g.validate().py_err(py)?;
+                g
+            } else {
+                return Err(config_error(py, format!("argument `config` must be None, a TerrainConfig or a dict of ground fields, got {}", type_name(c))));
+            }
+        }
+    };
+    let sensor_height = finite(py, "sensor_height", sensor_height)?;
+    let labels = with_points(py, "points", points, |flat| py.detach(|| core_segment_ground(flat, &ground, sensor_height)))?.py_err(py)?;
+    Ok(labels.into_pyarray(py))
+}
+
+/// Adds the terrain classes and functions to the module.
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyRobotConfig>()?;
+    m.add_class::<PyTerrainConfig>()?;
+    m.add_class::<PyRiskMap>()?;
+    m.add_class::<PyTerrainMapper>()?;
+    m.add_function(wrap_pyfunction!(segment_ground, m)?)?;
+    Ok(())
+}

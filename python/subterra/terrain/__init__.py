@@ -1,0 +1,110 @@
+"""Terrain risk for a ground robot (DESIGN §2): lidar scans in, a multi-layer risk map out.
+
+>>> import numpy as np, subterra
+>>> from subterra.terrain import translation
+>>> mapper = subterra.TerrainMapper()          # Husky robot, the configs/terrain.toml values
+>>> xy = np.mgrid[-8:8:0.1, -8:8:0.1].reshape(2, -1).T
+>>> ground = np.column_stack([xy, np.full(len(xy), -0.5)]).astype(np.float32)  # sensor 0.5 m up
+>>> risk_map = mapper.update(ground, stamp=0.0, body_from_sensor=translation(z=0.5))
+>>> risk_map.layer("tilt").shape
+(200, 200)
+
+The classes are the Rust core's (``subterra._core``):
+
+* :class:`TerrainMapper` ``(robot=None | dict | RobotConfig, config=None | dict |
+  TerrainConfig | path)``; ``update(points, stamp=, world_from_body=, body_from_sensor=,
+  confidence=)`` returns the coarse fused :class:`RiskMap`; the fine short-range map of
+  the same update is ``mapper.last_fine``.
+* :class:`RiskMap`: ``layer(name)`` (a ``float32`` ``(ny, nx)`` copy, row ``iy`` along
+  world y), ``layer_names``, ``risk_at(x, y)``, ``value_at(name, x, y)``,
+  ``cvar(alpha)``, ``to_image()``, ``resolution``, ``origin``, ``extent``, ``stats``,
+  ``timings``.
+* :func:`segment_ground` ``(points, sensor_height=, config=None)``: ground labels.
+* :class:`RobotConfig`, :class:`TerrainConfig`: typed configs (partial dicts are laid
+  over the defaults).
+
+Frames: the body frame is FLU with its origin on the ground at the footprint's centre
+(REP 120 ``base_footprint``), so a lidar mounted ``h`` metres up has
+``body_from_sensor`` = translation ``(0, 0, h)``. Maps are world-axis-aligned and centred
+on the robot. See ``docs/terrain.md``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from subterra._core import RiskMap, RobotConfig, TerrainConfig, TerrainMapper, segment_ground
+from subterra.errors import InputError
+
+__all__ = [
+    "DEFAULT_CONFIG_PATH",
+    "RiskMap",
+    "RobotConfig",
+    "TerrainConfig",
+    "TerrainMapper",
+    "estimate_sensor_height",
+    "load_terrain_config",
+    "lethal_cells",
+    "segment_ground",
+    "translation",
+]
+
+#: The committed default config (equal to ``TerrainConfig()``; a test checks it).
+DEFAULT_CONFIG_PATH = Path(__file__).resolve().parents[3] / "configs" / "terrain.toml"
+
+#: Horizontal ring [m] whose lowest dense layer of points is taken as the ground by
+#: :func:`estimate_sensor_height`: past the robot's own shadow, before the returns thin out.
+SENSOR_HEIGHT_RING_M = (3.0, 15.0)
+#: Height-histogram bin of :func:`estimate_sensor_height` [m].
+SENSOR_HEIGHT_BIN_M = 0.05
+
+
+def load_terrain_config(path: str | os.PathLike[str]) -> TerrainConfig:
+    """Reads a terrain config from a TOML file laid out like ``configs/terrain.toml``.
+
+    Raises :class:`~subterra.errors.FileFormatError` if the file cannot be read and
+    :class:`~subterra.errors.ConfigError` if a value is invalid (the message names the
+    field and ends with the path).
+    """
+    return TerrainConfig.load(path)
+
+
+def translation(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> np.ndarray:
+    """A 4x4 ``float64`` pure translation [m], e.g. ``body_from_sensor = translation(z=0.7)``."""
+    t = np.eye(4)
+    t[:3, 3] = (x, y, z)
+    return t
+
+
+def estimate_sensor_height(points: np.ndarray, *, ring_m: tuple[float, float] = SENSOR_HEIGHT_RING_M) -> float:
+    """Height of a roughly level sensor above the ground around it [m].
+
+    The mode of the points' z in ``ring_m`` (horizontal range, sensor-centred) over
+    :data:`SENSOR_HEIGHT_BIN_M` bins, refined to the mean z within one bin of it; returns
+    ``-z``. Good on a level robot on open ground (most returns of the ring are ground);
+    give the mounting height instead when it is known.
+
+    Raises :class:`~subterra.errors.InputError` if no point lies in the ring.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"argument `points` must have shape (N, 3), got {p.shape}")
+    p = p[np.isfinite(p).all(axis=1)]
+    r = np.hypot(p[:, 0], p[:, 1])
+    z = p[(r >= ring_m[0]) & (r <= ring_m[1]), 2]
+    if z.size == 0:
+        raise InputError(f"argument `points` has no finite point {ring_m[0]}-{ring_m[1]} m from the sensor to find the ground in")
+    lo = np.floor(z.min() / SENSOR_HEIGHT_BIN_M) * SENSOR_HEIGHT_BIN_M
+    counts, edges = np.histogram(z, bins=np.arange(lo, z.max() + 2 * SENSOR_HEIGHT_BIN_M, SENSOR_HEIGHT_BIN_M))
+    mode = 0.5 * (edges[np.argmax(counts)] + edges[np.argmax(counts) + 1])
+    near = z[np.abs(z - mode) <= SENSOR_HEIGHT_BIN_M]
+    return float(-near.mean())
+
+
+def lethal_cells(risk_map: RiskMap) -> dict[str, int]:
+    """Number of cells with risk >= 1 in each risk layer and in the combined ``risk``."""
+    names = ("collision", "step", "negative", "tilt", "roughness", "unknown", "mission", "risk")
+    return {name: int(np.count_nonzero(risk_map.layer(name) >= 1.0)) for name in names}
