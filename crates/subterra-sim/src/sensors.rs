@@ -259,12 +259,12 @@ impl DepthCamera {
         let range = |k: usize| ranges[k];
         // The cached layout covers the whole image (a span of all of it); others fall back to
         // laying out their fans per call.
-        world.cast_fan_cached(origin, rotation, rays, &self.layout, &range, &mut |k, dir, hit| {
+        world.cast_fan_cached::<true, _, _>(origin, rotation, rays, &self.layout, &range, &mut |k, dir, hit| {
             let Some(hit) = hit else {
                 (depth[k], primitive[k], incidence[k]) = (0.0, -1, 0.0);
                 return;
             };
-            let z = hit.distance_m * rays[k].z;
+            let z = hit.t * rays[k].z;
             if !(z >= min_m && z <= max_m) {
                 (depth[k], primitive[k], incidence[k]) = (0.0, -1, 0.0);
                 return;
@@ -443,9 +443,9 @@ impl Lidar {
         let origin = world_from_sensor.translation;
         let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
         let beams = &self.beams_sensor;
-        world.cast_fan_cached(origin, rotation, beams, &self.layout, &|_| max_m, &mut |k, _, hit| {
+        world.cast_fan_cached::<false, _, _>(origin, rotation, beams, &self.layout, &|_| max_m, &mut |k, _, hit| {
             let Some(hit) = hit else { return };
-            let r = hit.distance_m;
+            let r = hit.t;
             if !(r >= min_m && r <= max_m) {
                 return;
             }

@@ -106,6 +106,23 @@ pub struct RayHit {
     pub primitive: PrimitiveId,
 }
 
+/// The nearest hit of a ray of a fan ([`World::cast_fan`]): [`RayHit`] less the point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct FanHit {
+    /// Distance along the unit direction [m].
+    pub(crate) t: f64,
+    /// Unit surface normal facing the ray (zero when the cast was asked for no normals).
+    pub(crate) normal: DVec3,
+    pub(crate) primitive: PrimitiveId,
+}
+
+impl FanHit {
+    /// The [`RayHit`] of the ray `o + t·d`.
+    pub(crate) fn ray_hit(self, o: DVec3, d: DVec3) -> RayHit {
+        RayHit { distance_m: self.t, point: o + d * self.t, normal: self.normal, primitive: self.primitive }
+    }
+}
+
 /// A world's geometry, ready for queries. Built once by [`World::from_spec`] or
 /// [`World::from_toml_str`]; immutable, `Send + Sync`.
 #[derive(Debug, Clone)]
@@ -314,25 +331,26 @@ impl World {
                 units.push(d / len);
             }
         }
-        self.cast_fan(origin, DMat3::IDENTITY, &units, &|k| range_of(index[k]), &mut |k, _, hit| out[index[k]] = hit);
+        self.cast_fan::<true, _, _>(origin, DMat3::IDENTITY, &units, &|k| range_of(index[k]), &mut |k, d, hit| out[index[k]] = hit.map(|h| h.ray_hit(origin, d)));
         Ok(())
     }
 
     /// The rays `origin + t · rotation · dirs[k]` (`dirs` unit length, finite `origin` and
     /// `rotation`), `0 <= t <= range(k)`, in order of `k`; `sink(k, world direction, hit)`
-    /// receives each result. Same answers as [`World::cast_ray`], bit for bit.
+    /// receives each result. Same answers as [`World::cast_ray`], bit for bit (the normal
+    /// only when `NORMALS`; else it is zero).
     ///
     /// The rays are split into fans of at most 70° around their mean direction; per fan the
     /// bounded primitives in its frustum (found through the BVH) are projected once onto a
     /// grid of bins over the fan's gnomonic image, and each ray tests only its bin's list,
     /// nearest first, stopping at the first one beyond its current hit.
-    pub(crate) fn cast_fan<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], range: &R, sink: &mut S)
+    pub(crate) fn cast_fan<const NORMALS: bool, R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], range: &R, sink: &mut S)
     where
         R: Fn(usize) -> f64,
-        S: FnMut(usize, DVec3, Option<RayHit>),
+        S: FnMut(usize, DVec3, Option<FanHit>),
     {
         let view = self.terrain_view(origin, dirs.len());
-        self.cast_fan_from(origin, rotation, dirs, 0, range, view.as_ref(), sink);
+        self.cast_fan_from::<NORMALS, R, S>(origin, rotation, dirs, 0, range, view.as_ref(), sink);
     }
 
     /// The terrain seen from `origin`, for `rays` rays from there; `None` when there is no
@@ -343,10 +361,10 @@ impl World {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn cast_fan_from<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], first: usize, range: &R, view: Option<&TerrainView>, sink: &mut S)
+    fn cast_fan_from<const NORMALS: bool, R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], first: usize, range: &R, view: Option<&TerrainView>, sink: &mut S)
     where
         R: Fn(usize) -> f64,
-        S: FnMut(usize, DVec3, Option<RayHit>),
+        S: FnMut(usize, DVec3, Option<FanHit>),
     {
         if dirs.len() < FAN_MIN_RAYS || self.solids.is_empty() {
             for (k, dl) in dirs.iter().enumerate() {
@@ -361,39 +379,40 @@ impl World {
         let min_cos = dirs.iter().fold(f64::INFINITY, |acc, d| acc.min(d.dot(axis)));
         if min_cos.is_nan() || min_cos < FAN_MIN_COS {
             let mid = dirs.len() / 2;
-            self.cast_fan_from(origin, rotation, &dirs[..mid], first, range, view, sink);
-            self.cast_fan_from(origin, rotation, &dirs[mid..], first + mid, range, view, sink);
+            self.cast_fan_from::<NORMALS, R, S>(origin, rotation, &dirs[..mid], first, range, view, sink);
+            self.cast_fan_from::<NORMALS, R, S>(origin, rotation, &dirs[mid..], first + mid, range, view, sink);
             return;
         }
         let plan = FanPlan::new(self, origin, rotation, FanGeom::new(axis, dirs, first, range));
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
-            let hit = self.fan_ray(&plan, origin, d, range(first + k), plan.g.bin(*dl), view);
+            let hit = self.fan_ray::<NORMALS>(&plan, origin, d, range(first + k), plan.g.bin(*dl), view);
             sink(first + k, d, hit);
         }
     }
 
     /// [`World::cast_fan`] with the fans laid out beforehand: `layout` is
     /// [`FanLayout::new`]`(dirs, range)` (the same `dirs` and `range`). Same answers.
-    pub(crate) fn cast_fan_cached<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], layout: &FanLayout, range: &R, sink: &mut S)
+    pub(crate) fn cast_fan_cached<const NORMALS: bool, R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], layout: &FanLayout, range: &R, sink: &mut S)
     where
         R: Fn(usize) -> f64,
-        S: FnMut(usize, DVec3, Option<RayHit>),
+        S: FnMut(usize, DVec3, Option<FanHit>),
     {
         if layout.len() != dirs.len() {
-            self.cast_fan(origin, rotation, dirs, range, sink);
+            self.cast_fan::<NORMALS, R, S>(origin, rotation, dirs, range, sink);
             return;
         }
         let view = self.terrain_view(origin, dirs.len());
         let view = view.as_ref();
         for &(first, len, geom) in &layout.fans {
             let fan = &dirs[first..first + len];
+            let bins = &layout.bins[first..first + len];
             match geom {
                 Some(g) if !self.solids.is_empty() => {
                     let plan = FanPlan::new(self, origin, rotation, g);
-                    for (k, dl) in fan.iter().enumerate() {
+                    for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
                         let d = rotation * *dl;
-                        let hit = self.fan_ray(&plan, origin, d, range(first + k), layout.bins[first + k] as usize, view);
+                        let hit = self.fan_ray::<NORMALS>(&plan, origin, d, range(first + k), bin as usize, view);
                         sink(first + k, d, hit);
                     }
                 }
@@ -410,51 +429,73 @@ impl World {
     }
 
     /// One ray of a fan: world direction `d`, range `max_t`, bin `bin` of the plan's grid.
-    #[inline]
-    fn fan_ray(&self, plan: &FanPlan, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<RayHit> {
+    /// The normal is computed (for the nearest hit only) when `NORMALS`.
+    #[inline(always)]
+    fn fan_ray<const NORMALS: bool>(&self, plan: &FanPlan, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<FanHit> {
         if max_t.is_nan() || max_t < 0.0 {
             return None;
         }
-        let mut best: Option<(LeafHit, PrimitiveId)> = None;
+        // The nearest so far: `limit` is its distance (or `max_t`); planes first, in order,
+        // a later one only when strictly nearer.
         let mut limit = max_t;
-        for (plane, &s) in self.planes.iter().zip(&plan.plane_s) {
-            if let Some(hit) = plane.cast_prepared(s, d, limit) {
-                if best.is_none() || hit.t < limit {
-                    limit = hit.t;
-                    best = Some((hit, plane.id));
+        let mut found = false;
+        let mut plane_hit: Option<(usize, bool)> = None;
+        for (i, (plane, &s)) in self.planes.iter().zip(&plan.plane_s).enumerate() {
+            let (t, inside) = if s < 0.0 {
+                (0.0, true)
+            } else {
+                let denom = plane.normal.dot(d);
+                if denom >= 0.0 {
+                    continue;
                 }
+                let t = -s / denom;
+                if !(t <= limit) {
+                    continue;
+                }
+                (t, false)
+            };
+            if !found || t < limit {
+                limit = t;
+                found = true;
+                plane_hit = Some((i, inside));
             }
         }
-        let mut solid: Option<(PrimitiveId, LeafHit)> = None;
+        // Bounded primitives, nearest box first: the nearest hit, then the lowest id.
+        let mut solid: Option<(f64, PrimitiveId, u32, u8)> = None;
         let mut solid_limit = limit;
         for &(near, index) in plan.candidates(bin) {
             if near > solid_limit {
                 break;
             }
             let Some((id, prepared)) = plan.prepared.get(index as usize) else { continue };
-            let id = *id;
-            if let Some(hit) = prepared.cast(origin, d) {
-                if improves(hit.t, id, solid_limit, solid) {
-                    solid_limit = hit.t;
-                    solid = Some((id, hit));
+            if let Some((t, face)) = prepared.cast_t(d) {
+                if t <= solid_limit && solid.is_none_or(|(bt, bid, _, _)| t < bt || (t == bt && *id < bid)) {
+                    solid_limit = t;
+                    solid = Some((t, *id, index, face));
                 }
             }
         }
-        if let Some((id, hit)) = solid {
-            if best.is_none() || hit.t < limit {
-                best = Some((hit, id));
+        let mut best: Option<FanHit> = None;
+        if let Some((i, inside)) = plane_hit {
+            let plane = &self.planes[i];
+            best = Some(FanHit { t: limit, normal: if !NORMALS { DVec3::ZERO } else if inside { -d } else { plane.normal }, primitive: plane.id });
+        }
+        if let Some((t, id, index, face)) = solid {
+            if !found || t < limit {
+                let normal = if NORMALS { plan.prepared[index as usize].1.normal(origin, d, t, face) } else { DVec3::ZERO };
+                best = Some(FanHit { t, normal, primitive: id });
             }
         }
-        self.finish(origin, d, max_t, best, plan.terrain, view)
+        self.finish::<NORMALS>(origin, d, max_t, best, plan.terrain, view)
     }
 
     /// [`World::cast_ray`] for a unit `d`.
     fn cast_unit(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<RayHit> {
-        self.cast_unit_in(o, d, max_t, None)
+        self.cast_unit_in(o, d, max_t, None).map(|h| h.ray_hit(o, d))
     }
 
     /// [`World::cast_unit`], the terrain culled through `view` (from `o`) when given.
-    fn cast_unit_in(&self, o: DVec3, d: DVec3, max_t: f64, view: Option<&TerrainView>) -> Option<RayHit> {
+    fn cast_unit_in(&self, o: DVec3, d: DVec3, max_t: f64, view: Option<&TerrainView>) -> Option<FanHit> {
         let mut best = self.nearest_plane(o, d, max_t);
         let limit = best.map_or(max_t, |(h, _)| h.t);
         if let Some((id, hit)) = self.bvh.cast(&self.solids, o, d, limit) {
@@ -462,7 +503,7 @@ impl World {
                 best = Some((hit, id));
             }
         }
-        self.finish(o, d, max_t, best, true, view)
+        self.finish::<true>(o, d, max_t, best.map(|(hit, id)| FanHit { t: hit.t, normal: hit.normal, primitive: id }), true, view)
     }
 
     /// Nearest plane hit within `max_t` (planes are few and unbounded).
@@ -480,27 +521,32 @@ impl World {
         best
     }
 
-    /// Adds the terrain (when `terrain`) to `best` and makes the [`RayHit`].
-    #[inline]
-    fn finish(&self, o: DVec3, d: DVec3, max_t: f64, mut best: Option<(LeafHit, PrimitiveId)>, terrain: bool, view: Option<&TerrainView>) -> Option<RayHit> {
+    /// Adds the terrain (when `terrain`) to `best` and turns the normal toward the ray
+    /// (when `NORMALS`).
+    #[inline(always)]
+    fn finish<const NORMALS: bool>(&self, o: DVec3, d: DVec3, max_t: f64, mut best: Option<FanHit>, terrain: bool, view: Option<&TerrainView>) -> Option<FanHit> {
         if terrain {
             if let Some(t) = &self.terrain {
-                let limit = best.map_or(max_t, |(h, _)| h.t);
+                let limit = best.map_or(max_t, |h| h.t);
                 let hit = match view {
                     Some(view) => t.cast_in_view(view, o, d, limit),
                     None => t.cast(o, d, limit),
                 };
                 if let Some(hit) = hit {
                     if best.is_none() || hit.t < limit {
-                        best = Some((hit, t.id));
+                        best = Some(FanHit { t: hit.t, normal: hit.normal, primitive: t.id });
                     }
                 }
             }
         }
-        best.map(|(hit, id)| {
-            let normal = if hit.normal.dot(d) > 0.0 { -hit.normal } else { hit.normal };
-            RayHit { distance_m: hit.t, point: o + d * hit.t, normal, primitive: id }
-        })
+        if NORMALS {
+            if let Some(h) = &mut best {
+                if h.normal.dot(d) > 0.0 {
+                    h.normal = -h.normal;
+                }
+            }
+        }
+        best
     }
 
     /// Euclidean distance from `p` to the nearest solid surface [m]: bounded primitives
@@ -1231,59 +1277,104 @@ enum Prepared {
     Box { half: DVec3, cos: f64, sin: f64, ol: DVec3 },
 }
 
+/// Face tag of a leaf hit whose ray starts inside the solid (normal `-dir`).
+const FACE_INSIDE: u8 = 7;
+
 impl Prepared {
     /// First intersection with `t >= 0` of the ray `o + t·d` (`d` unit; `o` the prepared origin).
     #[inline]
     fn cast(&self, o: DVec3, d: DVec3) -> Option<LeafHit> {
+        let (t, face) = self.cast_t(d)?;
+        Some(LeafHit { t, normal: self.normal(o, d, t, face) })
+    }
+
+    /// [`Prepared::cast`] without the normal: the distance and a tag of the face hit, from
+    /// which [`Prepared::normal`] gives the normal (the same values as computed together).
+    #[inline]
+    fn cast_t(&self, d: DVec3) -> Option<(f64, u8)> {
         match *self {
-            Prepared::Inside => Some(inside_hit(d)),
-            Prepared::Sphere { centre, radius, s } => ray_sphere(o, d, centre, radius, s),
-            Prepared::Cylinder { a, axis, length, radius, s0, op, c } => {
+            Prepared::Inside => Some((0.0, FACE_INSIDE)),
+            Prepared::Sphere { radius, s, .. } => ray_sphere_t(d, radius, s).map(|t| (t, 0)),
+            Prepared::Cylinder { axis, length, radius, s0, op, c, .. } => {
                 let du = d.dot(axis);
                 let dp = d - axis * du;
-                let mut best: Option<LeafHit> = None;
+                let mut best: Option<(f64, u8)> = None;
                 if let Some(t) = ray_infinite_cylinder(op, dp, radius, c) {
                     let s = s0 + t * du;
                     if (0.0..=length).contains(&s) {
-                        let radial = o + d * t - a - axis * s;
-                        best = Some(LeafHit { t, normal: radial.normalize_or(-d) });
+                        best = Some((t, 0));
                     }
                 }
                 if du != 0.0 {
                     let r2 = radius * radius;
-                    for (cap_s, normal) in [(0.0, -axis), (length, axis)] {
+                    for (cap_s, face) in [(0.0, 1), (length, 2)] {
                         let t = (cap_s - s0) / du;
-                        if t >= 0.0 && best.is_none_or(|b| t < b.t) && (op + dp * t).length_squared() <= r2 {
-                            best = Some(LeafHit { t, normal });
+                        if t >= 0.0 && best.is_none_or(|b| t < b.0) && (op + dp * t).length_squared() <= r2 {
+                            best = Some((t, face));
                         }
                     }
                 }
                 best
             }
-            Prepared::Capsule { a, axis, length, radius, s0, op, c, ends } => {
-                let mut best: Option<LeafHit> = None;
+            Prepared::Capsule { axis, length, radius, s0, op, c, ends, .. } => {
+                let mut best: Option<(f64, u8)> = None;
                 if length > 0.0 {
                     let du = d.dot(axis);
                     let dp = d - axis * du;
                     if let Some(t) = ray_infinite_cylinder(op, dp, radius, c) {
                         let s = s0 + t * du;
                         if (0.0..=length).contains(&s) {
-                            let radial = o + d * t - a - axis * s;
-                            best = Some(LeafHit { t, normal: radial.normalize_or(-d) });
+                            best = Some((t, 0));
                         }
                     }
                 }
-                for (centre, s) in ends {
-                    let hit = if s.c > 0.0 { ray_sphere(o, d, centre, radius, s) } else { Some(inside_hit(d)) };
+                for (face, (_, s)) in [(1, ends[0]), (2, ends[1])] {
+                    let hit = if s.c > 0.0 { ray_sphere_t(d, radius, s).map(|t| (t, face)) } else { Some((0.0, FACE_INSIDE)) };
                     if let Some(hit) = hit {
-                        if best.is_none_or(|b| hit.t < b.t) {
+                        if best.is_none_or(|b| hit.0 < b.0) {
                             best = Some(hit);
                         }
                     }
                 }
                 best
             }
-            Prepared::Box { half, cos, sin, ol } => ray_box(d, half, cos, sin, ol),
+            Prepared::Box { half, cos, sin, ol } => ray_box_t(d, half, cos, sin, ol),
+        }
+    }
+
+    /// Outward normal of the hit at `t` on face `face` found by [`Prepared::cast_t`] for the same ray.
+    #[inline]
+    fn normal(&self, o: DVec3, d: DVec3, t: f64, face: u8) -> DVec3 {
+        if face == FACE_INSIDE {
+            return -d;
+        }
+        match *self {
+            Prepared::Inside => -d,
+            Prepared::Sphere { centre, radius, .. } => sphere_normal(o, d, t, centre, radius),
+            Prepared::Cylinder { a, axis, s0, .. } => match face {
+                0 => {
+                    let s = s0 + t * d.dot(axis);
+                    (o + d * t - a - axis * s).normalize_or(-d)
+                }
+                1 => -axis,
+                _ => axis,
+            },
+            Prepared::Capsule { a, axis, radius, s0, ends, .. } => match face {
+                0 => {
+                    let s = s0 + t * d.dot(axis);
+                    (o + d * t - a - axis * s).normalize_or(-d)
+                }
+                1 => sphere_normal(o, d, t, ends[0].0, radius),
+                _ => sphere_normal(o, d, t, ends[1].0, radius),
+            },
+            Prepared::Box { cos, sin, .. } => {
+                let s = if face & 1 == 0 { -1.0 } else { 1.0 };
+                match face >> 1 {
+                    0 => DVec3::new(cos * s, sin * s, 0.0),
+                    1 => DVec3::new(-sin * s, cos * s, 0.0),
+                    _ => DVec3::new(0.0, 0.0, s),
+                }
+            }
         }
     }
 }
@@ -1292,9 +1383,9 @@ fn inside_hit(d: DVec3) -> LeafHit {
     LeafHit { t: 0.0, normal: -d }
 }
 
-/// Ray against a sphere (solid) whose origin is outside it (`s`).
+/// Ray against a sphere (solid) whose origin is outside it (`s`): the distance of the hit.
 #[inline]
-fn ray_sphere(o: DVec3, d: DVec3, centre: DVec3, radius: f64, s: SpherePrep) -> Option<LeafHit> {
+fn ray_sphere_t(d: DVec3, radius: f64, s: SpherePrep) -> Option<f64> {
     let b = s.oc.dot(d);
     if b >= 0.0 {
         return None;
@@ -1306,9 +1397,13 @@ fn ray_sphere(o: DVec3, d: DVec3, centre: DVec3, radius: f64, s: SpherePrep) -> 
         return None;
     }
     // Smaller root, in the cancellation-free form c / (-b + sqrt(disc)).
-    let t = s.c / (-b + disc.sqrt());
-    let normal = (o + d * t - centre) / radius;
-    Some(LeafHit { t, normal: normal.normalize_or(-d) })
+    Some(s.c / (-b + disc.sqrt()))
+}
+
+/// Outward normal of a sphere at the ray's point at `t`.
+#[inline]
+fn sphere_normal(o: DVec3, d: DVec3, t: f64, centre: DVec3, radius: f64) -> DVec3 {
+    ((o + d * t - centre) / radius).normalize_or(-d)
 }
 
 /// Entry into the infinite cylinder of radius `radius` around an axis, from outside it:
@@ -1333,29 +1428,31 @@ fn ray_infinite_cylinder(op: DVec3, dp: DVec3, radius: f64, c: f64) -> Option<f6
 }
 
 /// Ray against a box of half extents `half` rotated by yaw (`cos`, `sin`) about z (solid);
-/// `ol` is the ray origin in the box frame.
+/// `ol` is the ray origin in the box frame. The distance and the face entered (`2 · axis`,
+/// `+ 1` on the positive side; [`FACE_INSIDE`] from inside).
 #[inline]
-fn ray_box(d: DVec3, half: DVec3, cos: f64, sin: f64, ol: DVec3) -> Option<LeafHit> {
+fn ray_box_t(d: DVec3, half: DVec3, cos: f64, sin: f64, ol: DVec3) -> Option<(f64, u8)> {
     let dl = DVec3::new(cos * d.x + sin * d.y, -sin * d.x + cos * d.y, d.z);
     let mut t_near = f64::NEG_INFINITY;
     let mut t_far = f64::INFINITY;
-    // Entering face: axis and sign.
-    let mut enter = (0usize, 0.0);
-    let slab = |ok: f64, dk: f64, hk: f64, k: usize, t_near: &mut f64, t_far: &mut f64, enter: &mut (usize, f64)| -> bool {
+    // Entering face.
+    let mut enter = 0u8;
+    #[inline(always)]
+    fn slab(ok: f64, dk: f64, hk: f64, k: u8, t_near: &mut f64, t_far: &mut f64, enter: &mut u8) -> bool {
         if dk == 0.0 {
             return ok.abs() <= hk;
         }
         let inv = 1.0 / dk;
         let t1 = (-hk - ok) * inv;
         let t2 = (hk - ok) * inv;
-        let (tn, tf, sign) = if t1 < t2 { (t1, t2, -1.0) } else { (t2, t1, 1.0) };
+        let (tn, tf, face) = if t1 < t2 { (t1, t2, 2 * k) } else { (t2, t1, 2 * k + 1) };
         if tn > *t_near {
             *t_near = tn;
-            *enter = (k, sign);
+            *enter = face;
         }
         *t_far = t_far.min(tf);
         true
-    };
+    }
     if !slab(ol.x, dl.x, half.x, 0, &mut t_near, &mut t_far, &mut enter)
         || !slab(ol.y, dl.y, half.y, 1, &mut t_near, &mut t_far, &mut enter)
         || !slab(ol.z, dl.z, half.z, 2, &mut t_near, &mut t_far, &mut enter)
@@ -1366,14 +1463,9 @@ fn ray_box(d: DVec3, half: DVec3, cos: f64, sin: f64, ol: DVec3) -> Option<LeafH
         return None;
     }
     if t_near <= 0.0 {
-        return Some(inside_hit(d));
+        return Some((0.0, FACE_INSIDE));
     }
-    let normal = match enter {
-        (0, s) => DVec3::new(cos * s, sin * s, 0.0),
-        (1, s) => DVec3::new(-sin * s, cos * s, 0.0),
-        (_, s) => DVec3::new(0.0, 0.0, s),
-    };
-    Some(LeafHit { t: t_near, normal })
+    Some((t_near, enter))
 }
 
 impl Plane {
@@ -2484,22 +2576,27 @@ mod tests {
                 let rotation = DMat3::from_rotation_z(next(&mut state) * 6.3) * DMat3::from_rotation_x(next(&mut state) * 6.3);
                 for (dirs, range) in [(&camera, 10.0), (&lidar, 120.0)] {
                     let max = |k: usize| range * (0.5 + (k % 7) as f64 / 12.0);
-                    w.cast_fan(origin, rotation, dirs, &max, &mut |k, d, hit| {
+                    w.cast_fan::<true, _, _>(origin, rotation, dirs, &max, &mut |k, d, hit| {
                         assert_eq!(d, rotation * dirs[k]);
-                        assert_eq!(hit, w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
+                        assert_eq!(hit.map(|h| h.ray_hit(origin, d)), w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
                         compared += 1;
                         hits += usize::from(hit.is_some());
                     });
                     // The cached fan layout gives the same answers too.
                     let layout = FanLayout::new(dirs, &max);
                     let mut cached = 0;
-                    w.cast_fan_cached(origin, rotation, dirs, &layout, &max, &mut |k, d, hit| {
+                    w.cast_fan_cached::<true, _, _>(origin, rotation, dirs, &layout, &max, &mut |k, d, hit| {
                         assert_eq!(k, cached);
                         assert_eq!(d, rotation * dirs[k]);
-                        assert_eq!(hit, w.cast_unit(origin, d, max(k)), "{name}: cached ray {k} from {origin}");
+                        assert_eq!(hit.map(|h| h.ray_hit(origin, d)), w.cast_unit(origin, d, max(k)), "{name}: cached ray {k} from {origin}");
                         cached += 1;
                     });
                     assert_eq!(cached, dirs.len());
+                    // Without normals: the same distances and primitives.
+                    w.cast_fan_cached::<false, _, _>(origin, rotation, dirs, &layout, &max, &mut |k, d, hit| {
+                        let want = w.cast_unit(origin, d, max(k));
+                        assert_eq!(hit.map(|h| (h.t, h.primitive)), want.map(|h| (h.distance_m, h.primitive)), "{name}: no-normal ray {k}");
+                    });
                 }
             }
             assert_eq!(compared, 6 * (camera.len() + lidar.len()));
@@ -2556,8 +2653,8 @@ mod tests {
                 let rotation = DMat3::from_rotation_z(next(&mut state) * 6.3) * DMat3::from_rotation_x(0.2 * (next(&mut state) - 0.5));
                 let max = |k: usize| 60.0 * (0.3 + (k % 5) as f64 / 6.0);
                 let terrain = (w.primitive_count() - 1) as PrimitiveId;
-                w.cast_fan(origin, rotation, &lidar, &max, &mut |k, d, hit| {
-                    assert_eq!(hit, w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
+                w.cast_fan::<true, _, _>(origin, rotation, &lidar, &max, &mut |k, d, hit| {
+                    assert_eq!(hit.map(|h| h.ray_hit(origin, d)), w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
                     terrain_hits += usize::from(hit.is_some_and(|h| h.primitive == terrain));
                 });
             }
