@@ -383,7 +383,8 @@ impl World {
             self.cast_fan_from::<NORMALS, R, S>(origin, rotation, &dirs[mid..], first + mid, range, view, sink);
             return;
         }
-        let plan = FanPlan::new(self, origin, rotation, FanGeom::new(axis, dirs, first, range));
+        let g = FanGeom::new(axis, dirs, first, range);
+        let plan = FanPlan::new(self, origin, rotation, g, &g.cones());
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
             let hit = self.fan_ray::<NORMALS>(&plan, origin, d, range(first + k), plan.g.bin(*dl), view);
@@ -404,12 +405,12 @@ impl World {
         }
         let view = self.terrain_view(origin, dirs.len());
         let view = view.as_ref();
-        for &(first, len, geom) in &layout.fans {
+        for (&(first, len, geom), cones) in layout.fans.iter().zip(&layout.cones) {
             let fan = &dirs[first..first + len];
             let bins = &layout.bins[first..first + len];
             match geom {
                 Some(g) if !self.solids.is_empty() => {
-                    let plan = FanPlan::new(self, origin, rotation, g);
+                    let plan = FanPlan::new(self, origin, rotation, g, cones);
                     for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
                         let d = rotation * *dl;
                         let hit = self.fan_ray::<NORMALS>(&plan, origin, d, range(first + k), bin as usize, view);
@@ -985,6 +986,8 @@ struct FanGeom {
 pub(crate) struct FanLayout {
     /// (first ray, ray count, geometry; `None`: cast ray by ray).
     fans: Vec<(usize, usize, Option<FanGeom>)>,
+    /// The cones of each fan's bins ([`FanGeom::cones`]; empty for a fan cast ray by ray).
+    cones: Vec<Vec<BinCone>>,
     /// Bin of each ray in its fan's grid.
     bins: Vec<u32>,
 }
@@ -992,7 +995,7 @@ pub(crate) struct FanLayout {
 impl FanLayout {
     /// Splits `dirs` (unit, local frame) as [`World::cast_fan`] does; `range(k)` is ray `k`'s range.
     pub(crate) fn new<R: Fn(usize) -> f64>(dirs: &[DVec3], range: &R) -> FanLayout {
-        let mut layout = FanLayout { fans: Vec::new(), bins: vec![0; dirs.len()] };
+        let mut layout = FanLayout { fans: Vec::new(), cones: Vec::new(), bins: vec![0; dirs.len()] };
         layout.split(dirs, 0, range);
         layout
     }
@@ -1000,6 +1003,7 @@ impl FanLayout {
     fn split<R: Fn(usize) -> f64>(&mut self, dirs: &[DVec3], first: usize, range: &R) {
         if dirs.len() < FAN_MIN_RAYS {
             self.fans.push((first, dirs.len(), None));
+            self.cones.push(Vec::new());
             return;
         }
         let axis = dirs.iter().fold(DVec3::ZERO, |acc, d| acc + *d).normalize_or_zero();
@@ -1015,6 +1019,7 @@ impl FanLayout {
             self.bins[first + k] = g.bin(*d) as u32;
         }
         self.fans.push((first, dirs.len(), Some(g)));
+        self.cones.push(g.cones());
     }
 
     /// Number of rays laid out.
@@ -1023,7 +1028,53 @@ impl FanLayout {
     }
 }
 
+/// A circular cone (local frame of the fan) holding every ray of one bin, widened a little.
+#[derive(Debug, Clone, Copy)]
+struct BinCone {
+    /// Unit axis.
+    c: DVec3,
+    /// Cosine and sine of the half angle.
+    cos: f64,
+    sin: f64,
+}
+
+impl BinCone {
+    /// Largest `n · d` over the unit directions `d` of the cone (`n` unit).
+    #[inline]
+    fn max_dot(&self, n: DVec3) -> f64 {
+        let ct = n.dot(self.c);
+        if ct >= self.cos {
+            1.0
+        } else {
+            // cos(θ - ρ) for the angle θ between `n` and the axis, ρ the half angle.
+            ct * self.cos + (1.0 - ct * ct).max(0.0).sqrt() * self.sin
+        }
+    }
+}
+
 impl FanGeom {
+    /// The cone of each bin (`[by * nbx + bx]`): around the direction through the middle of
+    /// the bin's rectangle of gnomonic coordinates, through its corners (the cone's image is
+    /// convex), the half angle widened by a relative 1e-6 and 1e-7 rad beyond rounding.
+    fn cones(&self) -> Vec<BinCone> {
+        let edge_u = |i: usize| if self.su > 0.0 { self.u0 + i as f64 / self.su } else { self.u0 };
+        let edge_v = |j: usize| if self.sv > 0.0 { self.v0 + j as f64 / self.sv } else { self.v0 };
+        let dir = |u: f64, v: f64| (self.axis + self.e1 * u + self.e2 * v).normalize();
+        let mut cones = Vec::with_capacity(self.nbx * self.nby);
+        for by in 0..self.nby {
+            let (va, vb) = (edge_v(by), edge_v(by + 1));
+            for bx in 0..self.nbx {
+                let (ua, ub) = (edge_u(bx), edge_u(bx + 1));
+                let c = dir(0.5 * (ua + ub), 0.5 * (va + vb));
+                let cos_min = [(ua, va), (ub, va), (ua, vb), (ub, vb)].iter().fold(1.0f64, |m, &(u, v)| m.min(c.dot(dir(u, v))));
+                let rho = cos_min.clamp(-1.0, 1.0).acos() * (1.0 + 1.0e-6) + 1.0e-7;
+                let (sin, cos) = rho.min(std::f64::consts::PI).sin_cos();
+                cones.push(BinCone { c, cos, sin });
+            }
+        }
+        cones
+    }
+
     fn new<R: Fn(usize) -> f64>(axis: DVec3, dirs: &[DVec3], first: usize, range: &R) -> FanGeom {
         let (e1, e2) = axis.any_orthonormal_pair();
         let (mut u0, mut u1, mut v0, mut v1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
@@ -1073,7 +1124,7 @@ impl FanGeom {
 }
 
 impl FanPlan {
-    fn new(world: &World, origin: DVec3, rotation: DMat3, g: FanGeom) -> FanPlan {
+    fn new(world: &World, origin: DVec3, rotation: DMat3, g: FanGeom, cones: &[BinCone]) -> FanPlan {
         let FanGeom { axis, e1, e2, u0, u1, v0, v1, nbx, nby, rmax, .. } = g;
         let mut plan = FanPlan { g, starts: vec![0; nbx * nby + 1], entries: Vec::new(), prepared: Vec::new(), plane_s: Vec::new(), terrain: false };
         plan.plane_s = world.planes.iter().map(|p| p.normal.dot(origin - p.point)).collect();
@@ -1140,13 +1191,63 @@ impl FanPlan {
             visible.push((near, id, cells));
         }
         visible.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let mut counts = vec![0u32; nbx * nby];
-        for (_, _, [bx0, bx1, by0, by1]) in &visible {
-            for by in *by0..=*by1 {
-                for c in &mut counts[by * nbx + bx0..=by * nbx + bx1] {
-                    *c += 1;
+        plan.prepared = visible.iter().map(|&(_, id, _)| (id, world.solids[id as usize].prepare(origin))).collect();
+        // Per (bin, candidate): a lower bound of the distance at which the bin's rays may
+        // meet the candidate, from the faces of its box (the box itself for a box, its
+        // loosened bounds else) that face the origin: a ray enters each such face's plane no
+        // nearer than s / (n · d) (s its distance from the origin, n its normal). A bin whose
+        // rays all run parallel to or away from such a plane never meets the candidate.
+        let to_local = rotation.transpose();
+        let mut triples: Vec<(u32, f64, u32)> = Vec::with_capacity(visible.len() * 4);
+        for (index, &(near, id, [bx0, bx1, by0, by1])) in visible.iter().enumerate() {
+            let mut slabs = [(DVec3::ZERO, 0.0); 3];
+            let mut count = 0;
+            let mut face = |n: DVec3, s: f64| {
+                slabs[count] = (to_local * n, s);
+                count += 1;
+            };
+            match plan.prepared[index].1 {
+                Prepared::Inside => {}
+                Prepared::Box { half, cos, sin, ol } => {
+                    let axes = [DVec3::new(cos, sin, 0.0), DVec3::new(-sin, cos, 0.0), DVec3::Z];
+                    for k in 0..3 {
+                        if ol[k] < -half[k] {
+                            face(axes[k], -half[k] - ol[k]);
+                        } else if ol[k] > half[k] {
+                            face(-axes[k], ol[k] - half[k]);
+                        }
+                    }
+                }
+                _ => {
+                    let (lo, hi) = world.bvh.boxes[id as usize];
+                    for (k, axis) in [DVec3::X, DVec3::Y, DVec3::Z].into_iter().enumerate() {
+                        if origin[k] < lo[k] {
+                            face(axis, lo[k] - origin[k]);
+                        } else if origin[k] > hi[k] {
+                            face(-axis, origin[k] - hi[k]);
+                        }
+                    }
                 }
             }
+            let slabs = &slabs[..count];
+            for by in by0..=by1 {
+                'bin: for bin in by * nbx + bx0..=by * nbx + bx1 {
+                    let cone = &cones[bin];
+                    let mut bound = near;
+                    for &(n, s) in slabs {
+                        let m = cone.max_dot(n);
+                        if m <= 0.0 {
+                            continue 'bin;
+                        }
+                        bound = bound.max(s / m * (1.0 - 1.0e-9));
+                    }
+                    triples.push((bin as u32, bound, index as u32));
+                }
+            }
+        }
+        let mut counts = vec![0u32; nbx * nby];
+        for &(bin, _, _) in &triples {
+            counts[bin as usize] += 1;
         }
         let mut total = 0u32;
         for (b, c) in counts.iter().enumerate() {
@@ -1156,15 +1257,22 @@ impl FanPlan {
         plan.starts[nbx * nby] = total;
         plan.entries = vec![(0.0, 0); total as usize];
         let mut cursor: Vec<u32> = plan.starts[..nbx * nby].to_vec();
-        for (index, &(near, _, [bx0, bx1, by0, by1])) in visible.iter().enumerate() {
-            for by in by0..=by1 {
-                for slot in &mut cursor[by * nbx + bx0..=by * nbx + bx1] {
-                    plan.entries[*slot as usize] = (near, index as u32);
-                    *slot += 1;
+        for &(bin, bound, index) in &triples {
+            let slot = &mut cursor[bin as usize];
+            plan.entries[*slot as usize] = (bound, index);
+            *slot += 1;
+        }
+        for b in 0..nbx * nby {
+            let list = &mut plan.entries[plan.starts[b] as usize..plan.starts[b + 1] as usize];
+            // Short lists: insertion sort by bound (ties in candidate order).
+            for i in 1..list.len() {
+                let mut j = i;
+                while j > 0 && list[j - 1].0 > list[j].0 {
+                    list.swap(j - 1, j);
+                    j -= 1;
                 }
             }
         }
-        plan.prepared = visible.iter().filter_map(|&(_, id, _)| Some((id, world.solids.get(id as usize)?.prepare(origin)))).collect();
         plan
     }
 
