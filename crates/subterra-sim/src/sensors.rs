@@ -16,7 +16,7 @@ use glam::DVec3;
 use subterra::{Isometry3, PinholeCamera};
 
 use crate::error::{SimError, SimResult};
-use crate::world::{FanLayout, World};
+use crate::world::{FanHit, FanLayout, FanSink, World};
 
 /// D435 depth stream nearest usable depth [m] (Intel RealSense D400 datasheet: ~0.1 m at
 /// 640x480 with the minimum disparity shift; the preset).
@@ -259,20 +259,39 @@ impl DepthCamera {
         let range = |k: usize| ranges[k];
         // The cached layout covers the whole image (a span of all of it); others fall back to
         // laying out their fans per call.
-        world.cast_fan_cached::<true, _, _>(origin, rotation, rays, &self.layout, &range, &mut |k, dir, hit| {
-            let Some(hit) = hit else {
-                (depth[k], primitive[k], incidence[k]) = (0.0, -1, 0.0);
-                return;
-            };
-            let z = hit.t * rays[k].z;
-            if !(z >= min_m && z <= max_m) {
-                (depth[k], primitive[k], incidence[k]) = (0.0, -1, 0.0);
-                return;
-            }
-            depth[k] = z as f32;
-            primitive[k] = i32::try_from(hit.primitive).unwrap_or(-1);
-            incidence[k] = dir.dot(hit.normal).abs().min(1.0) as f32;
-        });
+        let mut sink = DepthSink { rays, depth, primitive, incidence, min_m, max_m };
+        world.cast_fan_cached::<true, _, _>(origin, rotation, rays, &self.layout, &range, &mut sink);
+    }
+}
+
+/// Writes the pixels of a span as [`World`]'s fan cast finds their hits.
+struct DepthSink<'a> {
+    rays: &'a [DVec3],
+    depth: &'a mut [f32],
+    primitive: &'a mut [i32],
+    incidence: &'a mut [f32],
+    min_m: f64,
+    max_m: f64,
+}
+
+impl FanSink for DepthSink<'_> {
+    #[inline(always)]
+    fn put(&mut self, k: usize, dir: DVec3, hit: Option<FanHit>) {
+        let (Some(depth), Some(primitive), Some(incidence), Some(ray)) = (self.depth.get_mut(k), self.primitive.get_mut(k), self.incidence.get_mut(k), self.rays.get(k)) else {
+            return;
+        };
+        let Some(hit) = hit else {
+            (*depth, *primitive, *incidence) = (0.0, -1, 0.0);
+            return;
+        };
+        let z = hit.t * ray.z;
+        if !(z >= self.min_m && z <= self.max_m) {
+            (*depth, *primitive, *incidence) = (0.0, -1, 0.0);
+            return;
+        }
+        *depth = z as f32;
+        *primitive = i32::try_from(hit.primitive).unwrap_or(-1);
+        *incidence = dir.dot(hit.normal).abs().min(1.0) as f32;
     }
 }
 
@@ -442,18 +461,33 @@ impl Lidar {
         let rotation = world_from_sensor.rotation;
         let origin = world_from_sensor.translation;
         let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
-        let beams = &self.beams_sensor;
-        world.cast_fan_cached::<false, _, _>(origin, rotation, beams, &self.layout, &|_| max_m, &mut |k, _, hit| {
-            let Some(hit) = hit else { return };
-            let r = hit.t;
-            if !(r >= min_m && r <= max_m) {
-                return;
-            }
-            let p = beams[k] * r;
-            out.points_sensor.push([p.x as f32, p.y as f32, p.z as f32]);
-            out.ring.push(self.beam_ring[k]);
-            out.primitive.push(i32::try_from(hit.primitive).unwrap_or(-1));
-        });
+        let mut sink = LidarSink { beams: &self.beams_sensor, rings: &self.beam_ring, out, min_m, max_m };
+        world.cast_fan_cached::<false, _, _>(origin, rotation, &self.beams_sensor, &self.layout, &|_| max_m, &mut sink);
+    }
+}
+
+/// Appends the returns of a scan as [`World`]'s fan cast finds them.
+struct LidarSink<'a> {
+    beams: &'a [DVec3],
+    rings: &'a [u16],
+    out: &'a mut LidarScan,
+    min_m: f64,
+    max_m: f64,
+}
+
+impl FanSink for LidarSink<'_> {
+    #[inline(always)]
+    fn put(&mut self, k: usize, _dir: DVec3, hit: Option<FanHit>) {
+        let Some(hit) = hit else { return };
+        let r = hit.t;
+        if !(r >= self.min_m && r <= self.max_m) {
+            return;
+        }
+        let (Some(beam), Some(&ring)) = (self.beams.get(k), self.rings.get(k)) else { return };
+        let p = *beam * r;
+        self.out.points_sensor.push([p.x as f32, p.y as f32, p.z as f32]);
+        self.out.ring.push(ring);
+        self.out.primitive.push(i32::try_from(hit.primitive).unwrap_or(-1));
     }
 }
 

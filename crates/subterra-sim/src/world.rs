@@ -116,6 +116,18 @@ pub(crate) struct FanHit {
     pub(crate) primitive: PrimitiveId,
 }
 
+/// Receives the results of a fan cast ([`World::cast_fan`]): ray index, world direction, hit.
+pub(crate) trait FanSink {
+    fn put(&mut self, k: usize, d: DVec3, hit: Option<FanHit>);
+}
+
+impl<F: FnMut(usize, DVec3, Option<FanHit>)> FanSink for F {
+    #[inline(always)]
+    fn put(&mut self, k: usize, d: DVec3, hit: Option<FanHit>) {
+        self(k, d, hit)
+    }
+}
+
 impl FanHit {
     /// The [`RayHit`] of the ray `o + t·d`.
     pub(crate) fn ray_hit(self, o: DVec3, d: DVec3) -> RayHit {
@@ -331,7 +343,7 @@ impl World {
                 units.push(d / len);
             }
         }
-        self.cast_fan::<true, _, _>(origin, DMat3::IDENTITY, &units, &|k| range_of(index[k]), &mut |k, d, hit| out[index[k]] = hit.map(|h| h.ray_hit(origin, d)));
+        self.cast_fan::<true, _, _>(origin, DMat3::IDENTITY, &units, &|k| range_of(index[k]), &mut |k, d, hit: Option<FanHit>| out[index[k]] = hit.map(|h| h.ray_hit(origin, d)));
         Ok(())
     }
 
@@ -347,7 +359,7 @@ impl World {
     pub(crate) fn cast_fan<const NORMALS: bool, R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], range: &R, sink: &mut S)
     where
         R: Fn(usize) -> f64,
-        S: FnMut(usize, DVec3, Option<FanHit>),
+        S: FanSink,
     {
         let view = self.terrain_view(origin, dirs.len());
         self.cast_fan_from::<NORMALS, R, S>(origin, rotation, dirs, 0, range, view.as_ref(), sink);
@@ -364,14 +376,14 @@ impl World {
     fn cast_fan_from<const NORMALS: bool, R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], first: usize, range: &R, view: Option<&TerrainView>, sink: &mut S)
     where
         R: Fn(usize) -> f64,
-        S: FnMut(usize, DVec3, Option<FanHit>),
+        S: FanSink,
     {
         if dirs.len() < FAN_MIN_RAYS || self.solids.is_empty() {
             for (k, dl) in dirs.iter().enumerate() {
                 let d = rotation * *dl;
                 let max_t = range(first + k);
                 let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit_in(origin, d, max_t, view) };
-                sink(first + k, d, hit);
+                sink.put(first + k, d, hit);
             }
             return;
         }
@@ -388,7 +400,7 @@ impl World {
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
             let hit = self.fan_ray::<NORMALS>(&plan, origin, d, range(first + k), plan.g.bin(*dl), view);
-            sink(first + k, d, hit);
+            sink.put(first + k, d, hit);
         }
     }
 
@@ -397,7 +409,7 @@ impl World {
     pub(crate) fn cast_fan_cached<const NORMALS: bool, R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], layout: &FanLayout, range: &R, sink: &mut S)
     where
         R: Fn(usize) -> f64,
-        S: FnMut(usize, DVec3, Option<FanHit>),
+        S: FanSink,
     {
         if layout.len() != dirs.len() {
             self.cast_fan::<NORMALS, R, S>(origin, rotation, dirs, range, sink);
@@ -414,7 +426,7 @@ impl World {
                     for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
                         let d = rotation * *dl;
                         let hit = self.fan_ray::<NORMALS>(&plan, origin, d, range(first + k), bin as usize, view);
-                        sink(first + k, d, hit);
+                        sink.put(first + k, d, hit);
                     }
                 }
                 _ => {
@@ -422,7 +434,7 @@ impl World {
                         let d = rotation * *dl;
                         let max_t = range(first + k);
                         let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit_in(origin, d, max_t, view) };
-                        sink(first + k, d, hit);
+                        sink.put(first + k, d, hit);
                     }
                 }
             }
@@ -1398,7 +1410,7 @@ impl Prepared {
 
     /// [`Prepared::cast`] without the normal: the distance and a tag of the face hit, from
     /// which [`Prepared::normal`] gives the normal (the same values as computed together).
-    #[inline]
+    #[inline(always)]
     fn cast_t(&self, d: DVec3) -> Option<(f64, u8)> {
         match *self {
             Prepared::Inside => Some((0.0, FACE_INSIDE)),
@@ -2684,7 +2696,7 @@ mod tests {
                 let rotation = DMat3::from_rotation_z(next(&mut state) * 6.3) * DMat3::from_rotation_x(next(&mut state) * 6.3);
                 for (dirs, range) in [(&camera, 10.0), (&lidar, 120.0)] {
                     let max = |k: usize| range * (0.5 + (k % 7) as f64 / 12.0);
-                    w.cast_fan::<true, _, _>(origin, rotation, dirs, &max, &mut |k, d, hit| {
+                    w.cast_fan::<true, _, _>(origin, rotation, dirs, &max, &mut |k, d, hit: Option<FanHit>| {
                         assert_eq!(d, rotation * dirs[k]);
                         assert_eq!(hit.map(|h| h.ray_hit(origin, d)), w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
                         compared += 1;
@@ -2693,7 +2705,7 @@ mod tests {
                     // The cached fan layout gives the same answers too.
                     let layout = FanLayout::new(dirs, &max);
                     let mut cached = 0;
-                    w.cast_fan_cached::<true, _, _>(origin, rotation, dirs, &layout, &max, &mut |k, d, hit| {
+                    w.cast_fan_cached::<true, _, _>(origin, rotation, dirs, &layout, &max, &mut |k, d, hit: Option<FanHit>| {
                         assert_eq!(k, cached);
                         assert_eq!(d, rotation * dirs[k]);
                         assert_eq!(hit.map(|h| h.ray_hit(origin, d)), w.cast_unit(origin, d, max(k)), "{name}: cached ray {k} from {origin}");
@@ -2701,7 +2713,7 @@ mod tests {
                     });
                     assert_eq!(cached, dirs.len());
                     // Without normals: the same distances and primitives.
-                    w.cast_fan_cached::<false, _, _>(origin, rotation, dirs, &layout, &max, &mut |k, d, hit| {
+                    w.cast_fan_cached::<false, _, _>(origin, rotation, dirs, &layout, &max, &mut |k, d, hit: Option<FanHit>| {
                         let want = w.cast_unit(origin, d, max(k));
                         assert_eq!(hit.map(|h| (h.t, h.primitive)), want.map(|h| (h.distance_m, h.primitive)), "{name}: no-normal ray {k}");
                     });
@@ -2761,7 +2773,7 @@ mod tests {
                 let rotation = DMat3::from_rotation_z(next(&mut state) * 6.3) * DMat3::from_rotation_x(0.2 * (next(&mut state) - 0.5));
                 let max = |k: usize| 60.0 * (0.3 + (k % 5) as f64 / 6.0);
                 let terrain = (w.primitive_count() - 1) as PrimitiveId;
-                w.cast_fan::<true, _, _>(origin, rotation, &lidar, &max, &mut |k, d, hit| {
+                w.cast_fan::<true, _, _>(origin, rotation, &lidar, &max, &mut |k, d, hit: Option<FanHit>| {
                     assert_eq!(hit.map(|h| h.ray_hit(origin, d)), w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
                     terrain_hits += usize::from(hit.is_some_and(|h| h.primitive == terrain));
                 });
