@@ -16,7 +16,7 @@ use glam::DVec3;
 use subterra::{Isometry3, PinholeCamera};
 
 use crate::error::{SimError, SimResult};
-use crate::world::{FanHit, FanLayout, FanSink, World};
+use crate::world::{FanCast, FanHit, FanLayout, FanSink, World};
 
 /// D435 depth stream nearest usable depth [m] (Intel RealSense D400 datasheet: ~0.1 m at
 /// 640x480 with the minimum disparity shift; the preset).
@@ -195,11 +195,19 @@ impl DepthCamera {
             return;
         }
         self.size(out);
-        self.render_span(world, world_from_camera, 0, &mut out.depth_m, &mut out.primitive, &mut out.incidence_cos);
+        let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
+        // ray.z > 0 for every pixel: the ray through the image plane z = 1.
+        let ranges: &[f64] = &self.ray_range;
+        let range = |k: usize| ranges[k];
+        let rays: &[DVec3] = &self.rays_camera;
+        let mut sink = DepthSink { first: 0, rays, depth: &mut out.depth_m, primitive: &mut out.primitive, incidence: &mut out.incidence_cos, min_m, max_m };
+        let (origin, rotation) = (world_from_camera.translation, world_from_camera.rotation);
+        world.cast_fan_cached::<true, _, _>(origin, rotation, rays, &self.layout, &range, &mut sink);
     }
 
     /// As [`Self::render`], splitting the rows over `threads` OS threads (scoped; 0 or 1
-    /// renders on the calling thread). The output is identical to [`Self::render`].
+    /// renders on the calling thread). The per-pose set-up (culling the primitives per fan
+    /// of rays) is done once, on the calling thread; the output is identical to [`Self::render`].
     pub fn render_parallel(&self, world: &World, world_from_camera: &Isometry3, threads: usize) -> DepthRender {
         let mut out = DepthRender::default();
         if !pose_is_finite(world_from_camera) {
@@ -210,15 +218,17 @@ impl DepthCamera {
         let width = self.config.camera.width as usize;
         let height = self.config.camera.height as usize;
         let threads = threads.clamp(1, height.max(1));
+        let cast = world.fan_cast(world_from_camera.translation, world_from_camera.rotation, &self.layout);
         if threads == 1 {
-            self.render_span(world, world_from_camera, 0, &mut out.depth_m, &mut out.primitive, &mut out.incidence_cos);
+            self.render_span(&cast, 0, &mut out.depth_m, &mut out.primitive, &mut out.incidence_cos);
             return out;
         }
         let chunk = height.div_ceil(threads) * width;
+        let cast = &cast;
         std::thread::scope(|scope| {
             let spans = out.depth_m.chunks_mut(chunk).zip(out.primitive.chunks_mut(chunk)).zip(out.incidence_cos.chunks_mut(chunk));
             for (index, ((depth, primitive), incidence)) in spans.enumerate() {
-                scope.spawn(move || self.render_span(world, world_from_camera, index * chunk, depth, primitive, incidence));
+                scope.spawn(move || self.render_span(cast, index * chunk, depth, primitive, incidence));
             }
         });
         out
@@ -249,23 +259,22 @@ impl DepthCamera {
     }
 
     /// Renders pixels `first..first + depth.len()` into the given slices, every pixel.
-    fn render_span(&self, world: &World, world_from_camera: &Isometry3, first: usize, depth: &mut [f32], primitive: &mut [i32], incidence: &mut [f32]) {
-        let rotation = world_from_camera.rotation;
-        let origin = world_from_camera.translation;
+    fn render_span(&self, cast: &FanCast<'_>, first: usize, depth: &mut [f32], primitive: &mut [i32], incidence: &mut [f32]) {
         let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
-        let rays = self.rays_camera.get(first..first + depth.len()).unwrap_or(&[]);
+        let span = first..first + depth.len();
         // ray.z > 0 for every pixel: the ray through the image plane z = 1.
-        let ranges = self.ray_range.get(first..first + depth.len()).unwrap_or(&[]);
-        let range = |k: usize| ranges[k];
-        // The cached layout covers the whole image (a span of all of it); others fall back to
-        // laying out their fans per call.
-        let mut sink = DepthSink { rays, depth, primitive, incidence, min_m, max_m };
-        world.cast_fan_cached::<true, _, _>(origin, rotation, rays, &self.layout, &range, &mut sink);
+        let ranges = self.ray_range.get(span.clone()).unwrap_or(&[]);
+        let range = |k: usize| ranges[k.wrapping_sub(first)];
+        let rays = self.rays_camera.get(span.clone()).unwrap_or(&[]);
+        let mut sink = DepthSink { first, rays, depth, primitive, incidence, min_m, max_m };
+        cast.cast::<true, _, _>(&self.rays_camera, span, &range, &mut sink);
     }
 }
 
 /// Writes the pixels of a span as [`World`]'s fan cast finds their hits.
 struct DepthSink<'a> {
+    /// Index of the span's first pixel (where the slices start).
+    first: usize,
     rays: &'a [DVec3],
     depth: &'a mut [f32],
     primitive: &'a mut [i32],
@@ -277,7 +286,8 @@ struct DepthSink<'a> {
 impl FanSink for DepthSink<'_> {
     #[inline(always)]
     fn put(&mut self, k: usize, dir: DVec3, hit: Option<FanHit>) {
-        let (Some(depth), Some(primitive), Some(incidence), Some(ray)) = (self.depth.get_mut(k), self.primitive.get_mut(k), self.incidence.get_mut(k), self.rays.get(k)) else {
+        let i = k.wrapping_sub(self.first);
+        let (Some(depth), Some(primitive), Some(incidence), Some(ray)) = (self.depth.get_mut(i), self.primitive.get_mut(i), self.incidence.get_mut(i), self.rays.get(i)) else {
             return;
         };
         let Some(hit) = hit else {

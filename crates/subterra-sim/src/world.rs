@@ -399,7 +399,7 @@ impl World {
         let plan = FanPlan::new(self, origin, rotation, g, &g.cones());
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
-            let hit = self.fan_ray::<NORMALS>(&plan, origin, d, range(first + k), plan.g.bin(*dl), view);
+            let hit = self.fan_ray::<NORMALS>(plan.slices(), origin, d, range(first + k), plan.g.bin(*dl), view);
             sink.put(first + k, d, hit);
         }
     }
@@ -425,7 +425,7 @@ impl World {
                     let plan = FanPlan::new(self, origin, rotation, g, cones);
                     for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
                         let d = rotation * *dl;
-                        let hit = self.fan_ray::<NORMALS>(&plan, origin, d, range(first + k), bin as usize, view);
+                        let hit = self.fan_ray::<NORMALS>(plan.slices(), origin, d, range(first + k), bin as usize, view);
                         sink.put(first + k, d, hit);
                     }
                 }
@@ -441,10 +441,25 @@ impl World {
         }
     }
 
+    /// The per-pose set-up of [`World::cast_fan_cached`] (a plan per fan, the terrain view),
+    /// to cast the rays in parts, e.g. from several threads ([`FanCast::cast`]).
+    pub(crate) fn fan_cast<'a>(&'a self, origin: DVec3, rotation: DMat3, layout: &'a FanLayout) -> FanCast<'a> {
+        let plans = layout
+            .fans
+            .iter()
+            .zip(&layout.cones)
+            .map(|(&(_, _, geom), cones)| match geom {
+                Some(g) if !self.solids.is_empty() => Some(FanPlan::new(self, origin, rotation, g, cones)),
+                _ => None,
+            })
+            .collect();
+        FanCast { world: self, origin, rotation, layout, plans, view: self.terrain_view(origin, layout.len()) }
+    }
+
     /// One ray of a fan: world direction `d`, range `max_t`, bin `bin` of the plan's grid.
     /// The normal is computed (for the nearest hit only) when `NORMALS`.
     #[inline(always)]
-    fn fan_ray<const NORMALS: bool>(&self, plan: &FanPlan, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<FanHit> {
+    fn fan_ray<const NORMALS: bool>(&self, plan: PlanSlices<'_>, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<FanHit> {
         if max_t.is_nan() || max_t < 0.0 {
             return None;
         }
@@ -453,7 +468,7 @@ impl World {
         let mut limit = max_t;
         let mut found = false;
         let mut plane_hit: Option<(usize, bool)> = None;
-        for (i, (plane, &s)) in self.planes.iter().zip(&plan.plane_s).enumerate() {
+        for (i, (plane, &s)) in self.planes.iter().zip(plan.plane_s).enumerate() {
             let (t, inside) = if s < 0.0 {
                 (0.0, true)
             } else {
@@ -957,6 +972,82 @@ fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
     (lo - p).max(p - hi).max(DVec3::ZERO).length()
 }
 
+/// A cached fan cast set up for one pose ([`World::fan_cast`]).
+pub(crate) struct FanCast<'a> {
+    world: &'a World,
+    origin: DVec3,
+    rotation: DMat3,
+    layout: &'a FanLayout,
+    /// The plan of each fan of the layout; `None`: cast ray by ray.
+    plans: Vec<Option<FanPlan>>,
+    view: Option<TerrainView>,
+}
+
+impl FanCast<'_> {
+    /// Casts the rays `span` of `dirs` (the directions the layout was made of) as
+    /// [`World::cast_fan_cached`] does; `range` and `sink` take the index into `dirs`.
+    pub(crate) fn cast<const NORMALS: bool, R, S>(&self, dirs: &[DVec3], span: std::ops::Range<usize>, range: &R, sink: &mut S)
+    where
+        R: Fn(usize) -> f64,
+        S: FanSink,
+    {
+        if self.layout.len() != dirs.len() {
+            return;
+        }
+        self.world.cast_planned::<NORMALS, R, S>(self.origin, self.rotation, self.layout, &self.plans, self.view.as_ref(), dirs, span, range, sink);
+    }
+}
+
+impl World {
+    /// [`FanCast::cast`]; a function of its own, so that the world's fields stay in registers
+    /// across the sink's writes.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(never)]
+    fn cast_planned<const NORMALS: bool, R, S>(
+        &self,
+        origin: DVec3,
+        rotation: DMat3,
+        layout: &FanLayout,
+        plans: &[Option<FanPlan>],
+        view: Option<&TerrainView>,
+        dirs: &[DVec3],
+        span: std::ops::Range<usize>,
+        range: &R,
+        sink: &mut S,
+    ) where
+        R: Fn(usize) -> f64,
+        S: FanSink,
+    {
+        for (&(first, len, _), plan) in layout.fans.iter().zip(plans) {
+            let (a, b) = (first.max(span.start), (first + len).min(span.end));
+            if a >= b {
+                continue;
+            }
+            let fan = &dirs[a..b];
+            match plan {
+                Some(plan) => {
+                    // The plan's slices in locals (kept in registers across the sink's writes).
+                    let plan = plan.slices();
+                    let bins = &layout.bins[a..b];
+                    for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
+                        let d = rotation * *dl;
+                        let hit = self.fan_ray::<NORMALS>(plan, origin, d, range(a + k), bin as usize, view);
+                        sink.put(a + k, d, hit);
+                    }
+                }
+                None => {
+                    for (k, dl) in fan.iter().enumerate() {
+                        let d = rotation * *dl;
+                        let max_t = range(a + k);
+                        let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit_in(origin, d, max_t, view) };
+                        sink.put(a + k, d, hit);
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Per-fan culling: the fan's rays in gnomonic coordinates `(u, v)` around its axis, a grid of
 /// bins over them, and per bin the primitives whose boxes project into it, nearest first.
 struct FanPlan {
@@ -1288,7 +1379,25 @@ impl FanPlan {
         plan
     }
 
-    /// Candidates of the rays in bin `b`, nearest box first.
+    /// The parts of the plan its rays read.
+    #[inline]
+    fn slices(&self) -> PlanSlices<'_> {
+        PlanSlices { starts: &self.starts, entries: &self.entries, prepared: &self.prepared, plane_s: &self.plane_s, terrain: self.terrain }
+    }
+}
+
+/// The parts of a [`FanPlan`] its rays read, as slices.
+#[derive(Clone, Copy)]
+struct PlanSlices<'a> {
+    starts: &'a [u32],
+    entries: &'a [(f64, u32)],
+    prepared: &'a [(PrimitiveId, Prepared)],
+    plane_s: &'a [f64],
+    terrain: bool,
+}
+
+impl PlanSlices<'_> {
+    /// Candidates of the rays in bin `b`, nearest bound first.
     #[inline]
     fn candidates(&self, b: usize) -> &[(f64, u32)] {
         let (s, e) = (self.starts[b] as usize, self.starts[b + 1] as usize);
