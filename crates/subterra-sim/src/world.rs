@@ -1888,7 +1888,16 @@ impl Terrain {
         // The view's bins hold the grid: no clipping to its box needed.
         let (t0, t1) = (0.0, max_t);
         let k = d.z / dxy;
-        let (row, group, tail) = view.row(d.x, d.y);
+        // Slopes no terrain point seen from the origin has (anywhere, then in the sector):
+        // no walk.
+        if !view.all.admits(k) {
+            return None;
+        }
+        let sector = sector_of(pseudo_angle(d.x, d.y));
+        if !view.tail.get(sector * view.groups).is_some_and(|r| r.admits(k)) {
+            return None;
+        }
+        let (row, group, tail) = view.row(sector);
         let scale = view.inv_w * dxy;
         let last = row.len() - 1;
         let j1 = if t1 * scale < last as f64 { (t1 * scale) as usize } else { last };
@@ -2103,6 +2112,8 @@ struct TerrainView {
     group: Vec<SlopeRange>,
     /// Union of the bins from each group's first on, `[sector * groups + group]`.
     tail: Vec<SlopeRange>,
+    /// Union of all bins.
+    all: SlopeRange,
 }
 
 /// Range of slopes of a bin of a [`TerrainView`]; empty (`lo > hi`) when it holds no terrain.
@@ -2164,7 +2175,7 @@ impl TerrainView {
         }
         let bins = ((far / w) as usize + 2).min(TERRAIN_VIEW_MAX_BINS);
         let inv_w = 1.0 / w;
-        let mut view = TerrainView { bins, inv_w, slopes: vec![SlopeRange::EMPTY; TERRAIN_VIEW_SECTORS * bins], groups: 0, group: Vec::new(), tail: Vec::new() };
+        let mut view = TerrainView { bins, inv_w, slopes: vec![SlopeRange::EMPTY; TERRAIN_VIEW_SECTORS * bins], groups: 0, group: Vec::new(), tail: Vec::new(), all: SlopeRange::EMPTY };
         let pad = |x: f64| 1.0e-9 * (1.0 + x.abs());
         for by in 0..level.ny {
             for bx in 0..level.nx {
@@ -2245,14 +2256,14 @@ impl TerrainView {
                 acc = acc.union(view.group[s * groups + g]);
                 view.tail[s * groups + g] = acc;
             }
+            view.all = view.all.union(acc);
         }
         view
     }
 
-    /// The bins, groups and tails of the sector of the horizontal direction `(x, y)`.
+    /// The bins, groups and tails of sector `s`.
     #[inline]
-    fn row(&self, x: f64, y: f64) -> (&[SlopeRange], &[SlopeRange], &[SlopeRange]) {
-        let s = sector_of(pseudo_angle(x, y));
+    fn row(&self, s: usize) -> (&[SlopeRange], &[SlopeRange], &[SlopeRange]) {
         let g = s * self.groups..(s + 1) * self.groups;
         (&self.slopes[s * self.bins..(s + 1) * self.bins], &self.group[g.clone()], &self.tail[g])
     }
