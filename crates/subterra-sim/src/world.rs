@@ -1311,7 +1311,7 @@ impl FanPlan {
             };
             match plan.prepared[index].1 {
                 Prepared::Inside => {}
-                Prepared::Box { half, cos, sin, ol } => {
+                Prepared::Box { half, cos, sin, ol, .. } => {
                     let axes = [DVec3::new(cos, sin, 0.0), DVec3::new(-sin, cos, 0.0), DVec3::Z];
                     for k in 0..3 {
                         if ol[k] < -half[k] {
@@ -1448,7 +1448,8 @@ impl Solid {
             Solid::Box { centre, half, cos, sin } => {
                 let v = o - centre;
                 let ol = DVec3::new(cos * v.x + sin * v.y, -sin * v.x + cos * v.y, v.z);
-                Prepared::Box { half, cos, sin, ol }
+                // The slab distances' numerators, as `ray_box_t` computed them per ray.
+                Prepared::Box { half, cos, sin, ol, near: -half - ol, far: half - ol }
             }
         }
     }
@@ -1502,8 +1503,8 @@ enum Prepared {
     Cylinder { a: DVec3, axis: DVec3, length: f64, radius: f64, s0: f64, op: DVec3, c: f64 },
     /// As the cylinder, and the end spheres (centre, terms; `c <= 0`: origin inside it).
     Capsule { a: DVec3, axis: DVec3, length: f64, radius: f64, s0: f64, op: DVec3, c: f64, ends: [(DVec3, SpherePrep); 2] },
-    /// `ol`: the origin in the box frame.
-    Box { half: DVec3, cos: f64, sin: f64, ol: DVec3 },
+    /// `ol`: the origin in the box frame; `near = -half - ol`, `far = half - ol`.
+    Box { half: DVec3, cos: f64, sin: f64, ol: DVec3, near: DVec3, far: DVec3 },
 }
 
 /// Face tag of a leaf hit whose ray starts inside the solid (normal `-dir`).
@@ -1567,7 +1568,7 @@ impl Prepared {
                 }
                 best
             }
-            Prepared::Box { half, cos, sin, ol } => ray_box_t(d, half, cos, sin, ol),
+            Prepared::Box { cos, sin, near, far, .. } => ray_box_t(d, cos, sin, near, far),
         }
     }
 
@@ -1656,24 +1657,27 @@ fn ray_infinite_cylinder(op: DVec3, dp: DVec3, radius: f64, c: f64) -> Option<f6
     Some(c / (-qb + disc.sqrt()))
 }
 
-/// Ray against a box of half extents `half` rotated by yaw (`cos`, `sin`) about z (solid);
-/// `ol` is the ray origin in the box frame. The distance and the face entered (`2 · axis`,
-/// `+ 1` on the positive side; [`FACE_INSIDE`] from inside).
+/// Ray against a box of half extents `half` rotated by yaw (`cos`, `sin`) about z (solid),
+/// the ray origin `ol` in the box frame given as `near = -half - ol` and `far = half - ol`.
+/// The distance and the face entered (`2 · axis`, `+ 1` on the positive side;
+/// [`FACE_INSIDE`] from inside).
 #[inline]
-fn ray_box_t(d: DVec3, half: DVec3, cos: f64, sin: f64, ol: DVec3) -> Option<(f64, u8)> {
+fn ray_box_t(d: DVec3, cos: f64, sin: f64, near: DVec3, far: DVec3) -> Option<(f64, u8)> {
     let dl = DVec3::new(cos * d.x + sin * d.y, -sin * d.x + cos * d.y, d.z);
     let mut t_near = f64::NEG_INFINITY;
     let mut t_far = f64::INFINITY;
     // Entering face.
     let mut enter = 0u8;
     #[inline(always)]
-    fn slab(ok: f64, dk: f64, hk: f64, k: u8, t_near: &mut f64, t_far: &mut f64, enter: &mut u8) -> bool {
+    fn slab(a: f64, b: f64, dk: f64, k: u8, t_near: &mut f64, t_far: &mut f64, enter: &mut u8) -> bool {
         if dk == 0.0 {
-            return ok.abs() <= hk;
+            // |ol| <= half: -half - ol <= 0 <= half - ol (a difference of floats has the sign
+            // of the exact one).
+            return a <= 0.0 && b >= 0.0;
         }
         let inv = 1.0 / dk;
-        let t1 = (-hk - ok) * inv;
-        let t2 = (hk - ok) * inv;
+        let t1 = a * inv;
+        let t2 = b * inv;
         let (tn, tf, face) = if t1 < t2 { (t1, t2, 2 * k) } else { (t2, t1, 2 * k + 1) };
         if tn > *t_near {
             *t_near = tn;
@@ -1682,9 +1686,9 @@ fn ray_box_t(d: DVec3, half: DVec3, cos: f64, sin: f64, ol: DVec3) -> Option<(f6
         *t_far = t_far.min(tf);
         true
     }
-    if !slab(ol.x, dl.x, half.x, 0, &mut t_near, &mut t_far, &mut enter)
-        || !slab(ol.y, dl.y, half.y, 1, &mut t_near, &mut t_far, &mut enter)
-        || !slab(ol.z, dl.z, half.z, 2, &mut t_near, &mut t_far, &mut enter)
+    if !slab(near.x, far.x, dl.x, 0, &mut t_near, &mut t_far, &mut enter)
+        || !slab(near.y, far.y, dl.y, 1, &mut t_near, &mut t_far, &mut enter)
+        || !slab(near.z, far.z, dl.z, 2, &mut t_near, &mut t_far, &mut enter)
     {
         return None;
     }
