@@ -1573,7 +1573,7 @@ impl Prepared {
     }
 
     /// Outward normal of the hit at `t` on face `face` found by [`Prepared::cast_t`] for the same ray.
-    #[inline]
+    #[inline(always)]
     fn normal(&self, o: DVec3, d: DVec3, t: f64, face: u8) -> DVec3 {
         if face == FACE_INSIDE {
             return -d;
