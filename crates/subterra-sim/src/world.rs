@@ -2291,6 +2291,8 @@ struct TerrainRay {
     /// `1 / d.x`, `1 / d.y`.
     ix: f64,
     iy: f64,
+    /// `ix`, `iy`, `px`, `py` are finite.
+    finite: bool,
     /// The origin and direction in cells (x / resolution).
     gu: f64,
     gv: f64,
@@ -2303,7 +2305,9 @@ impl TerrainRay {
     fn new(t: &Terrain, o: DVec3, d: DVec3) -> TerrainRay {
         let (px, py) = (o.x - t.origin[0], o.y - t.origin[1]);
         let res = t.resolution;
-        TerrainRay { o, d, px, py, ix: 1.0 / d.x, iy: 1.0 / d.y, gu: px / res, gv: py / res, du: d.x / res, dv: d.y / res }
+        let (ix, iy) = (1.0 / d.x, 1.0 / d.y);
+        let finite = ix.is_finite() && iy.is_finite() && px.is_finite() && py.is_finite();
+        TerrainRay { o, d, px, py, ix, iy, finite, gu: px / res, gv: py / res, du: d.x / res, dv: d.y / res }
     }
 }
 
@@ -2341,8 +2345,17 @@ fn walk_grid<T>(
     };
     let mut t = t0;
     let (mut tx, mut ty) = (exit(px, dx, ix, i), exit(py, dy, iy, j));
+    // With finite inverses (and `t0`, `t1` not NaN) no exit distance is NaN: plain
+    // comparisons then give what `min` / `max` give (which skip a NaN), more cheaply.
+    let plain = ray.finite && !t0.is_nan() && !t1.is_nan();
     loop {
-        let t_out = tx.min(ty).min(t1).max(t);
+        let t_out = if plain {
+            let m = if ty < tx { ty } else { tx };
+            let m = if t1 < m { t1 } else { m };
+            if m < t { t } else { m }
+        } else {
+            tx.min(ty).min(t1).max(t)
+        };
         if let Some(found) = visit(i, j, t, t_out) {
             return Some(found);
         }
