@@ -2040,7 +2040,10 @@ impl Terrain {
         let (o, d) = (ray.o, ray.d);
         let at = r * self.cols + c;
         let (h00, h10, h01, h11) = (self.heights[at], self.heights[at + 1], self.heights[at + self.cols], self.heights[at + self.cols + 1]);
-        if !z_range_meets(o.z, d.z, ta, tb, h00.min(h10).min(h01.min(h11)), h00.max(h10).max(h01.max(h11))) {
+        // Heights are finite (holes are filled): plain comparisons give `min` / `max`.
+        let lo = |a: f64, b: f64| if b < a { b } else { a };
+        let hi = |a: f64, b: f64| if b > a { b } else { a };
+        if !z_range_meets(o.z, d.z, ta, tb, lo(lo(h00, h10), lo(h01, h11)), hi(hi(h00, h10), hi(h01, h11))) {
             return None;
         }
         // Cell coordinates: u along x, v along y, both in [0, 1] over the cell.
