@@ -14,8 +14,13 @@
 //! - Many rays from one origin ([`World::cast_rays`], the depth camera and the lidar) are cast
 //!   as fans: per fan the primitives in its frustum are found once through the BVH, their
 //!   origin terms computed once, and their boxes projected onto a grid of bins over the fan's
-//!   image; a ray then tests only its bin's few candidates, nearest first. Same answers as
-//!   [`World::cast_ray`], bit for bit (ties between primitives go to the lower id).
+//!   image. Per bin and candidate a lower bound of the distance at which the bin's rays may
+//!   enter it (from the faces of its box that face the origin, against a cone around the
+//!   bin's rays) orders the bin's list, or drops the candidate when no ray of the bin runs
+//!   toward such a face. A ray then tests only its bin's few candidates, nearest bound
+//!   first, up to its current hit, and the normal of the nearest hit only (none for a lidar
+//!   scan). Same answers as [`World::cast_ray`], bit for bit (ties between primitives go to
+//!   the lower id).
 //! - The terrain is a parry3d [`HeightField`] for clearance queries; cells touching a hole are
 //!   removed. Rays walk its grid themselves (blocks of 8 x 8 cells with their height range,
 //!   then cells), testing the two f64 triangles of each cell they may meet; those are the
@@ -476,8 +481,9 @@ impl World {
                 if denom >= 0.0 {
                     continue;
                 }
+                // Not NaN: s >= 0 finite, denom < 0.
                 let t = -s / denom;
-                if !(t <= limit) {
+                if t > limit {
                     continue;
                 }
                 (t, false)
@@ -1334,8 +1340,8 @@ impl FanPlan {
             }
             let slabs = &slabs[..count];
             for by in by0..=by1 {
-                'bin: for bin in by * nbx + bx0..=by * nbx + bx1 {
-                    let cone = &cones[bin];
+                let row = by * nbx + bx0..=by * nbx + bx1;
+                'bin: for (bin, cone) in row.clone().zip(&cones[row]) {
                     let mut bound = near;
                     for &(n, s) in slabs {
                         let m = cone.max_dot(n);
