@@ -1307,7 +1307,8 @@ impl FanPlan {
         // nearer than s / (n · d) (s its distance from the origin, n its normal). A bin whose
         // rays all run parallel to or away from such a plane never meets the candidate.
         let to_local = rotation.transpose();
-        let mut triples: Vec<(u32, f64, u32)> = Vec::with_capacity(visible.len() * 4);
+        let area: usize = visible.iter().map(|&(_, _, [bx0, bx1, by0, by1])| (bx1 + 1 - bx0) * (by1 + 1 - by0)).sum();
+        let mut triples: Vec<(u32, f64, u32)> = Vec::with_capacity(area);
         for (index, &(near, id, [bx0, bx1, by0, by1])) in visible.iter().enumerate() {
             let mut slabs = [(DVec3::ZERO, 0.0); 3];
             let mut count = 0;
@@ -1348,7 +1349,11 @@ impl FanPlan {
                         if m <= 0.0 {
                             continue 'bin;
                         }
-                        bound = bound.max(s / m * (1.0 - 1.0e-9));
+                        // Not NaN (s finite, m > 0).
+                        let b = s / m * (1.0 - 1.0e-9);
+                        if b > bound {
+                            bound = b;
+                        }
                     }
                     triples.push((bin as u32, bound, index as u32));
                 }
