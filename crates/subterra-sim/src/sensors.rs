@@ -16,7 +16,7 @@ use glam::DVec3;
 use subterra::{Isometry3, PinholeCamera};
 
 use crate::error::{SimError, SimResult};
-use crate::world::{FanLayout, World};
+use crate::world::{FanCast, FanHit, FanLayout, FanSink, World};
 
 /// D435 depth stream nearest usable depth [m] (Intel RealSense D400 datasheet: ~0.1 m at
 /// 640x480 with the minimum disparity shift; the preset).
@@ -195,11 +195,19 @@ impl DepthCamera {
             return;
         }
         self.size(out);
-        self.render_span(world, world_from_camera, 0, &mut out.depth_m, &mut out.primitive, &mut out.incidence_cos);
+        let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
+        // ray.z > 0 for every pixel: the ray through the image plane z = 1.
+        let ranges: &[f64] = &self.ray_range;
+        let range = |k: usize| ranges[k];
+        let rays: &[DVec3] = &self.rays_camera;
+        let mut sink = DepthSink { first: 0, rays, depth: &mut out.depth_m, primitive: &mut out.primitive, incidence: &mut out.incidence_cos, min_m, max_m };
+        let (origin, rotation) = (world_from_camera.translation, world_from_camera.rotation);
+        world.cast_fan_cached::<true, _, _>(origin, rotation, rays, &self.layout, &range, &mut sink);
     }
 
     /// As [`Self::render`], splitting the rows over `threads` OS threads (scoped; 0 or 1
-    /// renders on the calling thread). The output is identical to [`Self::render`].
+    /// renders on the calling thread). The per-pose set-up (culling the primitives per fan
+    /// of rays) is done once, on the calling thread; the output is identical to [`Self::render`].
     pub fn render_parallel(&self, world: &World, world_from_camera: &Isometry3, threads: usize) -> DepthRender {
         let mut out = DepthRender::default();
         if !pose_is_finite(world_from_camera) {
@@ -210,15 +218,17 @@ impl DepthCamera {
         let width = self.config.camera.width as usize;
         let height = self.config.camera.height as usize;
         let threads = threads.clamp(1, height.max(1));
+        let cast = world.fan_cast(world_from_camera.translation, world_from_camera.rotation, &self.layout);
         if threads == 1 {
-            self.render_span(world, world_from_camera, 0, &mut out.depth_m, &mut out.primitive, &mut out.incidence_cos);
+            self.render_span(&cast, 0, &mut out.depth_m, &mut out.primitive, &mut out.incidence_cos);
             return out;
         }
         let chunk = height.div_ceil(threads) * width;
+        let cast = &cast;
         std::thread::scope(|scope| {
             let spans = out.depth_m.chunks_mut(chunk).zip(out.primitive.chunks_mut(chunk)).zip(out.incidence_cos.chunks_mut(chunk));
             for (index, ((depth, primitive), incidence)) in spans.enumerate() {
-                scope.spawn(move || self.render_span(world, world_from_camera, index * chunk, depth, primitive, incidence));
+                scope.spawn(move || self.render_span(cast, index * chunk, depth, primitive, incidence));
             }
         });
         out
@@ -249,30 +259,49 @@ impl DepthCamera {
     }
 
     /// Renders pixels `first..first + depth.len()` into the given slices, every pixel.
-    fn render_span(&self, world: &World, world_from_camera: &Isometry3, first: usize, depth: &mut [f32], primitive: &mut [i32], incidence: &mut [f32]) {
-        let rotation = world_from_camera.rotation;
-        let origin = world_from_camera.translation;
+    fn render_span(&self, cast: &FanCast<'_>, first: usize, depth: &mut [f32], primitive: &mut [i32], incidence: &mut [f32]) {
         let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
-        let rays = self.rays_camera.get(first..first + depth.len()).unwrap_or(&[]);
+        let span = first..first + depth.len();
         // ray.z > 0 for every pixel: the ray through the image plane z = 1.
-        let ranges = self.ray_range.get(first..first + depth.len()).unwrap_or(&[]);
-        let range = |k: usize| ranges[k];
-        // The cached layout covers the whole image (a span of all of it); others fall back to
-        // laying out their fans per call.
-        world.cast_fan_cached(origin, rotation, rays, &self.layout, &range, &mut |k, dir, hit| {
-            let Some(hit) = hit else {
-                (depth[k], primitive[k], incidence[k]) = (0.0, -1, 0.0);
-                return;
-            };
-            let z = hit.distance_m * rays[k].z;
-            if !(z >= min_m && z <= max_m) {
-                (depth[k], primitive[k], incidence[k]) = (0.0, -1, 0.0);
-                return;
-            }
-            depth[k] = z as f32;
-            primitive[k] = i32::try_from(hit.primitive).unwrap_or(-1);
-            incidence[k] = dir.dot(hit.normal).abs().min(1.0) as f32;
-        });
+        let ranges = self.ray_range.get(span.clone()).unwrap_or(&[]);
+        let range = |k: usize| ranges[k.wrapping_sub(first)];
+        let rays = self.rays_camera.get(span.clone()).unwrap_or(&[]);
+        let mut sink = DepthSink { first, rays, depth, primitive, incidence, min_m, max_m };
+        cast.cast::<true, _, _>(&self.rays_camera, span, &range, &mut sink);
+    }
+}
+
+/// Writes the pixels of a span as [`World`]'s fan cast finds their hits.
+struct DepthSink<'a> {
+    /// Index of the span's first pixel (where the slices start).
+    first: usize,
+    rays: &'a [DVec3],
+    depth: &'a mut [f32],
+    primitive: &'a mut [i32],
+    incidence: &'a mut [f32],
+    min_m: f64,
+    max_m: f64,
+}
+
+impl FanSink for DepthSink<'_> {
+    #[inline(always)]
+    fn put(&mut self, k: usize, dir: DVec3, hit: Option<FanHit>) {
+        let i = k.wrapping_sub(self.first);
+        let (Some(depth), Some(primitive), Some(incidence), Some(ray)) = (self.depth.get_mut(i), self.primitive.get_mut(i), self.incidence.get_mut(i), self.rays.get(i)) else {
+            return;
+        };
+        let Some(hit) = hit else {
+            (*depth, *primitive, *incidence) = (0.0, -1, 0.0);
+            return;
+        };
+        let z = hit.t * ray.z;
+        if !(z >= self.min_m && z <= self.max_m) {
+            (*depth, *primitive, *incidence) = (0.0, -1, 0.0);
+            return;
+        }
+        *depth = z as f32;
+        *primitive = i32::try_from(hit.primitive).unwrap_or(-1);
+        *incidence = dir.dot(hit.normal).abs().min(1.0) as f32;
     }
 }
 
@@ -442,18 +471,33 @@ impl Lidar {
         let rotation = world_from_sensor.rotation;
         let origin = world_from_sensor.translation;
         let (min_m, max_m) = (self.config.min_range_m, self.config.max_range_m);
-        let beams = &self.beams_sensor;
-        world.cast_fan_cached(origin, rotation, beams, &self.layout, &|_| max_m, &mut |k, _, hit| {
-            let Some(hit) = hit else { return };
-            let r = hit.distance_m;
-            if !(r >= min_m && r <= max_m) {
-                return;
-            }
-            let p = beams[k] * r;
-            out.points_sensor.push([p.x as f32, p.y as f32, p.z as f32]);
-            out.ring.push(self.beam_ring[k]);
-            out.primitive.push(i32::try_from(hit.primitive).unwrap_or(-1));
-        });
+        let mut sink = LidarSink { beams: &self.beams_sensor, rings: &self.beam_ring, out, min_m, max_m };
+        world.cast_fan_cached::<false, _, _>(origin, rotation, &self.beams_sensor, &self.layout, &|_| max_m, &mut sink);
+    }
+}
+
+/// Appends the returns of a scan as [`World`]'s fan cast finds them.
+struct LidarSink<'a> {
+    beams: &'a [DVec3],
+    rings: &'a [u16],
+    out: &'a mut LidarScan,
+    min_m: f64,
+    max_m: f64,
+}
+
+impl FanSink for LidarSink<'_> {
+    #[inline(always)]
+    fn put(&mut self, k: usize, _dir: DVec3, hit: Option<FanHit>) {
+        let Some(hit) = hit else { return };
+        let r = hit.t;
+        if !(r >= self.min_m && r <= self.max_m) {
+            return;
+        }
+        let (Some(beam), Some(&ring)) = (self.beams.get(k), self.rings.get(k)) else { return };
+        let p = *beam * r;
+        self.out.points_sensor.push([p.x as f32, p.y as f32, p.z as f32]);
+        self.out.ring.push(ring);
+        self.out.primitive.push(i32::try_from(hit.primitive).unwrap_or(-1));
     }
 }
 

@@ -14,8 +14,13 @@
 //! - Many rays from one origin ([`World::cast_rays`], the depth camera and the lidar) are cast
 //!   as fans: per fan the primitives in its frustum are found once through the BVH, their
 //!   origin terms computed once, and their boxes projected onto a grid of bins over the fan's
-//!   image; a ray then tests only its bin's few candidates, nearest first. Same answers as
-//!   [`World::cast_ray`], bit for bit (ties between primitives go to the lower id).
+//!   image. Per bin and candidate a lower bound of the distance at which the bin's rays may
+//!   enter it (from the faces of its box that face the origin, against a cone around the
+//!   bin's rays) orders the bin's list, or drops the candidate when no ray of the bin runs
+//!   toward such a face. A ray then tests only its bin's few candidates, nearest bound
+//!   first, up to its current hit, and the normal of the nearest hit only (none for a lidar
+//!   scan). Same answers as [`World::cast_ray`], bit for bit (ties between primitives go to
+//!   the lower id).
 //! - The terrain is a parry3d [`HeightField`] for clearance queries; cells touching a hole are
 //!   removed. Rays walk its grid themselves (blocks of 8 x 8 cells with their height range,
 //!   then cells), testing the two f64 triangles of each cell they may meet; those are the
@@ -104,6 +109,35 @@ pub struct RayHit {
     pub normal: DVec3,
     /// The primitive hit.
     pub primitive: PrimitiveId,
+}
+
+/// The nearest hit of a ray of a fan ([`World::cast_fan`]): [`RayHit`] less the point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct FanHit {
+    /// Distance along the unit direction [m].
+    pub(crate) t: f64,
+    /// Unit surface normal facing the ray (zero when the cast was asked for no normals).
+    pub(crate) normal: DVec3,
+    pub(crate) primitive: PrimitiveId,
+}
+
+/// Receives the results of a fan cast ([`World::cast_fan`]): ray index, world direction, hit.
+pub(crate) trait FanSink {
+    fn put(&mut self, k: usize, d: DVec3, hit: Option<FanHit>);
+}
+
+impl<F: FnMut(usize, DVec3, Option<FanHit>)> FanSink for F {
+    #[inline(always)]
+    fn put(&mut self, k: usize, d: DVec3, hit: Option<FanHit>) {
+        self(k, d, hit)
+    }
+}
+
+impl FanHit {
+    /// The [`RayHit`] of the ray `o + t·d`.
+    pub(crate) fn ray_hit(self, o: DVec3, d: DVec3) -> RayHit {
+        RayHit { distance_m: self.t, point: o + d * self.t, normal: self.normal, primitive: self.primitive }
+    }
 }
 
 /// A world's geometry, ready for queries. Built once by [`World::from_spec`] or
@@ -314,25 +348,26 @@ impl World {
                 units.push(d / len);
             }
         }
-        self.cast_fan(origin, DMat3::IDENTITY, &units, &|k| range_of(index[k]), &mut |k, _, hit| out[index[k]] = hit);
+        self.cast_fan::<true, _, _>(origin, DMat3::IDENTITY, &units, &|k| range_of(index[k]), &mut |k, d, hit: Option<FanHit>| out[index[k]] = hit.map(|h| h.ray_hit(origin, d)));
         Ok(())
     }
 
     /// The rays `origin + t · rotation · dirs[k]` (`dirs` unit length, finite `origin` and
     /// `rotation`), `0 <= t <= range(k)`, in order of `k`; `sink(k, world direction, hit)`
-    /// receives each result. Same answers as [`World::cast_ray`], bit for bit.
+    /// receives each result. Same answers as [`World::cast_ray`], bit for bit (the normal
+    /// only when `NORMALS`; else it is zero).
     ///
     /// The rays are split into fans of at most 70° around their mean direction; per fan the
     /// bounded primitives in its frustum (found through the BVH) are projected once onto a
     /// grid of bins over the fan's gnomonic image, and each ray tests only its bin's list,
     /// nearest first, stopping at the first one beyond its current hit.
-    pub(crate) fn cast_fan<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], range: &R, sink: &mut S)
+    pub(crate) fn cast_fan<const NORMALS: bool, R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], range: &R, sink: &mut S)
     where
         R: Fn(usize) -> f64,
-        S: FnMut(usize, DVec3, Option<RayHit>),
+        S: FanSink,
     {
         let view = self.terrain_view(origin, dirs.len());
-        self.cast_fan_from(origin, rotation, dirs, 0, range, view.as_ref(), sink);
+        self.cast_fan_from::<NORMALS, R, S>(origin, rotation, dirs, 0, range, view.as_ref(), sink);
     }
 
     /// The terrain seen from `origin`, for `rays` rays from there; `None` when there is no
@@ -343,17 +378,17 @@ impl World {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn cast_fan_from<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], first: usize, range: &R, view: Option<&TerrainView>, sink: &mut S)
+    fn cast_fan_from<const NORMALS: bool, R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], first: usize, range: &R, view: Option<&TerrainView>, sink: &mut S)
     where
         R: Fn(usize) -> f64,
-        S: FnMut(usize, DVec3, Option<RayHit>),
+        S: FanSink,
     {
         if dirs.len() < FAN_MIN_RAYS || self.solids.is_empty() {
             for (k, dl) in dirs.iter().enumerate() {
                 let d = rotation * *dl;
                 let max_t = range(first + k);
                 let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit_in(origin, d, max_t, view) };
-                sink(first + k, d, hit);
+                sink.put(first + k, d, hit);
             }
             return;
         }
@@ -361,40 +396,42 @@ impl World {
         let min_cos = dirs.iter().fold(f64::INFINITY, |acc, d| acc.min(d.dot(axis)));
         if min_cos.is_nan() || min_cos < FAN_MIN_COS {
             let mid = dirs.len() / 2;
-            self.cast_fan_from(origin, rotation, &dirs[..mid], first, range, view, sink);
-            self.cast_fan_from(origin, rotation, &dirs[mid..], first + mid, range, view, sink);
+            self.cast_fan_from::<NORMALS, R, S>(origin, rotation, &dirs[..mid], first, range, view, sink);
+            self.cast_fan_from::<NORMALS, R, S>(origin, rotation, &dirs[mid..], first + mid, range, view, sink);
             return;
         }
-        let plan = FanPlan::new(self, origin, rotation, FanGeom::new(axis, dirs, first, range));
+        let g = FanGeom::new(axis, dirs, first, range);
+        let plan = FanPlan::new(self, origin, rotation, g, &g.cones());
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
-            let hit = self.fan_ray(&plan, origin, d, range(first + k), plan.g.bin(*dl), view);
-            sink(first + k, d, hit);
+            let hit = self.fan_ray::<NORMALS>(plan.slices(), origin, d, range(first + k), plan.g.bin(*dl), view);
+            sink.put(first + k, d, hit);
         }
     }
 
     /// [`World::cast_fan`] with the fans laid out beforehand: `layout` is
     /// [`FanLayout::new`]`(dirs, range)` (the same `dirs` and `range`). Same answers.
-    pub(crate) fn cast_fan_cached<R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], layout: &FanLayout, range: &R, sink: &mut S)
+    pub(crate) fn cast_fan_cached<const NORMALS: bool, R, S>(&self, origin: DVec3, rotation: DMat3, dirs: &[DVec3], layout: &FanLayout, range: &R, sink: &mut S)
     where
         R: Fn(usize) -> f64,
-        S: FnMut(usize, DVec3, Option<RayHit>),
+        S: FanSink,
     {
         if layout.len() != dirs.len() {
-            self.cast_fan(origin, rotation, dirs, range, sink);
+            self.cast_fan::<NORMALS, R, S>(origin, rotation, dirs, range, sink);
             return;
         }
         let view = self.terrain_view(origin, dirs.len());
         let view = view.as_ref();
-        for &(first, len, geom) in &layout.fans {
+        for (&(first, len, geom), cones) in layout.fans.iter().zip(&layout.cones) {
             let fan = &dirs[first..first + len];
+            let bins = &layout.bins[first..first + len];
             match geom {
                 Some(g) if !self.solids.is_empty() => {
-                    let plan = FanPlan::new(self, origin, rotation, g);
-                    for (k, dl) in fan.iter().enumerate() {
+                    let plan = FanPlan::new(self, origin, rotation, g, cones);
+                    for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
                         let d = rotation * *dl;
-                        let hit = self.fan_ray(&plan, origin, d, range(first + k), layout.bins[first + k] as usize, view);
-                        sink(first + k, d, hit);
+                        let hit = self.fan_ray::<NORMALS>(plan.slices(), origin, d, range(first + k), bin as usize, view);
+                        sink.put(first + k, d, hit);
                     }
                 }
                 _ => {
@@ -402,59 +439,97 @@ impl World {
                         let d = rotation * *dl;
                         let max_t = range(first + k);
                         let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit_in(origin, d, max_t, view) };
-                        sink(first + k, d, hit);
+                        sink.put(first + k, d, hit);
                     }
                 }
             }
         }
     }
 
+    /// The per-pose set-up of [`World::cast_fan_cached`] (a plan per fan, the terrain view),
+    /// to cast the rays in parts, e.g. from several threads ([`FanCast::cast`]).
+    pub(crate) fn fan_cast<'a>(&'a self, origin: DVec3, rotation: DMat3, layout: &'a FanLayout) -> FanCast<'a> {
+        let plans = layout
+            .fans
+            .iter()
+            .zip(&layout.cones)
+            .map(|(&(_, _, geom), cones)| match geom {
+                Some(g) if !self.solids.is_empty() => Some(FanPlan::new(self, origin, rotation, g, cones)),
+                _ => None,
+            })
+            .collect();
+        FanCast { world: self, origin, rotation, layout, plans, view: self.terrain_view(origin, layout.len()) }
+    }
+
     /// One ray of a fan: world direction `d`, range `max_t`, bin `bin` of the plan's grid.
-    #[inline]
-    fn fan_ray(&self, plan: &FanPlan, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<RayHit> {
+    /// The normal is computed (for the nearest hit only) when `NORMALS`.
+    #[inline(always)]
+    fn fan_ray<const NORMALS: bool>(&self, plan: PlanSlices<'_>, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<FanHit> {
         if max_t.is_nan() || max_t < 0.0 {
             return None;
         }
-        let mut best: Option<(LeafHit, PrimitiveId)> = None;
+        // The nearest so far: `limit` is its distance (or `max_t`); planes first, in order,
+        // a later one only when strictly nearer.
         let mut limit = max_t;
-        for (plane, &s) in self.planes.iter().zip(&plan.plane_s) {
-            if let Some(hit) = plane.cast_prepared(s, d, limit) {
-                if best.is_none() || hit.t < limit {
-                    limit = hit.t;
-                    best = Some((hit, plane.id));
+        let mut found = false;
+        let mut plane_hit: Option<(usize, bool)> = None;
+        for (i, (plane, &s)) in self.planes.iter().zip(plan.plane_s).enumerate() {
+            let (t, inside) = if s < 0.0 {
+                (0.0, true)
+            } else {
+                let denom = plane.normal.dot(d);
+                if denom >= 0.0 {
+                    continue;
                 }
+                // Not NaN: s >= 0 finite, denom < 0.
+                let t = -s / denom;
+                if t > limit {
+                    continue;
+                }
+                (t, false)
+            };
+            if !found || t < limit {
+                limit = t;
+                found = true;
+                plane_hit = Some((i, inside));
             }
         }
-        let mut solid: Option<(PrimitiveId, LeafHit)> = None;
+        // Bounded primitives, nearest box first: the nearest hit, then the lowest id.
+        let mut solid: Option<(f64, PrimitiveId, u32, u8)> = None;
         let mut solid_limit = limit;
         for &(near, index) in plan.candidates(bin) {
             if near > solid_limit {
                 break;
             }
             let Some((id, prepared)) = plan.prepared.get(index as usize) else { continue };
-            let id = *id;
-            if let Some(hit) = prepared.cast(origin, d) {
-                if improves(hit.t, id, solid_limit, solid) {
-                    solid_limit = hit.t;
-                    solid = Some((id, hit));
+            if let Some((t, face)) = prepared.cast_t(d) {
+                if t <= solid_limit && solid.is_none_or(|(bt, bid, _, _)| t < bt || (t == bt && *id < bid)) {
+                    solid_limit = t;
+                    solid = Some((t, *id, index, face));
                 }
             }
         }
-        if let Some((id, hit)) = solid {
-            if best.is_none() || hit.t < limit {
-                best = Some((hit, id));
+        let mut best: Option<FanHit> = None;
+        if let Some((i, inside)) = plane_hit {
+            let plane = &self.planes[i];
+            best = Some(FanHit { t: limit, normal: if !NORMALS { DVec3::ZERO } else if inside { -d } else { plane.normal }, primitive: plane.id });
+        }
+        if let Some((t, id, index, face)) = solid {
+            if !found || t < limit {
+                let normal = if NORMALS { plan.prepared[index as usize].1.normal(origin, d, t, face) } else { DVec3::ZERO };
+                best = Some(FanHit { t, normal, primitive: id });
             }
         }
-        self.finish(origin, d, max_t, best, plan.terrain, view)
+        self.finish::<NORMALS>(origin, d, max_t, best, plan.terrain, view)
     }
 
     /// [`World::cast_ray`] for a unit `d`.
     fn cast_unit(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<RayHit> {
-        self.cast_unit_in(o, d, max_t, None)
+        self.cast_unit_in(o, d, max_t, None).map(|h| h.ray_hit(o, d))
     }
 
     /// [`World::cast_unit`], the terrain culled through `view` (from `o`) when given.
-    fn cast_unit_in(&self, o: DVec3, d: DVec3, max_t: f64, view: Option<&TerrainView>) -> Option<RayHit> {
+    fn cast_unit_in(&self, o: DVec3, d: DVec3, max_t: f64, view: Option<&TerrainView>) -> Option<FanHit> {
         let mut best = self.nearest_plane(o, d, max_t);
         let limit = best.map_or(max_t, |(h, _)| h.t);
         if let Some((id, hit)) = self.bvh.cast(&self.solids, o, d, limit) {
@@ -462,7 +537,7 @@ impl World {
                 best = Some((hit, id));
             }
         }
-        self.finish(o, d, max_t, best, true, view)
+        self.finish::<true>(o, d, max_t, best.map(|(hit, id)| FanHit { t: hit.t, normal: hit.normal, primitive: id }), true, view)
     }
 
     /// Nearest plane hit within `max_t` (planes are few and unbounded).
@@ -480,27 +555,32 @@ impl World {
         best
     }
 
-    /// Adds the terrain (when `terrain`) to `best` and makes the [`RayHit`].
-    #[inline]
-    fn finish(&self, o: DVec3, d: DVec3, max_t: f64, mut best: Option<(LeafHit, PrimitiveId)>, terrain: bool, view: Option<&TerrainView>) -> Option<RayHit> {
+    /// Adds the terrain (when `terrain`) to `best` and turns the normal toward the ray
+    /// (when `NORMALS`).
+    #[inline(always)]
+    fn finish<const NORMALS: bool>(&self, o: DVec3, d: DVec3, max_t: f64, mut best: Option<FanHit>, terrain: bool, view: Option<&TerrainView>) -> Option<FanHit> {
         if terrain {
             if let Some(t) = &self.terrain {
-                let limit = best.map_or(max_t, |(h, _)| h.t);
+                let limit = best.map_or(max_t, |h| h.t);
                 let hit = match view {
                     Some(view) => t.cast_in_view(view, o, d, limit),
                     None => t.cast(o, d, limit),
                 };
                 if let Some(hit) = hit {
                     if best.is_none() || hit.t < limit {
-                        best = Some((hit, t.id));
+                        best = Some(FanHit { t: hit.t, normal: hit.normal, primitive: t.id });
                     }
                 }
             }
         }
-        best.map(|(hit, id)| {
-            let normal = if hit.normal.dot(d) > 0.0 { -hit.normal } else { hit.normal };
-            RayHit { distance_m: hit.t, point: o + d * hit.t, normal, primitive: id }
-        })
+        if NORMALS {
+            if let Some(h) = &mut best {
+                if h.normal.dot(d) > 0.0 {
+                    h.normal = -h.normal;
+                }
+            }
+        }
+        best
     }
 
     /// Euclidean distance from `p` to the nearest solid surface [m]: bounded primitives
@@ -898,6 +978,82 @@ fn box_distance(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
     (lo - p).max(p - hi).max(DVec3::ZERO).length()
 }
 
+/// A cached fan cast set up for one pose ([`World::fan_cast`]).
+pub(crate) struct FanCast<'a> {
+    world: &'a World,
+    origin: DVec3,
+    rotation: DMat3,
+    layout: &'a FanLayout,
+    /// The plan of each fan of the layout; `None`: cast ray by ray.
+    plans: Vec<Option<FanPlan>>,
+    view: Option<TerrainView>,
+}
+
+impl FanCast<'_> {
+    /// Casts the rays `span` of `dirs` (the directions the layout was made of) as
+    /// [`World::cast_fan_cached`] does; `range` and `sink` take the index into `dirs`.
+    pub(crate) fn cast<const NORMALS: bool, R, S>(&self, dirs: &[DVec3], span: std::ops::Range<usize>, range: &R, sink: &mut S)
+    where
+        R: Fn(usize) -> f64,
+        S: FanSink,
+    {
+        if self.layout.len() != dirs.len() {
+            return;
+        }
+        self.world.cast_planned::<NORMALS, R, S>(self.origin, self.rotation, self.layout, &self.plans, self.view.as_ref(), dirs, span, range, sink);
+    }
+}
+
+impl World {
+    /// [`FanCast::cast`]; a function of its own, so that the world's fields stay in registers
+    /// across the sink's writes.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(never)]
+    fn cast_planned<const NORMALS: bool, R, S>(
+        &self,
+        origin: DVec3,
+        rotation: DMat3,
+        layout: &FanLayout,
+        plans: &[Option<FanPlan>],
+        view: Option<&TerrainView>,
+        dirs: &[DVec3],
+        span: std::ops::Range<usize>,
+        range: &R,
+        sink: &mut S,
+    ) where
+        R: Fn(usize) -> f64,
+        S: FanSink,
+    {
+        for (&(first, len, _), plan) in layout.fans.iter().zip(plans) {
+            let (a, b) = (first.max(span.start), (first + len).min(span.end));
+            if a >= b {
+                continue;
+            }
+            let fan = &dirs[a..b];
+            match plan {
+                Some(plan) => {
+                    // The plan's slices in locals (kept in registers across the sink's writes).
+                    let plan = plan.slices();
+                    let bins = &layout.bins[a..b];
+                    for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
+                        let d = rotation * *dl;
+                        let hit = self.fan_ray::<NORMALS>(plan, origin, d, range(a + k), bin as usize, view);
+                        sink.put(a + k, d, hit);
+                    }
+                }
+                None => {
+                    for (k, dl) in fan.iter().enumerate() {
+                        let d = rotation * *dl;
+                        let max_t = range(a + k);
+                        let hit = if max_t.is_nan() || max_t < 0.0 { None } else { self.cast_unit_in(origin, d, max_t, view) };
+                        sink.put(a + k, d, hit);
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Per-fan culling: the fan's rays in gnomonic coordinates `(u, v)` around its axis, a grid of
 /// bins over them, and per bin the primitives whose boxes project into it, nearest first.
 struct FanPlan {
@@ -939,6 +1095,8 @@ struct FanGeom {
 pub(crate) struct FanLayout {
     /// (first ray, ray count, geometry; `None`: cast ray by ray).
     fans: Vec<(usize, usize, Option<FanGeom>)>,
+    /// The cones of each fan's bins ([`FanGeom::cones`]; empty for a fan cast ray by ray).
+    cones: Vec<Vec<BinCone>>,
     /// Bin of each ray in its fan's grid.
     bins: Vec<u32>,
 }
@@ -946,7 +1104,7 @@ pub(crate) struct FanLayout {
 impl FanLayout {
     /// Splits `dirs` (unit, local frame) as [`World::cast_fan`] does; `range(k)` is ray `k`'s range.
     pub(crate) fn new<R: Fn(usize) -> f64>(dirs: &[DVec3], range: &R) -> FanLayout {
-        let mut layout = FanLayout { fans: Vec::new(), bins: vec![0; dirs.len()] };
+        let mut layout = FanLayout { fans: Vec::new(), cones: Vec::new(), bins: vec![0; dirs.len()] };
         layout.split(dirs, 0, range);
         layout
     }
@@ -954,6 +1112,7 @@ impl FanLayout {
     fn split<R: Fn(usize) -> f64>(&mut self, dirs: &[DVec3], first: usize, range: &R) {
         if dirs.len() < FAN_MIN_RAYS {
             self.fans.push((first, dirs.len(), None));
+            self.cones.push(Vec::new());
             return;
         }
         let axis = dirs.iter().fold(DVec3::ZERO, |acc, d| acc + *d).normalize_or_zero();
@@ -969,6 +1128,7 @@ impl FanLayout {
             self.bins[first + k] = g.bin(*d) as u32;
         }
         self.fans.push((first, dirs.len(), Some(g)));
+        self.cones.push(g.cones());
     }
 
     /// Number of rays laid out.
@@ -977,7 +1137,53 @@ impl FanLayout {
     }
 }
 
+/// A circular cone (local frame of the fan) holding every ray of one bin, widened a little.
+#[derive(Debug, Clone, Copy)]
+struct BinCone {
+    /// Unit axis.
+    c: DVec3,
+    /// Cosine and sine of the half angle.
+    cos: f64,
+    sin: f64,
+}
+
+impl BinCone {
+    /// Largest `n · d` over the unit directions `d` of the cone (`n` unit).
+    #[inline]
+    fn max_dot(&self, n: DVec3) -> f64 {
+        let ct = n.dot(self.c);
+        if ct >= self.cos {
+            1.0
+        } else {
+            // cos(θ - ρ) for the angle θ between `n` and the axis, ρ the half angle.
+            ct * self.cos + (1.0 - ct * ct).max(0.0).sqrt() * self.sin
+        }
+    }
+}
+
 impl FanGeom {
+    /// The cone of each bin (`[by * nbx + bx]`): around the direction through the middle of
+    /// the bin's rectangle of gnomonic coordinates, through its corners (the cone's image is
+    /// convex), the half angle widened by a relative 1e-6 and 1e-7 rad beyond rounding.
+    fn cones(&self) -> Vec<BinCone> {
+        let edge_u = |i: usize| if self.su > 0.0 { self.u0 + i as f64 / self.su } else { self.u0 };
+        let edge_v = |j: usize| if self.sv > 0.0 { self.v0 + j as f64 / self.sv } else { self.v0 };
+        let dir = |u: f64, v: f64| (self.axis + self.e1 * u + self.e2 * v).normalize();
+        let mut cones = Vec::with_capacity(self.nbx * self.nby);
+        for by in 0..self.nby {
+            let (va, vb) = (edge_v(by), edge_v(by + 1));
+            for bx in 0..self.nbx {
+                let (ua, ub) = (edge_u(bx), edge_u(bx + 1));
+                let c = dir(0.5 * (ua + ub), 0.5 * (va + vb));
+                let cos_min = [(ua, va), (ub, va), (ua, vb), (ub, vb)].iter().fold(1.0f64, |m, &(u, v)| m.min(c.dot(dir(u, v))));
+                let rho = cos_min.clamp(-1.0, 1.0).acos() * (1.0 + 1.0e-6) + 1.0e-7;
+                let (sin, cos) = rho.min(std::f64::consts::PI).sin_cos();
+                cones.push(BinCone { c, cos, sin });
+            }
+        }
+        cones
+    }
+
     fn new<R: Fn(usize) -> f64>(axis: DVec3, dirs: &[DVec3], first: usize, range: &R) -> FanGeom {
         let (e1, e2) = axis.any_orthonormal_pair();
         let (mut u0, mut u1, mut v0, mut v1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
@@ -1027,7 +1233,7 @@ impl FanGeom {
 }
 
 impl FanPlan {
-    fn new(world: &World, origin: DVec3, rotation: DMat3, g: FanGeom) -> FanPlan {
+    fn new(world: &World, origin: DVec3, rotation: DMat3, g: FanGeom, cones: &[BinCone]) -> FanPlan {
         let FanGeom { axis, e1, e2, u0, u1, v0, v1, nbx, nby, rmax, .. } = g;
         let mut plan = FanPlan { g, starts: vec![0; nbx * nby + 1], entries: Vec::new(), prepared: Vec::new(), plane_s: Vec::new(), terrain: false };
         plan.plane_s = world.planes.iter().map(|p| p.normal.dot(origin - p.point)).collect();
@@ -1094,13 +1300,68 @@ impl FanPlan {
             visible.push((near, id, cells));
         }
         visible.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let mut counts = vec![0u32; nbx * nby];
-        for (_, _, [bx0, bx1, by0, by1]) in &visible {
-            for by in *by0..=*by1 {
-                for c in &mut counts[by * nbx + bx0..=by * nbx + bx1] {
-                    *c += 1;
+        plan.prepared = visible.iter().map(|&(_, id, _)| (id, world.solids[id as usize].prepare(origin))).collect();
+        // Per (bin, candidate): a lower bound of the distance at which the bin's rays may
+        // meet the candidate, from the faces of its box (the box itself for a box, its
+        // loosened bounds else) that face the origin: a ray enters each such face's plane no
+        // nearer than s / (n · d) (s its distance from the origin, n its normal). A bin whose
+        // rays all run parallel to or away from such a plane never meets the candidate.
+        let to_local = rotation.transpose();
+        let area: usize = visible.iter().map(|&(_, _, [bx0, bx1, by0, by1])| (bx1 + 1 - bx0) * (by1 + 1 - by0)).sum();
+        let mut triples: Vec<(u32, f64, u32)> = Vec::with_capacity(area);
+        for (index, &(near, id, [bx0, bx1, by0, by1])) in visible.iter().enumerate() {
+            let mut slabs = [(DVec3::ZERO, 0.0); 3];
+            let mut count = 0;
+            let mut face = |n: DVec3, s: f64| {
+                slabs[count] = (to_local * n, s);
+                count += 1;
+            };
+            match plan.prepared[index].1 {
+                Prepared::Inside => {}
+                Prepared::Box { half, cos, sin, ol, .. } => {
+                    let axes = [DVec3::new(cos, sin, 0.0), DVec3::new(-sin, cos, 0.0), DVec3::Z];
+                    for k in 0..3 {
+                        if ol[k] < -half[k] {
+                            face(axes[k], -half[k] - ol[k]);
+                        } else if ol[k] > half[k] {
+                            face(-axes[k], ol[k] - half[k]);
+                        }
+                    }
+                }
+                _ => {
+                    let (lo, hi) = world.bvh.boxes[id as usize];
+                    for (k, axis) in [DVec3::X, DVec3::Y, DVec3::Z].into_iter().enumerate() {
+                        if origin[k] < lo[k] {
+                            face(axis, lo[k] - origin[k]);
+                        } else if origin[k] > hi[k] {
+                            face(-axis, origin[k] - hi[k]);
+                        }
+                    }
                 }
             }
+            let slabs = &slabs[..count];
+            for by in by0..=by1 {
+                let row = by * nbx + bx0..=by * nbx + bx1;
+                'bin: for (bin, cone) in row.clone().zip(&cones[row]) {
+                    let mut bound = near;
+                    for &(n, s) in slabs {
+                        let m = cone.max_dot(n);
+                        if m <= 0.0 {
+                            continue 'bin;
+                        }
+                        // Not NaN (s finite, m > 0).
+                        let b = s / m * (1.0 - 1.0e-9);
+                        if b > bound {
+                            bound = b;
+                        }
+                    }
+                    triples.push((bin as u32, bound, index as u32));
+                }
+            }
+        }
+        let mut counts = vec![0u32; nbx * nby];
+        for &(bin, _, _) in &triples {
+            counts[bin as usize] += 1;
         }
         let mut total = 0u32;
         for (b, c) in counts.iter().enumerate() {
@@ -1110,19 +1371,44 @@ impl FanPlan {
         plan.starts[nbx * nby] = total;
         plan.entries = vec![(0.0, 0); total as usize];
         let mut cursor: Vec<u32> = plan.starts[..nbx * nby].to_vec();
-        for (index, &(near, _, [bx0, bx1, by0, by1])) in visible.iter().enumerate() {
-            for by in by0..=by1 {
-                for slot in &mut cursor[by * nbx + bx0..=by * nbx + bx1] {
-                    plan.entries[*slot as usize] = (near, index as u32);
-                    *slot += 1;
+        for &(bin, bound, index) in &triples {
+            let slot = &mut cursor[bin as usize];
+            plan.entries[*slot as usize] = (bound, index);
+            *slot += 1;
+        }
+        for b in 0..nbx * nby {
+            let list = &mut plan.entries[plan.starts[b] as usize..plan.starts[b + 1] as usize];
+            // Short lists: insertion sort by bound (ties in candidate order).
+            for i in 1..list.len() {
+                let mut j = i;
+                while j > 0 && list[j - 1].0 > list[j].0 {
+                    list.swap(j - 1, j);
+                    j -= 1;
                 }
             }
         }
-        plan.prepared = visible.iter().filter_map(|&(_, id, _)| Some((id, world.solids.get(id as usize)?.prepare(origin)))).collect();
         plan
     }
 
-    /// Candidates of the rays in bin `b`, nearest box first.
+    /// The parts of the plan its rays read.
+    #[inline]
+    fn slices(&self) -> PlanSlices<'_> {
+        PlanSlices { starts: &self.starts, entries: &self.entries, prepared: &self.prepared, plane_s: &self.plane_s, terrain: self.terrain }
+    }
+}
+
+/// The parts of a [`FanPlan`] its rays read, as slices.
+#[derive(Clone, Copy)]
+struct PlanSlices<'a> {
+    starts: &'a [u32],
+    entries: &'a [(f64, u32)],
+    prepared: &'a [(PrimitiveId, Prepared)],
+    plane_s: &'a [f64],
+    terrain: bool,
+}
+
+impl PlanSlices<'_> {
+    /// Candidates of the rays in bin `b`, nearest bound first.
     #[inline]
     fn candidates(&self, b: usize) -> &[(f64, u32)] {
         let (s, e) = (self.starts[b] as usize, self.starts[b + 1] as usize);
@@ -1173,7 +1459,8 @@ impl Solid {
             Solid::Box { centre, half, cos, sin } => {
                 let v = o - centre;
                 let ol = DVec3::new(cos * v.x + sin * v.y, -sin * v.x + cos * v.y, v.z);
-                Prepared::Box { half, cos, sin, ol }
+                // The slab distances' numerators, as `ray_box_t` computed them per ray.
+                Prepared::Box { half, cos, sin, ol, near: -half - ol, far: half - ol }
             }
         }
     }
@@ -1227,63 +1514,108 @@ enum Prepared {
     Cylinder { a: DVec3, axis: DVec3, length: f64, radius: f64, s0: f64, op: DVec3, c: f64 },
     /// As the cylinder, and the end spheres (centre, terms; `c <= 0`: origin inside it).
     Capsule { a: DVec3, axis: DVec3, length: f64, radius: f64, s0: f64, op: DVec3, c: f64, ends: [(DVec3, SpherePrep); 2] },
-    /// `ol`: the origin in the box frame.
-    Box { half: DVec3, cos: f64, sin: f64, ol: DVec3 },
+    /// `ol`: the origin in the box frame; `near = -half - ol`, `far = half - ol`.
+    Box { half: DVec3, cos: f64, sin: f64, ol: DVec3, near: DVec3, far: DVec3 },
 }
+
+/// Face tag of a leaf hit whose ray starts inside the solid (normal `-dir`).
+const FACE_INSIDE: u8 = 7;
 
 impl Prepared {
     /// First intersection with `t >= 0` of the ray `o + t·d` (`d` unit; `o` the prepared origin).
     #[inline]
     fn cast(&self, o: DVec3, d: DVec3) -> Option<LeafHit> {
+        let (t, face) = self.cast_t(d)?;
+        Some(LeafHit { t, normal: self.normal(o, d, t, face) })
+    }
+
+    /// [`Prepared::cast`] without the normal: the distance and a tag of the face hit, from
+    /// which [`Prepared::normal`] gives the normal (the same values as computed together).
+    #[inline(always)]
+    fn cast_t(&self, d: DVec3) -> Option<(f64, u8)> {
         match *self {
-            Prepared::Inside => Some(inside_hit(d)),
-            Prepared::Sphere { centre, radius, s } => ray_sphere(o, d, centre, radius, s),
-            Prepared::Cylinder { a, axis, length, radius, s0, op, c } => {
+            Prepared::Inside => Some((0.0, FACE_INSIDE)),
+            Prepared::Sphere { radius, s, .. } => ray_sphere_t(d, radius, s).map(|t| (t, 0)),
+            Prepared::Cylinder { axis, length, radius, s0, op, c, .. } => {
                 let du = d.dot(axis);
                 let dp = d - axis * du;
-                let mut best: Option<LeafHit> = None;
+                let mut best: Option<(f64, u8)> = None;
                 if let Some(t) = ray_infinite_cylinder(op, dp, radius, c) {
                     let s = s0 + t * du;
                     if (0.0..=length).contains(&s) {
-                        let radial = o + d * t - a - axis * s;
-                        best = Some(LeafHit { t, normal: radial.normalize_or(-d) });
+                        best = Some((t, 0));
                     }
                 }
                 if du != 0.0 {
                     let r2 = radius * radius;
-                    for (cap_s, normal) in [(0.0, -axis), (length, axis)] {
+                    for (cap_s, face) in [(0.0, 1), (length, 2)] {
                         let t = (cap_s - s0) / du;
-                        if t >= 0.0 && best.is_none_or(|b| t < b.t) && (op + dp * t).length_squared() <= r2 {
-                            best = Some(LeafHit { t, normal });
+                        if t >= 0.0 && best.is_none_or(|b| t < b.0) && (op + dp * t).length_squared() <= r2 {
+                            best = Some((t, face));
                         }
                     }
                 }
                 best
             }
-            Prepared::Capsule { a, axis, length, radius, s0, op, c, ends } => {
-                let mut best: Option<LeafHit> = None;
+            Prepared::Capsule { axis, length, radius, s0, op, c, ends, .. } => {
+                let mut best: Option<(f64, u8)> = None;
                 if length > 0.0 {
                     let du = d.dot(axis);
                     let dp = d - axis * du;
                     if let Some(t) = ray_infinite_cylinder(op, dp, radius, c) {
                         let s = s0 + t * du;
                         if (0.0..=length).contains(&s) {
-                            let radial = o + d * t - a - axis * s;
-                            best = Some(LeafHit { t, normal: radial.normalize_or(-d) });
+                            best = Some((t, 0));
                         }
                     }
                 }
-                for (centre, s) in ends {
-                    let hit = if s.c > 0.0 { ray_sphere(o, d, centre, radius, s) } else { Some(inside_hit(d)) };
+                for (face, (_, s)) in [(1, ends[0]), (2, ends[1])] {
+                    let hit = if s.c > 0.0 { ray_sphere_t(d, radius, s).map(|t| (t, face)) } else { Some((0.0, FACE_INSIDE)) };
                     if let Some(hit) = hit {
-                        if best.is_none_or(|b| hit.t < b.t) {
+                        if best.is_none_or(|b| hit.0 < b.0) {
                             best = Some(hit);
                         }
                     }
                 }
                 best
             }
-            Prepared::Box { half, cos, sin, ol } => ray_box(d, half, cos, sin, ol),
+            Prepared::Box { cos, sin, near, far, .. } => ray_box_t(d, cos, sin, near, far),
+        }
+    }
+
+    /// Outward normal of the hit at `t` on face `face` found by [`Prepared::cast_t`] for the same ray.
+    #[inline(always)]
+    fn normal(&self, o: DVec3, d: DVec3, t: f64, face: u8) -> DVec3 {
+        if face == FACE_INSIDE {
+            return -d;
+        }
+        match *self {
+            Prepared::Inside => -d,
+            Prepared::Sphere { centre, radius, .. } => sphere_normal(o, d, t, centre, radius),
+            Prepared::Cylinder { a, axis, s0, .. } => match face {
+                0 => {
+                    let s = s0 + t * d.dot(axis);
+                    (o + d * t - a - axis * s).normalize_or(-d)
+                }
+                1 => -axis,
+                _ => axis,
+            },
+            Prepared::Capsule { a, axis, radius, s0, ends, .. } => match face {
+                0 => {
+                    let s = s0 + t * d.dot(axis);
+                    (o + d * t - a - axis * s).normalize_or(-d)
+                }
+                1 => sphere_normal(o, d, t, ends[0].0, radius),
+                _ => sphere_normal(o, d, t, ends[1].0, radius),
+            },
+            Prepared::Box { cos, sin, .. } => {
+                let s = if face & 1 == 0 { -1.0 } else { 1.0 };
+                match face >> 1 {
+                    0 => DVec3::new(cos * s, sin * s, 0.0),
+                    1 => DVec3::new(-sin * s, cos * s, 0.0),
+                    _ => DVec3::new(0.0, 0.0, s),
+                }
+            }
         }
     }
 }
@@ -1292,9 +1624,9 @@ fn inside_hit(d: DVec3) -> LeafHit {
     LeafHit { t: 0.0, normal: -d }
 }
 
-/// Ray against a sphere (solid) whose origin is outside it (`s`).
+/// Ray against a sphere (solid) whose origin is outside it (`s`): the distance of the hit.
 #[inline]
-fn ray_sphere(o: DVec3, d: DVec3, centre: DVec3, radius: f64, s: SpherePrep) -> Option<LeafHit> {
+fn ray_sphere_t(d: DVec3, radius: f64, s: SpherePrep) -> Option<f64> {
     let b = s.oc.dot(d);
     if b >= 0.0 {
         return None;
@@ -1306,9 +1638,13 @@ fn ray_sphere(o: DVec3, d: DVec3, centre: DVec3, radius: f64, s: SpherePrep) -> 
         return None;
     }
     // Smaller root, in the cancellation-free form c / (-b + sqrt(disc)).
-    let t = s.c / (-b + disc.sqrt());
-    let normal = (o + d * t - centre) / radius;
-    Some(LeafHit { t, normal: normal.normalize_or(-d) })
+    Some(s.c / (-b + disc.sqrt()))
+}
+
+/// Outward normal of a sphere at the ray's point at `t`.
+#[inline]
+fn sphere_normal(o: DVec3, d: DVec3, t: f64, centre: DVec3, radius: f64) -> DVec3 {
+    ((o + d * t - centre) / radius).normalize_or(-d)
 }
 
 /// Entry into the infinite cylinder of radius `radius` around an axis, from outside it:
@@ -1332,33 +1668,38 @@ fn ray_infinite_cylinder(op: DVec3, dp: DVec3, radius: f64, c: f64) -> Option<f6
     Some(c / (-qb + disc.sqrt()))
 }
 
-/// Ray against a box of half extents `half` rotated by yaw (`cos`, `sin`) about z (solid);
-/// `ol` is the ray origin in the box frame.
+/// Ray against a box of half extents `half` rotated by yaw (`cos`, `sin`) about z (solid),
+/// the ray origin `ol` in the box frame given as `near = -half - ol` and `far = half - ol`.
+/// The distance and the face entered (`2 · axis`, `+ 1` on the positive side;
+/// [`FACE_INSIDE`] from inside).
 #[inline]
-fn ray_box(d: DVec3, half: DVec3, cos: f64, sin: f64, ol: DVec3) -> Option<LeafHit> {
+fn ray_box_t(d: DVec3, cos: f64, sin: f64, near: DVec3, far: DVec3) -> Option<(f64, u8)> {
     let dl = DVec3::new(cos * d.x + sin * d.y, -sin * d.x + cos * d.y, d.z);
     let mut t_near = f64::NEG_INFINITY;
     let mut t_far = f64::INFINITY;
-    // Entering face: axis and sign.
-    let mut enter = (0usize, 0.0);
-    let slab = |ok: f64, dk: f64, hk: f64, k: usize, t_near: &mut f64, t_far: &mut f64, enter: &mut (usize, f64)| -> bool {
+    // Entering face.
+    let mut enter = 0u8;
+    #[inline(always)]
+    fn slab(a: f64, b: f64, dk: f64, k: u8, t_near: &mut f64, t_far: &mut f64, enter: &mut u8) -> bool {
         if dk == 0.0 {
-            return ok.abs() <= hk;
+            // |ol| <= half: -half - ol <= 0 <= half - ol (a difference of floats has the sign
+            // of the exact one).
+            return a <= 0.0 && b >= 0.0;
         }
         let inv = 1.0 / dk;
-        let t1 = (-hk - ok) * inv;
-        let t2 = (hk - ok) * inv;
-        let (tn, tf, sign) = if t1 < t2 { (t1, t2, -1.0) } else { (t2, t1, 1.0) };
+        let t1 = a * inv;
+        let t2 = b * inv;
+        let (tn, tf, face) = if t1 < t2 { (t1, t2, 2 * k) } else { (t2, t1, 2 * k + 1) };
         if tn > *t_near {
             *t_near = tn;
-            *enter = (k, sign);
+            *enter = face;
         }
         *t_far = t_far.min(tf);
         true
-    };
-    if !slab(ol.x, dl.x, half.x, 0, &mut t_near, &mut t_far, &mut enter)
-        || !slab(ol.y, dl.y, half.y, 1, &mut t_near, &mut t_far, &mut enter)
-        || !slab(ol.z, dl.z, half.z, 2, &mut t_near, &mut t_far, &mut enter)
+    }
+    if !slab(near.x, far.x, dl.x, 0, &mut t_near, &mut t_far, &mut enter)
+        || !slab(near.y, far.y, dl.y, 1, &mut t_near, &mut t_far, &mut enter)
+        || !slab(near.z, far.z, dl.z, 2, &mut t_near, &mut t_far, &mut enter)
     {
         return None;
     }
@@ -1366,14 +1707,9 @@ fn ray_box(d: DVec3, half: DVec3, cos: f64, sin: f64, ol: DVec3) -> Option<LeafH
         return None;
     }
     if t_near <= 0.0 {
-        return Some(inside_hit(d));
+        return Some((0.0, FACE_INSIDE));
     }
-    let normal = match enter {
-        (0, s) => DVec3::new(cos * s, sin * s, 0.0),
-        (1, s) => DVec3::new(-sin * s, cos * s, 0.0),
-        (_, s) => DVec3::new(0.0, 0.0, s),
-    };
-    Some(LeafHit { t: t_near, normal })
+    Some((t_near, enter))
 }
 
 impl Plane {
@@ -1567,7 +1903,16 @@ impl Terrain {
         // The view's bins hold the grid: no clipping to its box needed.
         let (t0, t1) = (0.0, max_t);
         let k = d.z / dxy;
-        let (row, group, tail) = view.row(d.x, d.y);
+        // Slopes no terrain point seen from the origin has (anywhere, then in the sector):
+        // no walk.
+        if !view.all.admits(k) {
+            return None;
+        }
+        let sector = sector_of(pseudo_angle(d.x, d.y));
+        if !view.tail.get(sector * view.groups).is_some_and(|r| r.admits(k)) {
+            return None;
+        }
+        let (row, group, tail) = view.row(sector);
         let scale = view.inv_w * dxy;
         let last = row.len() - 1;
         let j1 = if t1 * scale < last as f64 { (t1 * scale) as usize } else { last };
@@ -1706,7 +2051,10 @@ impl Terrain {
         let (o, d) = (ray.o, ray.d);
         let at = r * self.cols + c;
         let (h00, h10, h01, h11) = (self.heights[at], self.heights[at + 1], self.heights[at + self.cols], self.heights[at + self.cols + 1]);
-        if !z_range_meets(o.z, d.z, ta, tb, h00.min(h10).min(h01.min(h11)), h00.max(h10).max(h01.max(h11))) {
+        // Heights are finite (holes are filled): plain comparisons give `min` / `max`.
+        let lo = |a: f64, b: f64| if b < a { b } else { a };
+        let hi = |a: f64, b: f64| if b > a { b } else { a };
+        if !z_range_meets(o.z, d.z, ta, tb, lo(lo(h00, h10), lo(h01, h11)), hi(hi(h00, h10), hi(h01, h11))) {
             return None;
         }
         // Cell coordinates: u along x, v along y, both in [0, 1] over the cell.
@@ -1782,6 +2130,8 @@ struct TerrainView {
     group: Vec<SlopeRange>,
     /// Union of the bins from each group's first on, `[sector * groups + group]`.
     tail: Vec<SlopeRange>,
+    /// Union of all bins.
+    all: SlopeRange,
 }
 
 /// Range of slopes of a bin of a [`TerrainView`]; empty (`lo > hi`) when it holds no terrain.
@@ -1843,7 +2193,7 @@ impl TerrainView {
         }
         let bins = ((far / w) as usize + 2).min(TERRAIN_VIEW_MAX_BINS);
         let inv_w = 1.0 / w;
-        let mut view = TerrainView { bins, inv_w, slopes: vec![SlopeRange::EMPTY; TERRAIN_VIEW_SECTORS * bins], groups: 0, group: Vec::new(), tail: Vec::new() };
+        let mut view = TerrainView { bins, inv_w, slopes: vec![SlopeRange::EMPTY; TERRAIN_VIEW_SECTORS * bins], groups: 0, group: Vec::new(), tail: Vec::new(), all: SlopeRange::EMPTY };
         let pad = |x: f64| 1.0e-9 * (1.0 + x.abs());
         for by in 0..level.ny {
             for bx in 0..level.nx {
@@ -1924,14 +2274,14 @@ impl TerrainView {
                 acc = acc.union(view.group[s * groups + g]);
                 view.tail[s * groups + g] = acc;
             }
+            view.all = view.all.union(acc);
         }
         view
     }
 
-    /// The bins, groups and tails of the sector of the horizontal direction `(x, y)`.
+    /// The bins, groups and tails of sector `s`.
     #[inline]
-    fn row(&self, x: f64, y: f64) -> (&[SlopeRange], &[SlopeRange], &[SlopeRange]) {
-        let s = sector_of(pseudo_angle(x, y));
+    fn row(&self, s: usize) -> (&[SlopeRange], &[SlopeRange], &[SlopeRange]) {
         let g = s * self.groups..(s + 1) * self.groups;
         (&self.slopes[s * self.bins..(s + 1) * self.bins], &self.group[g.clone()], &self.tail[g])
     }
@@ -1955,6 +2305,8 @@ struct TerrainRay {
     /// `1 / d.x`, `1 / d.y`.
     ix: f64,
     iy: f64,
+    /// `ix`, `iy`, `px`, `py` are finite.
+    finite: bool,
     /// The origin and direction in cells (x / resolution).
     gu: f64,
     gv: f64,
@@ -1967,7 +2319,9 @@ impl TerrainRay {
     fn new(t: &Terrain, o: DVec3, d: DVec3) -> TerrainRay {
         let (px, py) = (o.x - t.origin[0], o.y - t.origin[1]);
         let res = t.resolution;
-        TerrainRay { o, d, px, py, ix: 1.0 / d.x, iy: 1.0 / d.y, gu: px / res, gv: py / res, du: d.x / res, dv: d.y / res }
+        let (ix, iy) = (1.0 / d.x, 1.0 / d.y);
+        let finite = ix.is_finite() && iy.is_finite() && px.is_finite() && py.is_finite();
+        TerrainRay { o, d, px, py, ix, iy, finite, gu: px / res, gv: py / res, du: d.x / res, dv: d.y / res }
     }
 }
 
@@ -2005,8 +2359,17 @@ fn walk_grid<T>(
     };
     let mut t = t0;
     let (mut tx, mut ty) = (exit(px, dx, ix, i), exit(py, dy, iy, j));
+    // With finite inverses (and `t0`, `t1` not NaN) no exit distance is NaN: plain
+    // comparisons then give what `min` / `max` give (which skip a NaN), more cheaply.
+    let plain = ray.finite && !t0.is_nan() && !t1.is_nan();
     loop {
-        let t_out = tx.min(ty).min(t1).max(t);
+        let t_out = if plain {
+            let m = if ty < tx { ty } else { tx };
+            let m = if t1 < m { t1 } else { m };
+            if m < t { t } else { m }
+        } else {
+            tx.min(ty).min(t1).max(t)
+        };
         if let Some(found) = visit(i, j, t, t_out) {
             return Some(found);
         }
@@ -2484,22 +2847,27 @@ mod tests {
                 let rotation = DMat3::from_rotation_z(next(&mut state) * 6.3) * DMat3::from_rotation_x(next(&mut state) * 6.3);
                 for (dirs, range) in [(&camera, 10.0), (&lidar, 120.0)] {
                     let max = |k: usize| range * (0.5 + (k % 7) as f64 / 12.0);
-                    w.cast_fan(origin, rotation, dirs, &max, &mut |k, d, hit| {
+                    w.cast_fan::<true, _, _>(origin, rotation, dirs, &max, &mut |k, d, hit: Option<FanHit>| {
                         assert_eq!(d, rotation * dirs[k]);
-                        assert_eq!(hit, w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
+                        assert_eq!(hit.map(|h| h.ray_hit(origin, d)), w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
                         compared += 1;
                         hits += usize::from(hit.is_some());
                     });
                     // The cached fan layout gives the same answers too.
                     let layout = FanLayout::new(dirs, &max);
                     let mut cached = 0;
-                    w.cast_fan_cached(origin, rotation, dirs, &layout, &max, &mut |k, d, hit| {
+                    w.cast_fan_cached::<true, _, _>(origin, rotation, dirs, &layout, &max, &mut |k, d, hit: Option<FanHit>| {
                         assert_eq!(k, cached);
                         assert_eq!(d, rotation * dirs[k]);
-                        assert_eq!(hit, w.cast_unit(origin, d, max(k)), "{name}: cached ray {k} from {origin}");
+                        assert_eq!(hit.map(|h| h.ray_hit(origin, d)), w.cast_unit(origin, d, max(k)), "{name}: cached ray {k} from {origin}");
                         cached += 1;
                     });
                     assert_eq!(cached, dirs.len());
+                    // Without normals: the same distances and primitives.
+                    w.cast_fan_cached::<false, _, _>(origin, rotation, dirs, &layout, &max, &mut |k, d, hit: Option<FanHit>| {
+                        let want = w.cast_unit(origin, d, max(k));
+                        assert_eq!(hit.map(|h| (h.t, h.primitive)), want.map(|h| (h.distance_m, h.primitive)), "{name}: no-normal ray {k}");
+                    });
                 }
             }
             assert_eq!(compared, 6 * (camera.len() + lidar.len()));
@@ -2556,8 +2924,8 @@ mod tests {
                 let rotation = DMat3::from_rotation_z(next(&mut state) * 6.3) * DMat3::from_rotation_x(0.2 * (next(&mut state) - 0.5));
                 let max = |k: usize| 60.0 * (0.3 + (k % 5) as f64 / 6.0);
                 let terrain = (w.primitive_count() - 1) as PrimitiveId;
-                w.cast_fan(origin, rotation, &lidar, &max, &mut |k, d, hit| {
-                    assert_eq!(hit, w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
+                w.cast_fan::<true, _, _>(origin, rotation, &lidar, &max, &mut |k, d, hit: Option<FanHit>| {
+                    assert_eq!(hit.map(|h| h.ray_hit(origin, d)), w.cast_unit(origin, d, max(k)), "{name}: ray {k} from {origin}");
                     terrain_hits += usize::from(hit.is_some_and(|h| h.primitive == terrain));
                 });
             }
