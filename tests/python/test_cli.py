@@ -104,3 +104,11 @@ def test_demo_writes_an_index_and_a_table(tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert {f["controller"] for f in summary["flights"]} == {"apf-pf", "raw-apf"}
     assert summary["flights"][0]["collisions"] == 0
+
+
+def test_bench_terrain_writes_a_report(tmp_path):
+    out = tmp_path / "terrain.json"
+    assert main(["bench", "terrain", "--repeats", "2", "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["points"] > 0
+    assert {"single_scan", "fused_window", "segment_ground", "numpy_reference"} <= set(report)
