@@ -1927,8 +1927,12 @@ impl Terrain {
                 j = (g + 1) * TERRAIN_VIEW_GROUP;
                 continue;
             }
-            if !row[j].admits(k) {
+            // Within the group (whose tail and union admit `k`): on to its first bin that does.
+            let end = ((g + 1) * TERRAIN_VIEW_GROUP).min(j1 + 1);
+            while j < end && !row[j].admits(k) {
                 j += 1;
+            }
+            if j == end {
                 continue;
             }
             let ja = j;
