@@ -2113,6 +2113,12 @@ const TERRAIN_VIEW_MAX_BINS: usize = 512;
 const TERRAIN_VIEW_MIN_DXY: f64 = 1.0e-6;
 /// Bins of a [`TerrainView`] summarised together (to skip them at once).
 const TERRAIN_VIEW_GROUP: usize = 8;
+/// Most bins a pyramid block spans for which a [`TerrainView`] works out slopes bin by bin
+/// (more: the block's slopes in each).
+const TERRAIN_VIEW_BLOCK_BINS: usize = 8;
+/// Relative widening of a bin's distances when a [`TerrainView`] works out a block's slopes
+/// in it (a ray's bin bounds are widened by 1e-9 relative and absolute).
+const TERRAIN_VIEW_BIN_PAD: f64 = 1.0e-6;
 
 /// The terrain as seen from one origin `o`, for culling many rays from there: around `o`,
 /// azimuth sectors (of a pseudo-angle) by bins of horizontal distance `r`, each with the
@@ -2213,22 +2219,38 @@ impl TerrainView {
                 let dy = if y0 > 0.0 { y0 } else if y1 < 0.0 { -y1 } else { 0.0 };
                 let rmin = (dx.hypot(dy) * (1.0 - 1.0e-9) - 1.0e-9).max(0.0);
                 let rmax = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs())) * (1.0 + 1.0e-9) + 1.0e-9;
-                // Slopes (z - o.z) / r over the block: the extremes at rmin or rmax.
-                let hi = if zhi >= 0.0 {
-                    if rmin > 0.0 { zhi / rmin } else { f64::INFINITY }
-                } else {
-                    zhi / rmax
+                // Slopes (z - o.z) / r over the block's part at distances [r0, r1]: the
+                // extremes at r0 or r1.
+                let slopes = |r0: f64, r1: f64| {
+                    let hi = if zhi >= 0.0 {
+                        if r0 > 0.0 { zhi / r0 } else { f64::INFINITY }
+                    } else {
+                        zhi / r1
+                    };
+                    let lo = if zlo <= 0.0 {
+                        if r0 > 0.0 { zlo / r0 } else { f64::NEG_INFINITY }
+                    } else {
+                        zlo / r1
+                    };
+                    SlopeRange::outward(lo, hi)
                 };
-                let lo = if zlo <= 0.0 {
-                    if rmin > 0.0 { zlo / rmin } else { f64::NEG_INFINITY }
-                } else {
-                    zlo / rmax
-                };
-                let range = SlopeRange::outward(lo, hi);
                 let (j0, j1) = (((rmin * inv_w) as usize).min(bins - 1), ((rmax * inv_w) as usize).min(bins - 1));
+                // Each bin gets the slopes of the block's part within it (its distances widened
+                // by more than the rounding of a ray's bin bounds; the last bin holds all beyond).
+                let mut ranges = [SlopeRange::EMPTY; TERRAIN_VIEW_BLOCK_BINS];
+                let per_bin = j1 - j0 < TERRAIN_VIEW_BLOCK_BINS;
+                if per_bin {
+                    for (j, range) in (j0..=j1).zip(&mut ranges) {
+                        let r0 = if j == j0 { rmin } else { rmin.max(j as f64 * w * (1.0 - TERRAIN_VIEW_BIN_PAD)) };
+                        let r1 = if j == j1 { rmax } else { rmax.min((j + 1) as f64 * w * (1.0 + TERRAIN_VIEW_BIN_PAD)) };
+                        *range = slopes(r0, r1);
+                    }
+                }
+                let whole = slopes(rmin, rmax);
                 let mut mark = |s0: usize, s1: usize| {
                     for s in s0..=s1 {
-                        for b in &mut view.slopes[s * bins + j0..=s * bins + j1] {
+                        for (k, b) in view.slopes[s * bins + j0..=s * bins + j1].iter_mut().enumerate() {
+                            let range = if per_bin { ranges[k] } else { whole };
                             b.lo = b.lo.min(range.lo);
                             b.hi = b.hi.max(range.hi);
                         }
