@@ -258,6 +258,7 @@ impl MapBuilder {
         map
     }
 
+    #[inline(never)]
     fn bin_points(&mut self, g: &GridGeometry, corner: DVec2, sources: &[ScanSource<'_>]) -> usize {
         let inv = (1.0 / g.resolution_m) as f32;
         let (nx, ny) = (g.nx as f32, g.ny as f32);
@@ -287,6 +288,7 @@ impl MapBuilder {
         binned
     }
 
+    #[inline(never)]
     fn merge_binned(&mut self, g: &GridGeometry, binned: &[BinnedSource<'_>]) -> usize {
         let (nx, ny) = (g.nx as i64, g.ny as i64);
         let mut points = 0;
@@ -312,6 +314,7 @@ impl MapBuilder {
         points
     }
 
+    #[inline(never)]
     fn ground_heights(&mut self, g: &GridGeometry, corner: DVec2, polar: Option<&NewestPolar<'_>>, map: &mut RiskMap) {
         let n = g.cells();
         let res = g.resolution_m;
@@ -352,6 +355,7 @@ impl MapBuilder {
     }
 
     /// Slope and residual of the plane through the ground heights under the window.
+    #[inline(never)]
     fn plane_fits(&mut self, g: &GridGeometry, map: &mut RiskMap) {
         let (nx, ny) = (g.nx, g.ny);
         let res = g.resolution_m;
@@ -407,6 +411,7 @@ impl MapBuilder {
         map.get_mut(Layer::PlaneResidual).copy_from_slice(&residual);
     }
 
+    #[inline(never)]
     fn steps(&mut self, g: &GridGeometry, map: &mut RiskMap) {
         let (nx, ny) = (g.nx, g.ny);
         let out = map.get_mut(Layer::StepHeight);
@@ -432,6 +437,7 @@ impl MapBuilder {
         }
     }
 
+    #[inline(never)]
     fn tilt(&mut self, g: &GridGeometry, map: &mut RiskMap) {
         let (nx, ny) = (g.nx, g.ny);
         let n = nx * ny;
@@ -462,31 +468,29 @@ impl MapBuilder {
         }
         let slope = map.get(Layer::Slope).to_vec();
         let out = map.get_mut(Layer::TiltAngle);
+        // Cells at least `reach` from every edge have all their corners inside the map:
+        // their corners are flat offsets from the cell, no bounds to test.
+        let reach_x = self.stencils.iter().flat_map(|s| s.offsets).map(|(dx, _)| dx.unsigned_abs() as usize).max().unwrap_or(0);
+        let reach_y = self.stencils.iter().flat_map(|s| s.offsets).map(|(_, dy)| dy.unsigned_abs() as usize).max().unwrap_or(0);
+        let flat: Vec<[isize; 4]> = self.stencils.iter().map(|s| s.offsets.map(|(dx, dy)| dy as isize * nx as isize + dx as isize)).collect();
         for iy in 0..ny {
+            let inner_y = iy >= reach_y && iy + reach_y < ny;
             for ix in 0..nx {
                 let c = iy * nx + ix;
                 if !self.height[c].is_finite() {
                     out[c] = f32::NAN;
                     continue;
                 }
+                let inner = inner_y && ix >= reach_x && ix + reach_x < nx;
                 let mut worst_tan2 = -1.0f64;
-                for stencil in &self.stencils {
-                    let mut h = [0.0f64; 4];
-                    let mut complete = true;
-                    for (corner, &(dx, dy)) in stencil.offsets.iter().enumerate() {
-                        let (jx, jy) = (ix as i64 + dx, iy as i64 + dy);
-                        if jx < 0 || jy < 0 || jx >= nx as i64 || jy >= ny as i64 {
-                            complete = false;
-                            break;
-                        }
-                        let v = self.patch_max[jy as usize * nx + jx as usize];
-                        if !v.is_finite() {
-                            complete = false;
-                            break;
-                        }
-                        h[corner] = v as f64;
-                    }
-                    if complete {
+                for (stencil, offsets) in self.stencils.iter().zip(&flat) {
+                    let corners = if inner {
+                        let v = offsets.map(|o| self.patch_max[(c as isize + o) as usize]);
+                        v.iter().all(|h| h.is_finite()).then(|| v.map(f64::from))
+                    } else {
+                        corner_heights(&self.patch_max, nx, ny, ix, iy, &stencil.offsets)
+                    };
+                    if let Some(h) = corners {
                         worst_tan2 = worst_tan2.max(settle_tan2(&stencil.triangles, &h));
                     }
                 }
@@ -495,6 +499,7 @@ impl MapBuilder {
         }
     }
 
+    #[inline(never)]
     fn risks(&mut self, g: &GridGeometry, body_world: DVec3, missions: &[MissionItem], map: &mut RiskMap) {
         let n = g.cells();
         let r = self.risk;
@@ -554,6 +559,24 @@ fn floor_i64(x: f64) -> i64 {
     } else {
         t
     }
+}
+
+/// The patch heights under the four corners at `offsets` from cell `(ix, iy)`; `None` if a
+/// corner is off the map or has no ground.
+fn corner_heights(patch_max: &[f32], nx: usize, ny: usize, ix: usize, iy: usize, offsets: &[(i64, i64); 4]) -> Option<[f64; 4]> {
+    let mut h = [0.0f64; 4];
+    for (corner, &(dx, dy)) in offsets.iter().enumerate() {
+        let (jx, jy) = (ix as i64 + dx, iy as i64 + dy);
+        if jx < 0 || jy < 0 || jx >= nx as i64 || jy >= ny as i64 {
+            return None;
+        }
+        let v = patch_max[jy as usize * nx + jx as usize];
+        if !v.is_finite() {
+            return None;
+        }
+        h[corner] = v as f64;
+    }
+    Some(h)
 }
 
 /// The footprint corners at heading `yaw` as cell offsets, and the four settling triangles.
