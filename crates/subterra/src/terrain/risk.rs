@@ -510,33 +510,42 @@ impl MapBuilder {
         for item in missions {
             stamp_mission(g, item, r.mission_margin_m, &mut mission);
         }
-        let mut out = map.layers_mut();
-        let get = |l: Layer| l as usize;
+        // One slice per layer, in `Layer::ALL` order, each exactly `n` long.
+        let Ok([count_l, ground_count, ground_height, min_height, max_height, _slope, residual, step_height, negative_depth, tilt_angle, observed_l, age_l, collision_l, step_l, negative_l, tilt_l, rough_l, unknown_l, mission_l, risk_l, variance_l]) =
+            <[&mut [f32]; 21]>::try_from(map.layers_mut())
+        else {
+            unreachable!("a RiskMap holds Layer::ALL.len() layers")
+        };
+        let cells = &self.cells[..n];
+        let height = &self.height[..n];
         for c in 0..n {
-            let cell = self.cells[c];
+            let cell = cells[c];
             let count = cell.count;
-            out[get(Layer::Count)][c] = count as f32;
-            out[get(Layer::GroundCount)][c] = cell.ground_n as f32;
-            out[get(Layer::GroundHeight)][c] = self.height[c] + z0;
+            count_l[c] = count as f32;
+            ground_count[c] = cell.ground_n as f32;
+            ground_height[c] = height[c] + z0;
             let has = count > 0;
-            out[get(Layer::MinHeight)][c] = if has { cell.min_z + z0 } else { f32::NAN };
-            out[get(Layer::MaxHeight)][c] = if has { cell.max_z + z0 } else { f32::NAN };
-            out[get(Layer::Age)][c] = if has { cell.min_age } else { f32::NAN };
-            let observed = out[get(Layer::Observed)][c] > 0.0;
+            min_height[c] = if has { cell.min_z + z0 } else { f32::NAN };
+            max_height[c] = if has { cell.max_z + z0 } else { f32::NAN };
+            age_l[c] = if has { cell.min_age } else { f32::NAN };
+            let observed = observed_l[c] > 0.0;
             let collision = r.collision_points.eval(cell.collision_n as f64);
-            let step = r.step_m.eval(out[get(Layer::StepHeight)][c] as f64);
-            let negative = r.negative_m.eval(out[get(Layer::NegativeDepth)][c] as f64);
-            let tilt = tilt_ramp.eval(out[get(Layer::TiltAngle)][c] as f64);
-            let rough = r.roughness_m.eval(out[get(Layer::PlaneResidual)][c] as f64);
+            let step = r.step_m.eval(step_height[c] as f64);
+            let negative = r.negative_m.eval(negative_depth[c] as f64);
+            let tilt = tilt_ramp.eval(tilt_angle[c] as f64);
+            let rough = r.roughness_m.eval(residual[c] as f64);
             let unknown = if observed { 0.0 } else { r.unknown };
             let m = mission[c] as f64;
-            let risks = [collision, step, negative, tilt, rough, unknown, m];
-            let mut keep = 1.0;
-            for (layer, value) in Layer::RISKS.iter().zip(risks) {
-                out[get(*layer)][c] = value as f32;
-                keep *= 1.0 - value;
-            }
-            out[get(Layer::Risk)][c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
+            // Same order as Layer::RISKS.
+            collision_l[c] = collision as f32;
+            step_l[c] = step as f32;
+            negative_l[c] = negative as f32;
+            tilt_l[c] = tilt as f32;
+            rough_l[c] = rough as f32;
+            unknown_l[c] = unknown as f32;
+            mission_l[c] = m as f32;
+            let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
+            risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
             let sigma = if observed {
                 let age = if has { cell.min_age as f64 } else { 0.0 };
                 let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
@@ -544,7 +553,7 @@ impl MapBuilder {
             } else {
                 u.max_sigma
             };
-            out[get(Layer::RiskVariance)][c] = (sigma * sigma) as f32;
+            variance_l[c] = (sigma * sigma) as f32;
         }
     }
 }
