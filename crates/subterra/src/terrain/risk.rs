@@ -447,23 +447,30 @@ impl MapBuilder {
         self.patch_tmp.resize(n, f32::NAN);
         self.patch_max.clear();
         self.patch_max.resize(n, f32::NAN);
+        // Row by row, offset by offset in increasing order: each cell folds the same values
+        // in the same order as a per-cell loop would.
+        let nan_max = |m: f32, v: f32| if v > m || m.is_nan() { v } else { m };
         for iy in 0..ny {
             let row = &self.height[iy * nx..(iy + 1) * nx];
-            for ix in 0..nx {
-                let m = row[ix.saturating_sub(p)..(ix + p + 1).min(nx)].iter().fold(f32::NAN, |m, &v| if v > m || m.is_nan() { v } else { m });
-                self.patch_tmp[iy * nx + ix] = m;
+            let tmp = &mut self.patch_tmp[iy * nx..(iy + 1) * nx];
+            for d in -(p as isize)..=p as isize {
+                // Cells ix with 0 <= ix + d < nx.
+                let (lo, hi) = ((-d).max(0) as usize, (nx as isize - d).min(nx as isize).max(0) as usize);
+                if lo >= hi {
+                    continue;
+                }
+                let src = &row[(lo as isize + d) as usize..(hi as isize + d) as usize];
+                for (m, &v) in tmp[lo..hi].iter_mut().zip(src) {
+                    *m = nan_max(*m, v);
+                }
             }
         }
         for iy in 0..ny {
-            for ix in 0..nx {
-                let mut m = f32::NAN;
-                for jy in iy.saturating_sub(p)..(iy + p + 1).min(ny) {
-                    let v = self.patch_tmp[jy * nx + ix];
-                    if v > m || m.is_nan() {
-                        m = v;
-                    }
+            let out = &mut self.patch_max[iy * nx..(iy + 1) * nx];
+            for jy in iy.saturating_sub(p)..(iy + p + 1).min(ny) {
+                for (m, &v) in out.iter_mut().zip(&self.patch_tmp[jy * nx..(jy + 1) * nx]) {
+                    *m = nan_max(*m, v);
                 }
-                self.patch_max[iy * nx + ix] = m;
             }
         }
         let slope = map.get(Layer::Slope).to_vec();
