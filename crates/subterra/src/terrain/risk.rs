@@ -320,8 +320,11 @@ impl MapBuilder {
         let res = g.resolution_m;
         self.height.clear();
         self.height.resize(n, f32::NAN);
-        let mut observed = vec![0.0f32; n];
-        let mut depth = vec![0.0f32; n];
+        // The map starts all zeros: unobserved, no depth.
+        let Ok([.., negative_depth, _tilt, observed, _age, _collision, _step, _negative, _tilt_risk, _rough, _unknown, _mission, _risk, _variance]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
+            unreachable!("a RiskMap holds Layer::ALL.len() layers")
+        };
+        let depth = negative_depth;
         for (c, cell) in self.cells.iter().enumerate() {
             if cell.ground_n > 0 {
                 self.height[c] = cell.ground_sum / cell.ground_n as f32;
@@ -350,8 +353,6 @@ impl MapBuilder {
                 }
             }
         }
-        map.get_mut(Layer::Observed).copy_from_slice(&observed);
-        map.get_mut(Layer::NegativeDepth).copy_from_slice(&depth);
     }
 
     /// Slope and residual of the plane through the ground heights under the window.
@@ -382,8 +383,11 @@ impl MapBuilder {
         }
         let hw = self.plane_half;
         let min_cells = self.layers.plane_min_cells as f64;
-        let mut slope = vec![f32::NAN; nx * ny];
-        let mut residual = vec![f32::NAN; nx * ny];
+        let Ok([_count, _ground_count, _ground_height, _min, _max, slope, residual, ..]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
+            unreachable!("a RiskMap holds Layer::ALL.len() layers")
+        };
+        slope.fill(f32::NAN);
+        residual.fill(f32::NAN);
         for iy in 0..ny {
             let (y0, y1) = (iy.saturating_sub(hw), (iy + hw + 1).min(ny));
             for ix in 0..nx {
@@ -407,8 +411,6 @@ impl MapBuilder {
                 }
             }
         }
-        map.get_mut(Layer::Slope).copy_from_slice(&slope);
-        map.get_mut(Layer::PlaneResidual).copy_from_slice(&residual);
     }
 
     #[inline(never)]
@@ -473,8 +475,9 @@ impl MapBuilder {
                 }
             }
         }
-        let slope = map.get(Layer::Slope).to_vec();
-        let out = map.get_mut(Layer::TiltAngle);
+        let Ok([_count, _ground_count, _ground_height, _min, _max, slope, _residual, _step, _depth, out, ..]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
+            unreachable!("a RiskMap holds Layer::ALL.len() layers")
+        };
         // Cells at least `reach` from every edge have all their corners inside the map:
         // their corners are flat offsets from the cell, no bounds to test.
         let reach_x = self.stencils.iter().flat_map(|s| s.offsets).map(|(dx, _)| dx.unsigned_abs() as usize).max().unwrap_or(0);
