@@ -258,6 +258,7 @@ impl MapBuilder {
         map
     }
 
+    #[inline(never)]
     fn bin_points(&mut self, g: &GridGeometry, corner: DVec2, sources: &[ScanSource<'_>]) -> usize {
         let inv = (1.0 / g.resolution_m) as f32;
         let (nx, ny) = (g.nx as f32, g.ny as f32);
@@ -287,6 +288,7 @@ impl MapBuilder {
         binned
     }
 
+    #[inline(never)]
     fn merge_binned(&mut self, g: &GridGeometry, binned: &[BinnedSource<'_>]) -> usize {
         let (nx, ny) = (g.nx as i64, g.ny as i64);
         let mut points = 0;
@@ -312,13 +314,17 @@ impl MapBuilder {
         points
     }
 
+    #[inline(never)]
     fn ground_heights(&mut self, g: &GridGeometry, corner: DVec2, polar: Option<&NewestPolar<'_>>, map: &mut RiskMap) {
         let n = g.cells();
         let res = g.resolution_m;
         self.height.clear();
         self.height.resize(n, f32::NAN);
-        let mut observed = vec![0.0f32; n];
-        let mut depth = vec![0.0f32; n];
+        // The map starts all zeros: unobserved, no depth.
+        let Ok([.., negative_depth, _tilt, observed, _age, _collision, _step, _negative, _tilt_risk, _rough, _unknown, _mission, _risk, _variance]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
+            unreachable!("a RiskMap holds Layer::ALL.len() layers")
+        };
+        let depth = negative_depth;
         for (c, cell) in self.cells.iter().enumerate() {
             if cell.ground_n > 0 {
                 self.height[c] = cell.ground_sum / cell.ground_n as f32;
@@ -347,11 +353,10 @@ impl MapBuilder {
                 }
             }
         }
-        map.get_mut(Layer::Observed).copy_from_slice(&observed);
-        map.get_mut(Layer::NegativeDepth).copy_from_slice(&depth);
     }
 
     /// Slope and residual of the plane through the ground heights under the window.
+    #[inline(never)]
     fn plane_fits(&mut self, g: &GridGeometry, map: &mut RiskMap) {
         let (nx, ny) = (g.nx, g.ny);
         let res = g.resolution_m;
@@ -378,8 +383,11 @@ impl MapBuilder {
         }
         let hw = self.plane_half;
         let min_cells = self.layers.plane_min_cells as f64;
-        let mut slope = vec![f32::NAN; nx * ny];
-        let mut residual = vec![f32::NAN; nx * ny];
+        let Ok([_count, _ground_count, _ground_height, _min, _max, slope, residual, ..]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
+            unreachable!("a RiskMap holds Layer::ALL.len() layers")
+        };
+        slope.fill(f32::NAN);
+        residual.fill(f32::NAN);
         for iy in 0..ny {
             let (y0, y1) = (iy.saturating_sub(hw), (iy + hw + 1).min(ny));
             for ix in 0..nx {
@@ -403,10 +411,9 @@ impl MapBuilder {
                 }
             }
         }
-        map.get_mut(Layer::Slope).copy_from_slice(&slope);
-        map.get_mut(Layer::PlaneResidual).copy_from_slice(&residual);
     }
 
+    #[inline(never)]
     fn steps(&mut self, g: &GridGeometry, map: &mut RiskMap) {
         let (nx, ny) = (g.nx, g.ny);
         let out = map.get_mut(Layer::StepHeight);
@@ -432,6 +439,7 @@ impl MapBuilder {
         }
     }
 
+    #[inline(never)]
     fn tilt(&mut self, g: &GridGeometry, map: &mut RiskMap) {
         let (nx, ny) = (g.nx, g.ny);
         let n = nx * ny;
@@ -441,52 +449,58 @@ impl MapBuilder {
         self.patch_tmp.resize(n, f32::NAN);
         self.patch_max.clear();
         self.patch_max.resize(n, f32::NAN);
+        // Row by row, offset by offset in increasing order: each cell folds the same values
+        // in the same order as a per-cell loop would.
+        let nan_max = |m: f32, v: f32| if v > m || m.is_nan() { v } else { m };
         for iy in 0..ny {
             let row = &self.height[iy * nx..(iy + 1) * nx];
-            for ix in 0..nx {
-                let m = row[ix.saturating_sub(p)..(ix + p + 1).min(nx)].iter().fold(f32::NAN, |m, &v| if v > m || m.is_nan() { v } else { m });
-                self.patch_tmp[iy * nx + ix] = m;
-            }
-        }
-        for iy in 0..ny {
-            for ix in 0..nx {
-                let mut m = f32::NAN;
-                for jy in iy.saturating_sub(p)..(iy + p + 1).min(ny) {
-                    let v = self.patch_tmp[jy * nx + ix];
-                    if v > m || m.is_nan() {
-                        m = v;
-                    }
+            let tmp = &mut self.patch_tmp[iy * nx..(iy + 1) * nx];
+            for d in -(p as isize)..=p as isize {
+                // Cells ix with 0 <= ix + d < nx.
+                let (lo, hi) = ((-d).max(0) as usize, (nx as isize - d).min(nx as isize).max(0) as usize);
+                if lo >= hi {
+                    continue;
                 }
-                self.patch_max[iy * nx + ix] = m;
+                let src = &row[(lo as isize + d) as usize..(hi as isize + d) as usize];
+                for (m, &v) in tmp[lo..hi].iter_mut().zip(src) {
+                    *m = nan_max(*m, v);
+                }
             }
         }
-        let slope = map.get(Layer::Slope).to_vec();
-        let out = map.get_mut(Layer::TiltAngle);
         for iy in 0..ny {
+            let out = &mut self.patch_max[iy * nx..(iy + 1) * nx];
+            for jy in iy.saturating_sub(p)..(iy + p + 1).min(ny) {
+                for (m, &v) in out.iter_mut().zip(&self.patch_tmp[jy * nx..(jy + 1) * nx]) {
+                    *m = nan_max(*m, v);
+                }
+            }
+        }
+        let Ok([_count, _ground_count, _ground_height, _min, _max, slope, _residual, _step, _depth, out, ..]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
+            unreachable!("a RiskMap holds Layer::ALL.len() layers")
+        };
+        // Cells at least `reach` from every edge have all their corners inside the map:
+        // their corners are flat offsets from the cell, no bounds to test.
+        let reach_x = self.stencils.iter().flat_map(|s| s.offsets).map(|(dx, _)| dx.unsigned_abs() as usize).max().unwrap_or(0);
+        let reach_y = self.stencils.iter().flat_map(|s| s.offsets).map(|(_, dy)| dy.unsigned_abs() as usize).max().unwrap_or(0);
+        let flat: Vec<[isize; 4]> = self.stencils.iter().map(|s| s.offsets.map(|(dx, dy)| dy as isize * nx as isize + dx as isize)).collect();
+        for iy in 0..ny {
+            let inner_y = iy >= reach_y && iy + reach_y < ny;
             for ix in 0..nx {
                 let c = iy * nx + ix;
                 if !self.height[c].is_finite() {
                     out[c] = f32::NAN;
                     continue;
                 }
+                let inner = inner_y && ix >= reach_x && ix + reach_x < nx;
                 let mut worst_tan2 = -1.0f64;
-                for stencil in &self.stencils {
-                    let mut h = [0.0f64; 4];
-                    let mut complete = true;
-                    for (corner, &(dx, dy)) in stencil.offsets.iter().enumerate() {
-                        let (jx, jy) = (ix as i64 + dx, iy as i64 + dy);
-                        if jx < 0 || jy < 0 || jx >= nx as i64 || jy >= ny as i64 {
-                            complete = false;
-                            break;
-                        }
-                        let v = self.patch_max[jy as usize * nx + jx as usize];
-                        if !v.is_finite() {
-                            complete = false;
-                            break;
-                        }
-                        h[corner] = v as f64;
-                    }
-                    if complete {
+                for (stencil, offsets) in self.stencils.iter().zip(&flat) {
+                    let corners = if inner {
+                        let v = offsets.map(|o| self.patch_max[(c as isize + o) as usize]);
+                        v.iter().all(|h| h.is_finite()).then(|| v.map(f64::from))
+                    } else {
+                        corner_heights(&self.patch_max, nx, ny, ix, iy, &stencil.offsets)
+                    };
+                    if let Some(h) = corners {
                         worst_tan2 = worst_tan2.max(settle_tan2(&stencil.triangles, &h));
                     }
                 }
@@ -495,6 +509,7 @@ impl MapBuilder {
         }
     }
 
+    #[inline(never)]
     fn risks(&mut self, g: &GridGeometry, body_world: DVec3, missions: &[MissionItem], map: &mut RiskMap) {
         let n = g.cells();
         let r = self.risk;
@@ -505,33 +520,42 @@ impl MapBuilder {
         for item in missions {
             stamp_mission(g, item, r.mission_margin_m, &mut mission);
         }
-        let mut out = map.layers_mut();
-        let get = |l: Layer| l as usize;
+        // One slice per layer, in `Layer::ALL` order, each exactly `n` long.
+        let Ok([count_l, ground_count, ground_height, min_height, max_height, _slope, residual, step_height, negative_depth, tilt_angle, observed_l, age_l, collision_l, step_l, negative_l, tilt_l, rough_l, unknown_l, mission_l, risk_l, variance_l]) =
+            <[&mut [f32]; 21]>::try_from(map.layers_mut())
+        else {
+            unreachable!("a RiskMap holds Layer::ALL.len() layers")
+        };
+        let cells = &self.cells[..n];
+        let height = &self.height[..n];
         for c in 0..n {
-            let cell = self.cells[c];
+            let cell = cells[c];
             let count = cell.count;
-            out[get(Layer::Count)][c] = count as f32;
-            out[get(Layer::GroundCount)][c] = cell.ground_n as f32;
-            out[get(Layer::GroundHeight)][c] = self.height[c] + z0;
+            count_l[c] = count as f32;
+            ground_count[c] = cell.ground_n as f32;
+            ground_height[c] = height[c] + z0;
             let has = count > 0;
-            out[get(Layer::MinHeight)][c] = if has { cell.min_z + z0 } else { f32::NAN };
-            out[get(Layer::MaxHeight)][c] = if has { cell.max_z + z0 } else { f32::NAN };
-            out[get(Layer::Age)][c] = if has { cell.min_age } else { f32::NAN };
-            let observed = out[get(Layer::Observed)][c] > 0.0;
+            min_height[c] = if has { cell.min_z + z0 } else { f32::NAN };
+            max_height[c] = if has { cell.max_z + z0 } else { f32::NAN };
+            age_l[c] = if has { cell.min_age } else { f32::NAN };
+            let observed = observed_l[c] > 0.0;
             let collision = r.collision_points.eval(cell.collision_n as f64);
-            let step = r.step_m.eval(out[get(Layer::StepHeight)][c] as f64);
-            let negative = r.negative_m.eval(out[get(Layer::NegativeDepth)][c] as f64);
-            let tilt = tilt_ramp.eval(out[get(Layer::TiltAngle)][c] as f64);
-            let rough = r.roughness_m.eval(out[get(Layer::PlaneResidual)][c] as f64);
+            let step = r.step_m.eval(step_height[c] as f64);
+            let negative = r.negative_m.eval(negative_depth[c] as f64);
+            let tilt = tilt_ramp.eval(tilt_angle[c] as f64);
+            let rough = r.roughness_m.eval(residual[c] as f64);
             let unknown = if observed { 0.0 } else { r.unknown };
             let m = mission[c] as f64;
-            let risks = [collision, step, negative, tilt, rough, unknown, m];
-            let mut keep = 1.0;
-            for (layer, value) in Layer::RISKS.iter().zip(risks) {
-                out[get(*layer)][c] = value as f32;
-                keep *= 1.0 - value;
-            }
-            out[get(Layer::Risk)][c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
+            // Same order as Layer::RISKS.
+            collision_l[c] = collision as f32;
+            step_l[c] = step as f32;
+            negative_l[c] = negative as f32;
+            tilt_l[c] = tilt as f32;
+            rough_l[c] = rough as f32;
+            unknown_l[c] = unknown as f32;
+            mission_l[c] = m as f32;
+            let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
+            risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
             let sigma = if observed {
                 let age = if has { cell.min_age as f64 } else { 0.0 };
                 let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
@@ -539,7 +563,7 @@ impl MapBuilder {
             } else {
                 u.max_sigma
             };
-            out[get(Layer::RiskVariance)][c] = (sigma * sigma) as f32;
+            variance_l[c] = (sigma * sigma) as f32;
         }
     }
 }
@@ -554,6 +578,24 @@ fn floor_i64(x: f64) -> i64 {
     } else {
         t
     }
+}
+
+/// The patch heights under the four corners at `offsets` from cell `(ix, iy)`; `None` if a
+/// corner is off the map or has no ground.
+fn corner_heights(patch_max: &[f32], nx: usize, ny: usize, ix: usize, iy: usize, offsets: &[(i64, i64); 4]) -> Option<[f64; 4]> {
+    let mut h = [0.0f64; 4];
+    for (corner, &(dx, dy)) in offsets.iter().enumerate() {
+        let (jx, jy) = (ix as i64 + dx, iy as i64 + dy);
+        if jx < 0 || jy < 0 || jx >= nx as i64 || jy >= ny as i64 {
+            return None;
+        }
+        let v = patch_max[jy as usize * nx + jx as usize];
+        if !v.is_finite() {
+            return None;
+        }
+        h[corner] = v as f64;
+    }
+    Some(h)
 }
 
 /// The footprint corners at heading `yaw` as cell offsets, and the four settling triangles.
