@@ -1,8 +1,12 @@
-"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py`."""
+"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py [terrain]`
+(with `terrain`, only the terrain figures)."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
+
+import numpy as np
 
 import subterra
 from subterra.perceive import run_perception
@@ -12,8 +16,44 @@ from subterra.viz.plots import plot_depth_trace
 FIGURES = Path(__file__).resolve().parent / "figures"
 
 
+def terrain_figures() -> None:
+    """docs/terrain.md: the simulated mine seen by an OS1-64, and the real Ouster OS1-128 scans."""
+    from subterra.sim import Lidar, World
+    from subterra.sim.render import pose_matrix, start_pose
+    from subterra.terrain import translation
+    from subterra.viz.terrain import plot_terrain_overview
+
+    world = World.scenario("mine", 0)
+    position, yaw, _ = start_pose(world)
+    ground = world.ground_height(position[0], position[1]) or 0.0
+    world_from_body = pose_matrix(np.array([position[0], position[1], ground]), yaw)
+    body_from_sensor = translation(z=0.7)
+    points, _ = Lidar("os1_64").scan(world, world_from_body @ body_from_sensor)
+    mapper = subterra.TerrainMapper()
+    risk_map = mapper.update(points, world_from_body=world_from_body, body_from_sensor=body_from_sensor)
+    plot_terrain_overview(mapper, risk_map, FIGURES / "terrain-mine.png", robot_xy=world_from_body[:2, 3],
+                          title="simulated mine (seed 0), one OS1-64 scan 0.7 m up: segmentation and risk layers")
+
+    data = Path(__file__).resolve().parents[2] / "shared" / "data" / "ouster-os1-128-outdoor"
+    if not data.is_dir():
+        print("../shared/data is absent: skipping the Ouster figure")
+        return
+    from subterra.terrain.cli import run_terrain
+
+    run = FIGURES / "terrain-ouster-run"
+    run_terrain([data / f"OS-1-128_scan{i}.npy" for i in range(3)], run,
+                poses=data / "OS-1-128_v2.3.0_1024x10_lb_n3_poses_kitti.txt", progress=False)
+    (run / "overview.png").replace(FIGURES / "terrain-ouster.png")
+    for leftover in run.iterdir():
+        leftover.unlink()
+    run.rmdir()
+
+
 def main() -> None:
     FIGURES.mkdir(exist_ok=True)
+    terrain_figures()
+    if sys.argv[1:] == ["terrain"]:
+        return
     camera = subterra.PinholeCamera.d435()
     depth, truth = approaching_box_frames(camera, frames=40, seed=0)
     _, records = run_perception(((str(n), d, None) for n, d in enumerate(depth)), camera, progress=False)

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
@@ -24,7 +25,7 @@ def test_readme_starts_with_the_two_commands():
 
 
 def test_python_example_runs_and_says_what_the_text_claims(capsys):
-    (code,) = _blocks("python")
+    code = _blocks("python")[0]
     namespace: dict = {}
     exec(compile(code, "README.md", "exec"), namespace)
     out, cmd = namespace["out"], namespace["cmd"]
@@ -34,6 +35,25 @@ def test_python_example_runs_and_says_what_the_text_claims(capsys):
     assert cmd.v_x < 0.6
     assert out.repulsive_body[0] < 0
     assert "Command(" in capsys.readouterr().out
+
+
+def test_terrain_example_runs_and_says_what_the_text_claims(capsys):
+    code = _blocks("python")[1]
+    namespace: dict = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    risk_map, collision = namespace["risk_map"], namespace["collision"]
+    # "The box's 16 cells (0.4 m x 0.4 m) are lethal, the open floor is risk 0"
+    assert capsys.readouterr().out.split() == ["1.0", "0.0"]
+    assert collision.shape == (200, 200) and collision.dtype == np.float32
+    lethal = np.argwhere(collision >= 1.0)
+    assert len(lethal) == 16
+    xs, ys = risk_map.x_centres[lethal[:, 1]], risk_map.y_centres[lethal[:, 0]]
+    assert xs.min() > 2.0 and xs.max() < 2.4 and ys.min() > 2.0 and ys.max() < 2.4
+    assert int(np.count_nonzero(risk_map.layer("risk") >= 1.0)) == 16
+
+
+def test_readme_has_exactly_these_python_examples():
+    assert len(_blocks("python")) == 2
 
 
 def test_cli_examples_run(tmp_path):

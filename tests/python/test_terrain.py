@@ -336,7 +336,7 @@ def test_cli_writes_every_file(tmp_path):
     assert args.handler(args) == 0
     summary = json.loads((out / "summary.json").read_text())
     names = subterra.TerrainMapper().update(plane()).layer_names
-    expected = {f"layer_{n}.png" for n in names} | {"risk.png", "risk_fine.png", "cloud_top.png", "summary.json"}
+    expected = {f"layer_{n}.png" for n in names} | {"risk.png", "risk_fine.png", "cloud_top.png", "overview.png", "summary.json"}
     assert expected <= {p.name for p in out.iterdir()}
     assert all((out / f).stat().st_size > 1000 for f in expected)
     assert len(summary["scans"]) == 3 and summary["map"]["scans_fused"] == 3
@@ -349,6 +349,25 @@ def test_cli_writes_every_file(tmp_path):
     args = parser.parse_args(["terrain", str(tmp_path / "nope.pcd"), "--out", str(out), "--no-progress"])
     with pytest.raises(FileFormatError, match="nope.pcd"):
         args.handler(args)
+
+
+def test_overview_figure(tmp_path):
+    from PIL import Image
+
+    from subterra.viz.terrain import plot_terrain_overview
+
+    points, _ = box_scene()
+    mapper = subterra.TerrainMapper()
+    risk_map = mapper.update(points, body_from_sensor=translation(z=SENSOR_HEIGHT_M))
+    path = plot_terrain_overview(mapper, risk_map, tmp_path / "sub" / "overview.png")
+    wide = np.asarray(Image.open(path).convert("RGB"))
+    narrow = np.asarray(Image.open(plot_terrain_overview(mapper, risk_map, tmp_path / "two.png", layers=("risk",))).convert("RGB"))
+    assert wide.shape[1] > 1.4 * narrow.shape[1]  # six panels in three columns against two
+    # The lethal box is drawn in the colour map's red end.
+    red = (wide[..., 0] > 150) & (wide[..., 1] < 60) & (wide[..., 2] < 60)
+    assert red.sum() > 50
+    with pytest.raises(InputError, match="`layers`.*'slop'"):
+        plot_terrain_overview(mapper, risk_map, tmp_path / "bad.png", layers=("slop",))
 
 
 # ------------------------------------------------------------------ real data: Ouster OS1-128

@@ -242,6 +242,12 @@ def _write_figures(mapper, risk_map, body_world: np.ndarray, out: Path) -> list[
         fig.tight_layout()
         save(fig, fname)
 
+    from subterra.viz.terrain import plot_terrain_overview
+
+    plot_terrain_overview(mapper, risk_map, out / "overview.png", robot_xy=robot_xy,
+                          title=f"terrain: {risk_map.scans} scan(s) fused, {risk_map.resolution} m cells, robot at +")
+    written.append("overview.png")
+
     newest = mapper.newest_points()
     if newest is not None:
         points, heights = newest
