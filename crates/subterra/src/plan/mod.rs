@@ -5,4 +5,4 @@
 
 pub mod recovery;
 
-pub use recovery::{Behaviour, Directive, PlanStatus, RecoveryConfig, RecoveryInput, RecoveryMachine, Target, Transition};
+pub use recovery::{Behaviour, Directive, PlanFeedback, RecoveryConfig, RecoveryInput, RecoveryMachine, Target, Transition};

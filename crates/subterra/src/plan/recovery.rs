@@ -218,7 +218,7 @@ impl fmt::Display for Behaviour {
 
 /// How the planner's last call went, as the recovery machine needs to know it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum PlanStatus {
+pub enum PlanFeedback {
     /// A path within the thresholds was found.
     Found,
     /// No path (unreachable, or the start or target is untraversable).
@@ -242,7 +242,7 @@ pub struct RecoveryInput {
     /// straight line).
     pub distance_to_target_m: f64,
     /// How the planner's last call went.
-    pub plan: PlanStatus,
+    pub plan: PlanFeedback,
     /// Heading of most clearance around the robot, world frame [rad], if the navigator
     /// computed one (used when entering `Rotate`).
     pub clearance_heading_rad: Option<f64>,
@@ -488,12 +488,12 @@ impl RecoveryMachine {
     /// The reason for a trigger this tick, if there is one.
     fn trigger(&mut self, input: &RecoveryInput) -> Option<String> {
         match input.plan {
-            PlanStatus::NoPath | PlanStatus::BudgetExceeded => self.plan_failures += 1,
-            PlanStatus::Found => self.plan_failures = 0,
-            PlanStatus::NotRun => {}
+            PlanFeedback::NoPath | PlanFeedback::BudgetExceeded => self.plan_failures += 1,
+            PlanFeedback::Found => self.plan_failures = 0,
+            PlanFeedback::NotRun => {}
         }
         if self.plan_failures >= self.config.stuck_plan_failures {
-            let what = if input.plan == PlanStatus::BudgetExceeded { "no path within the risk budget" } else { "no path" };
+            let what = if input.plan == PlanFeedback::BudgetExceeded { "no path within the risk budget" } else { "no path" };
             return Some(format!("{what} for {} ticks (R_inst {:.2}, R_total {:.2})", self.plan_failures, self.r_inst, self.r_total));
         }
         let window = self.config.progress_window_s;
@@ -617,7 +617,7 @@ pub fn wrap_angle(a: f64) -> f64 {
 mod tests {
     use super::*;
 
-    fn input(t: f64, x: f64, d: f64, plan: PlanStatus) -> RecoveryInput {
+    fn input(t: f64, x: f64, d: f64, plan: PlanFeedback) -> RecoveryInput {
         RecoveryInput {
             time_s: t,
             position: DVec2::new(x, 0.0),
@@ -638,7 +638,7 @@ mod tests {
         for k in 0..350 {
             let t = k as f64 * 0.1;
             let d = 15.0 - t * 0.5; // 0.5 m/s toward the goal
-            let out = m.step(&input(t, t * 0.5, d.max(0.0), PlanStatus::Found)).unwrap();
+            let out = m.step(&input(t, t * 0.5, d.max(0.0), PlanFeedback::Found)).unwrap();
             if d > 0.5 {
                 assert_eq!(out.behaviour, Behaviour::Track, "t = {t}");
             }
@@ -655,7 +655,7 @@ mod tests {
         let mut t = 0.0;
         let mut x = 0.0;
         for _ in 0..400 {
-            let out = m.step(&input(t, x, 10.0, PlanStatus::NoPath)).unwrap();
+            let out = m.step(&input(t, x, 10.0, PlanFeedback::NoPath)).unwrap();
             if seen.last() != Some(&out.behaviour) {
                 seen.push(out.behaviour);
             }
@@ -668,7 +668,7 @@ mod tests {
             t += 0.1;
             if out.behaviour == Behaviour::Rotate {
                 // The robot turns to the asked heading.
-                let out = m.step(&RecoveryInput { time_s: t, yaw_rad: 1.0, ..input(t, x, 10.0, PlanStatus::NoPath) }).unwrap();
+                let out = m.step(&RecoveryInput { time_s: t, yaw_rad: 1.0, ..input(t, x, 10.0, PlanFeedback::NoPath) }).unwrap();
                 assert_eq!(out.behaviour, Behaviour::Track);
                 t += 0.1;
             }
@@ -694,7 +694,7 @@ mod tests {
         let mut m = machine();
         let mut clears = 0;
         for k in 0..5 {
-            let out = m.step(&input(k as f64 * 0.1, 0.0, 10.0, PlanStatus::NoPath)).unwrap();
+            let out = m.step(&input(k as f64 * 0.1, 0.0, 10.0, PlanFeedback::NoPath)).unwrap();
             clears += out.clear_map as u32;
             if k == 4 {
                 assert!(out.clear_map);
@@ -711,7 +711,7 @@ mod tests {
         for k in 0..200 {
             let t = k as f64 * 0.1;
             let d = 10.0 - 0.02 * t; // 0.16 m per 8 s window: too slow
-            let out = m.step(&input(t, 0.0, d, PlanStatus::Found)).unwrap();
+            let out = m.step(&input(t, 0.0, d, PlanFeedback::Found)).unwrap();
             if out.behaviour == Behaviour::ClearMap {
                 first = Some(t);
                 break;
@@ -730,19 +730,19 @@ mod tests {
         // Three triggers: clear, rotate (reached at once), raise.
         while m.transitions().iter().filter(|tr| tr.to == Behaviour::RaiseThresholds).count() == 0 {
             let yaw = if m.behaviour() == Behaviour::Rotate { 1.0 } else { 0.0 };
-            m.step(&RecoveryInput { yaw_rad: yaw, ..input(t, 0.0, 10.0, PlanStatus::NoPath) }).unwrap();
+            m.step(&RecoveryInput { yaw_rad: yaw, ..input(t, 0.0, 10.0, PlanFeedback::NoPath) }).unwrap();
             t += 0.1;
         }
-        let out = m.step(&input(t, 0.0, 10.0, PlanStatus::Found)).unwrap();
+        let out = m.step(&input(t, 0.0, 10.0, PlanFeedback::Found)).unwrap();
         assert!((out.r_inst - (cfg.r_inst + cfg.r_inst_step)).abs() < 1e-12);
         let raised_at = t;
         let mut d = 10.0;
         while t < raised_at + cfg.relax_after_s + 0.5 {
             t += 0.1;
             d -= 0.05;
-            m.step(&input(t, 0.0, d, PlanStatus::Found)).unwrap();
+            m.step(&input(t, 0.0, d, PlanFeedback::Found)).unwrap();
         }
-        let out = m.step(&input(t + 0.1, 0.0, d - 0.05, PlanStatus::Found)).unwrap();
+        let out = m.step(&input(t + 0.1, 0.0, d - 0.05, PlanFeedback::Found)).unwrap();
         assert_eq!((out.r_inst, out.r_total), (cfg.r_inst, cfg.r_total));
         assert!(m.transitions().last().unwrap().reason.contains("back to nominal"));
     }
@@ -754,14 +754,14 @@ mod tests {
         let mut t = 0.0;
         for k in 0..100 {
             t = k as f64 * 0.1;
-            m.step(&input(t, 0.05 * k as f64, 10.0 - 0.05 * k as f64, PlanStatus::Found)).unwrap();
+            m.step(&input(t, 0.05 * k as f64, 10.0 - 0.05 * k as f64, PlanFeedback::Found)).unwrap();
         }
         let mut x = 4.95;
         let mut carrots = Vec::new();
         for _ in 0..400 {
             t += 0.1;
             let yaw = if m.behaviour() == Behaviour::Rotate { 1.0 } else { 0.0 };
-            let out = m.step(&RecoveryInput { yaw_rad: yaw, ..input(t, x, 5.05, PlanStatus::NoPath) }).unwrap();
+            let out = m.step(&RecoveryInput { yaw_rad: yaw, ..input(t, x, 5.05, PlanFeedback::NoPath) }).unwrap();
             if out.behaviour == Behaviour::BackOut {
                 let c = out.backout_carrot.unwrap();
                 assert!(c.x < x && c.x >= x - 1.0, "carrot {c} behind the robot at x = {x}");
@@ -779,12 +779,12 @@ mod tests {
     #[test]
     fn bad_inputs_and_configs_name_the_field() {
         let mut m = machine();
-        m.step(&input(1.0, 0.0, 5.0, PlanStatus::Found)).unwrap();
-        let err = m.step(&input(0.5, 0.0, 5.0, PlanStatus::Found)).unwrap_err();
+        m.step(&input(1.0, 0.0, 5.0, PlanFeedback::Found)).unwrap();
+        let err = m.step(&input(0.5, 0.0, 5.0, PlanFeedback::Found)).unwrap_err();
         assert!(err.to_string().contains("time_s"));
-        let err = m.step(&input(2.0, f64::NAN, 5.0, PlanStatus::Found)).unwrap_err();
+        let err = m.step(&input(2.0, f64::NAN, 5.0, PlanFeedback::Found)).unwrap_err();
         assert!(err.to_string().contains("position"));
-        let err = m.step(&input(2.0, 0.0, -1.0, PlanStatus::Found)).unwrap_err();
+        let err = m.step(&input(2.0, 0.0, -1.0, PlanFeedback::Found)).unwrap_err();
         assert!(err.to_string().contains("distance_to_target_m"));
         let bad = RecoveryConfig { r_inst_ceiling: 0.5, ..RecoveryConfig::default() };
         assert!(RecoveryMachine::new(bad, DVec2::ZERO).unwrap_err().to_string().contains("recovery.r_inst_ceiling"));
