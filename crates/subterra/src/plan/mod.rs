@@ -1,8 +1,14 @@
 //! Planning and control for the ground robot (DESIGN §3): a risk map in, a command out.
 //!
+//! - [`astar`]: the risk-aware A* ([`RiskAStar`]). In: a risk grid (the terrain
+//!   [`RiskMap`](crate::terrain::RiskMap)'s `risk` layer, or any row-major `(ny, nx)` array
+//!   of per-metre risks), a start and a goal. Out: the least-cost path with its accumulated
+//!   risk, length and carrot point, or the reason there is none.
 //! - [`recovery`]: adaptive thresholds and recovery behaviours, a state machine that
 //!   decides what to do when no path exists or the robot stops making progress.
 
+pub mod astar;
 pub mod recovery;
 
+pub use astar::{PlanOutcome, PlanStatus, PlannedPath, RiskAStar, RiskAStarConfig, RiskGrid};
 pub use recovery::{Behaviour, Directive, PlanFeedback, RecoveryConfig, RecoveryInput, RecoveryMachine, Target, Transition};
