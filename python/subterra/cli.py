@@ -52,7 +52,7 @@ def _parser() -> argparse.ArgumentParser:
     per.add_argument("--out", default="runs/perceive", help="output folder (default runs/perceive)")
 
     bench = sub.add_parser("bench", help="benchmarks against the NumPy reference")
-    bench.add_argument("what", choices=["perception", "sim", "terrain"])
+    bench.add_argument("what", choices=["perception", "sim", "terrain", "replay"])
     bench.add_argument("--frames", type=int, default=300)
     bench.add_argument("--reference-frames", type=int, default=30)
     bench.add_argument("--repeats", type=int, default=20, help="terrain: timed map updates (default 20)")
@@ -99,6 +99,10 @@ def _parser() -> argparse.ArgumentParser:
     from subterra.terrain.cli import register_cli as register_terrain
 
     register_terrain(sub)
+
+    from subterra.replay import register_cli as register_replay
+
+    register_replay(sub)
 
     demo = sub.add_parser("demo", help="the main job: simulated flights, the cable test and a small batch, with a report")
     demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
