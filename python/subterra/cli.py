@@ -57,6 +57,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--reference-frames", type=int, default=30)
     bench.add_argument("--repeats", type=int, default=20, help="terrain: timed map updates (default 20)")
     bench.add_argument("--mode", choices=["particle", "histogram"], default="particle")
+    bench.add_argument("--messages", type=int, default=20, help="replay: clouds and images per recording (default 20)")
     bench.add_argument("--seed", type=int, default=0)
     bench.add_argument("--out", help="write the JSON report here too")
 
@@ -135,6 +136,10 @@ def _bench(args: argparse.Namespace) -> int:
         from subterra.bench.sim import bench_sim
 
         report = bench_sim(seed=args.seed)
+    elif args.what == "replay":
+        from subterra.bench.replay import bench_replay
+
+        report = bench_replay(messages=args.messages, seed=args.seed)
     elif args.what == "terrain":
         from subterra.bench.terrain import bench_terrain
 

@@ -455,3 +455,21 @@ def test_rerun_file_when_rerun_is_installed(tmp_path: Path) -> None:
     summary = replay(path, tmp_path / "run", depth_topic=DEPTH_TOPIC, info_topic=INFO_TOPIC, progress=False)
     assert summary["rerun"] and (tmp_path / "run" / "replay.rrd").stat().st_size > 1000
     shutil.rmtree(tmp_path / "run")
+
+
+def test_bench_replay_reports_every_container(tmp_path: Path) -> None:
+    from subterra.bench.replay import bench_replay
+
+    report = bench_replay(messages=3, data=tmp_path / "no-shared-data")  # synthetic clouds and images
+    assert report["cloud_source"].startswith("synthetic") and report["image_source"].startswith("synthetic")
+    assert sorted(report["results"]) == ["mcap (ros2, zstd chunks)", "ros2 bag (mcap storage)", "ros2 bag (sqlite3 storage)"]
+    for row in report["results"].values():
+        for kind in ("pointcloud2", "image"):
+            r = row[kind]
+            assert r["messages_timed"] == 2 and r["read_ms_median"] > 0 and r["decode_ms_median"] > 0
+            assert r["messages_per_s"] == pytest.approx(1e3 / r["read_decode_ms_median"])
+            assert r["decode_percent_of_pipeline"] == pytest.approx(100 * r["decode_ms_median"] / r["pipeline_ms_median"])
+    assert report["target"]["worst_decode_percent"] == max(
+        row[k]["decode_percent_of_pipeline"] for row in report["results"].values() for k in ("pointcloud2", "image"))
+    with pytest.raises(errors.InputError, match="messages"):
+        bench_replay(messages=1)
