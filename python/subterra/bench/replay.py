@@ -234,7 +234,7 @@ def bench_replay(*, messages: int = 20, seed: int = 0, data: str | Path | None =
             t = _time_topic(real, "/os1_cloud_node/points", lambda m: ros.decode_pointcloud2(m, fields=()), passes=REAL_PASSES)
             # The floor is the lowest dense layer, ~0.8 m under this sensor (the mode-based estimate finds a wall).
             pipe = _ms(_cloud_pipeline([c.points for c in t["values"]] * 3, sensor_height=0.8)[1:])
-            results[f"real ros1 mcap (OS1-64 test.mcap, 2 clouds read {REAL_PASSES} times, lz4 chunks shared with lidar packets)"] = {
+            results[f"real ros1 mcap (OS1-64 test.mcap, 2 clouds read {REAL_PASSES} times, zstd chunks shared with lidar packets)"] = {
                 "file_mb": round(real.stat().st_size / 1e6, 1),
                 "pointcloud2": _row(t, pipe),
             }
