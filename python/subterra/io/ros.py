@@ -570,9 +570,9 @@ class TransformBuffer:
     sample up to ``max_extrapolation_ns`` outside them. Frames are a tree: each child has
     one parent (a second parent for the same child replaces the first, as in tf2).
 
-    >>> buf = TransformBuffer()
-    >>> buf.add("base_link", "lidar", translation_z_0_5 := np.eye(4), static=True)
-    >>> buf.lookup("base_link", "lidar")  # body_from_sensor  # doctest: +SKIP
+    Example: ``buf.add_message(tf_static_msg, static=True)``, then
+    ``buf.lookup("base_link", "os_lidar")`` is ``body_from_sensor`` and
+    ``buf.lookup("odom", "base_link", stamp_ns)`` the pose at a stamp.
     """
 
     def __init__(self, max_extrapolation_ns: int = DEFAULT_EXTRAPOLATION_NS) -> None:
