@@ -1,5 +1,5 @@
-"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py [terrain]`
-(with `terrain`, only the terrain figures)."""
+"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py [terrain|replay]`
+(with `terrain` or `replay`, only those figures)."""
 
 from __future__ import annotations
 
@@ -49,11 +49,46 @@ def terrain_figures() -> None:
     run.rmdir()
 
 
+def replay_figures() -> None:
+    """docs/replay.md: `subterra replay` on the real OS1-64 MCAP and on RealSense frames in a ROS 2 bag."""
+    import shutil
+    import tempfile
+
+    from subterra.io import list_depth_files, read_depth, read_intrinsics, ros
+    from subterra.io.recordings import write_bag
+    from subterra.replay import replay
+
+    data = Path(__file__).resolve().parents[2] / "shared" / "data"
+    if not data.is_dir():
+        print("../shared/data is absent: skipping the replay figures")
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        replay(data / "mcap-ouster-os1-64" / "test.mcap", Path(tmp) / "os1", cloud_topic="/os1_cloud_node/points",
+               sensor_height=0.8, progress=False)
+        shutil.copy(Path(tmp) / "os1" / "overview.png", FIGURES / "replay-os1-64.png")
+        folder = data / "realsense-d435-room"
+        intr = read_intrinsics(folder / "cam_params_realsense.json")
+        items = []
+        for i, f in enumerate(list_depth_files(folder / "depth")):
+            s = 1_700_000_000_000_000_000 + i * 33_333_333
+            items.append(("/camera/depth/camera_info", s, ros.camera_info_message(intr, stamp_ns=s, frame_id="camera_depth_optical_frame")))
+            items.append(("/camera/depth/image_rect_raw", s + 1,
+                          ros.image_message(read_depth(f).data, stamp_ns=s, frame_id="camera_depth_optical_frame")))
+        bag = write_bag(Path(tmp) / "realsense", items)
+        replay(bag, Path(tmp) / "rs", depth_topic="/camera/depth/image_rect_raw", info_topic="/camera/depth/camera_info",
+               progress=False, rerun=False)
+        shutil.copy(Path(tmp) / "rs" / "perception.png", FIGURES / "replay-realsense.png")
+
+
 def main() -> None:
     FIGURES.mkdir(exist_ok=True)
+    if sys.argv[1:] == ["replay"]:
+        replay_figures()
+        return
     terrain_figures()
     if sys.argv[1:] == ["terrain"]:
         return
+    replay_figures()
     camera = subterra.PinholeCamera.d435()
     depth, truth = approaching_box_frames(camera, frames=40, seed=0)
     _, records = run_perception(((str(n), d, None) for n, d in enumerate(depth)), camera, progress=False)
