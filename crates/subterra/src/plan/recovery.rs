@@ -368,6 +368,11 @@ impl RecoveryMachine {
         self.home
     }
 
+    /// The planner thresholds `(R_inst, R_total)` in force.
+    pub fn thresholds(&self) -> (f64, f64) {
+        (self.r_inst, self.r_total)
+    }
+
     /// Every transition so far, oldest first.
     pub fn transitions(&self) -> &[Transition] {
         &self.transitions
