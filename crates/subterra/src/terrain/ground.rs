@@ -222,19 +222,16 @@ impl GroundSegmenter {
         self.bin_points(points);
         self.fit_lines();
         heights_out.clear();
-        heights_out.reserve(points.len());
-        for (i, p) in points.iter().enumerate() {
-            let sb = self.point_bin[i];
+        let line = &self.line[..];
+        heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
             if sb == NO_BIN {
-                heights_out.push(f32::NAN);
-                continue;
+                return f32::NAN;
             }
-            let sb = sb as usize;
             let (x, y) = (p[0] as f64, p[1] as f64);
             let r = (x * x + y * y).sqrt();
-            let line = &self.line[sb];
-            heights_out.push((p[2] as f64 - (line.m * r + line.b)) as f32);
-        }
+            let line = &line[sb as usize];
+            (p[2] as f64 - (line.m * r + line.b)) as f32
+        }));
         Ok(())
     }
 
@@ -276,27 +273,34 @@ impl GroundSegmenter {
         let bins = self.bins;
         let sectors = c.sectors as usize;
         let sector_scale = c.sectors as f64 / std::f64::consts::TAU;
-        let max_r = c.max_range_m;
+        let (max_r, bin_m) = (c.max_range_m, c.bin_m);
         self.acc.fill(BinAccumulator::EMPTY);
         self.point_bin.clear();
-        self.point_bin.reserve(points.len());
-        for p in points {
+        let (acc, edges) = (&mut self.acc, &self.sector_edges[..]);
+        // The previous point's sector: scans come ring by ring or column by column, so the
+        // next point is usually in it or beside it.
+        let mut last = usize::MAX;
+        self.point_bin.extend(points.iter().map(|p| {
             let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
             let r = (x * x + y * y).sqrt();
             if !(r < max_r) || !z.is_finite() {
-                self.point_bin.push(NO_BIN);
-                continue;
+                return NO_BIN;
             }
-            let s = self.sector_of(x, y, sector_scale);
-            let k = ((r / c.bin_m) as usize).min(bins - 1);
+            let s = match sector_beside(edges, last, x, y) {
+                Some(s) => s,
+                None => sector_of(edges, x, y, sector_scale),
+            };
+            last = s;
+            // r / bin_m is in [0, bins]: `as i64` truncates as `as usize` would.
+            let k = ((r / bin_m) as i64 as usize).min(bins - 1);
             let sb = s * bins + k;
-            self.point_bin.push(sb as u32);
-            let acc = &mut self.acc[sb];
+            let acc = &mut acc[sb];
             if p[2] < acc.proto_z {
                 acc.proto_z = p[2];
                 acc.proto_r = r;
             }
-        }
+            sb as u32
+        }));
         // Per bin: the steepest ray to any point of a farther bin of the sector.
         for s in 0..sectors {
             let row = &mut self.acc[s * bins..(s + 1) * bins];
@@ -309,26 +313,10 @@ impl GroundSegmenter {
         }
     }
 
-    /// `min(floor((atan2(y, x) + π) / (2π/S)), S - 1)`: a fast `atan2` gives the sector to
-    /// within one, and two cross products with the boundary vectors settle it (they agree with
-    /// libm's `atan2` except within ~1e-15 rad of a boundary).
-    #[inline]
+    /// `min(floor((atan2(y, x) + π) / (2π/S)), S - 1)`: see [`sector_of`].
+    #[cfg(test)]
     fn sector_of(&self, x: f64, y: f64, sector_scale: f64) -> usize {
-        let sectors = self.sector_edges.len() - 1;
-        if sectors < 8 {
-            return (((y.atan2(x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
-        }
-        let s = (((fast_atan2(y, x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
-        let (lx, ly) = self.sector_edges[s];
-        if lx * y - ly * x < 0.0 {
-            return s.saturating_sub(1);
-        }
-        let (ux, uy) = self.sector_edges[s + 1];
-        if ux * y - uy * x >= 0.0 && s + 1 < sectors {
-            s + 1
-        } else {
-            s
-        }
+        sector_of(&self.sector_edges, x, y, sector_scale)
     }
 
     fn fit_lines(&mut self) {
@@ -435,6 +423,57 @@ impl GroundSegmenter {
             let (cover_lo, cover_hi) = if covered { (chosen.first_r_m, chosen.last_r_m) } else { (f64::INFINITY, f64::NEG_INFINITY) };
             self.line[s * bins + k] = BinLine { m: chosen.m, b: chosen.b, cover_lo, cover_hi };
         }
+    }
+}
+
+/// `min(floor((atan2(y, x) + π) / (2π/S)), S - 1)` with `edges` the `S + 1` unit vectors of
+/// the sector boundaries: a fast `atan2` gives the sector to within one, and two cross
+/// products with the boundary vectors settle it (they agree with libm's `atan2` except within
+/// ~1e-15 rad of a boundary).
+#[inline]
+fn sector_of(edges: &[(f64, f64)], x: f64, y: f64, sector_scale: f64) -> usize {
+    let sectors = edges.len() - 1;
+    if sectors < 8 {
+        return (((y.atan2(x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
+    }
+    // In [0, S]: `as i64` truncates as `as usize` would.
+    let s = (((fast_atan2(y, x) + std::f64::consts::PI) * sector_scale) as i64 as usize).min(sectors - 1);
+    let (lx, ly) = edges[s];
+    if lx * y - ly * x < 0.0 {
+        return s.saturating_sub(1);
+    }
+    let (ux, uy) = edges[s + 1];
+    if ux * y - uy * x >= 0.0 && s + 1 < sectors {
+        s + 1
+    } else {
+        s
+    }
+}
+
+/// [`sector_of`] without the `atan2` where it is sector `near` or one beside it, else `None`.
+///
+/// With `c_e` = (cross product of boundary `e` with the point `>= 0`), computed exactly as
+/// `sector_of` does, a sector `h <= S - 2` with `c_h` and not `c_(h+1)` holds the point up to
+/// rounding (a sector spans less than π/2), so the fast `atan2` (error < 1.2e-5 rad, below
+/// a sector's width for every valid `S`) lands in `h - 1`, `h` or `h + 1`, and from each of
+/// those `sector_of`'s two tests end in `h`.
+#[inline]
+fn sector_beside(edges: &[(f64, f64)], near: usize, x: f64, y: f64) -> Option<usize> {
+    let sectors = edges.len() - 1;
+    if sectors < 8 || near >= sectors - 1 {
+        return None;
+    }
+    let at_or_above = |e: usize| {
+        let (ex, ey) = edges[e];
+        ex * y - ey * x >= 0.0
+    };
+    let (lo, hi) = (at_or_above(near), at_or_above(near + 1));
+    if lo && !hi {
+        Some(near)
+    } else if hi {
+        (near + 2 < sectors && !at_or_above(near + 2)).then_some(near + 1)
+    } else {
+        (near >= 1 && at_or_above(near - 1)).then(|| near - 1)
     }
 }
 
@@ -548,6 +587,41 @@ mod tests {
             let r = 0.5 + (i % 97) as f64 * 0.3;
             let (x, y) = (r * a.cos(), r * a.sin());
             assert_eq!(seg.sector_of(x, y, scale), exact(x, y), "angle {a}");
+        }
+    }
+
+    #[test]
+    fn sector_beside_agrees_with_sector_of() {
+        let mut state = 777u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for sectors in [8u32, 9, 360, 720, 100_000] {
+            let config = GroundConfig { sectors, max_range_m: 10.0, bin_m: 5.0, ..GroundConfig::default() };
+            let seg = GroundSegmenter::new(config).unwrap();
+            let scale = sectors as f64 / std::f64::consts::TAU;
+            let edges = &seg.sector_edges;
+            let mut found = 0;
+            for i in 0..100_000 {
+                let a = next() * std::f64::consts::TAU - std::f64::consts::PI;
+                // Every 3rd point sits within 1e-12 rad of a sector boundary; some on the axes.
+                let a = match i % 3 {
+                    0 => -std::f64::consts::PI + ((a + std::f64::consts::PI) * scale).round() / scale + 1e-12 * (next() - 0.5),
+                    1 if i % 300 == 1 => (i % 8) as f64 * std::f64::consts::FRAC_PI_4 - std::f64::consts::PI,
+                    _ => a,
+                };
+                let r = 0.5 + 9.0 * next();
+                let (x, y) = (r * a.cos(), r * a.sin());
+                let exact = sector_of(edges, x, y, scale);
+                for near in [exact.wrapping_sub(2), exact.wrapping_sub(1), exact, exact + 1, exact + 2, 0, sectors as usize - 1, usize::MAX] {
+                    if let Some(s) = sector_beside(edges, near, x, y) {
+                        assert_eq!(s, exact, "sectors {sectors}, angle {a}, near {near}");
+                        found += 1;
+                    }
+                }
+            }
+            assert!(found > 200_000, "{found}");
         }
     }
 
