@@ -259,13 +259,39 @@ impl GroundSegmenter {
             return None;
         }
         let sectors = self.config.sectors as usize;
-        let s = (((fast_atan2(y, x) + std::f64::consts::PI) * (sectors as f64 / std::f64::consts::TAU)) as usize).min(sectors - 1);
-        let k = ((r * self.inv_bin) as usize).min(self.bins - 1);
+        // In [0, S]: `as i64` truncates as `as usize` would.
+        let s = (((fast_atan2(y, x) + std::f64::consts::PI) * (sectors as f64 / std::f64::consts::TAU)) as i64 as usize).min(sectors - 1);
+        Some(self.polar_bin(s, r))
+    }
+
+    /// [`query`](Self::query) at the positions `(xs[i], y)`, in order: `f(i, bin)` for each
+    /// one inside the polar range, with exactly the bin `query` gives.
+    #[inline]
+    pub(crate) fn query_row(&self, xs: &[f64], y: f64, mut f: impl FnMut(usize, PolarBin)) {
+        let sectors = self.config.sectors as usize;
+        let scale = sectors as f64 / std::f64::consts::TAU;
+        let max_r = self.config.max_range_m;
+        for (i, &x) in xs.iter().enumerate() {
+            let r = (x * x + y * y).sqrt();
+            if !(r < max_r) {
+                continue;
+            }
+            // In [0, S]: `as i64` truncates as `as usize` would.
+            let s = (((fast_atan2(y, x) + std::f64::consts::PI) * scale) as i64 as usize).min(sectors - 1);
+            f(i, self.polar_bin(s, r));
+        }
+    }
+
+    /// What polar bin `(s, bin of r)` knows at radius `r`.
+    #[inline]
+    fn polar_bin(&self, s: usize, r: f64) -> PolarBin {
+        // r < max_range_m, so r / bin_m is in [0, bins]: `as i64` truncates as `as usize` would.
+        let k = ((r * self.inv_bin) as i64 as usize).min(self.bins - 1);
         let sb = s * self.bins + k;
         let (line, acc) = (&self.line[sb], &self.acc[sb]);
         let ground_z = line.m * r + line.b;
         let floor_bound_z = (acc.proto_z as f64).min(acc.ray_slope as f64 * r);
-        Some(PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z })
+        PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z }
     }
 
     fn bin_points(&mut self, points: &[[f32; 3]]) {
@@ -622,6 +648,24 @@ mod tests {
                 }
             }
             assert!(found > 200_000, "{found}");
+        }
+    }
+
+    #[test]
+    fn query_row_is_query() {
+        let mut flat = flat_ring_cloud(0.6);
+        flat.extend_from_slice(&[3.0, 0.1, -0.2, -2.0, 4.0, -1.4, 0.0, -5.0, -0.9]);
+        let points = as_points("points", &flat).unwrap();
+        let mut seg = GroundSegmenter::new(GroundConfig::default()).unwrap();
+        let mut heights = Vec::new();
+        seg.segment(points, 0.6, &mut heights).unwrap();
+        let xs: Vec<f64> = (0..500).map(|i| -45.0 + i as f64 * 0.18 + 0.001).collect();
+        for j in 0..300 {
+            let y = -45.0 + j as f64 * 0.3;
+            let mut got = Vec::new();
+            seg.query_row(&xs, y, |i, bin| got.push((i, bin)));
+            let want: Vec<_> = xs.iter().enumerate().filter_map(|(i, &x)| seg.query(x, y).map(|bin| (i, bin))).collect();
+            assert_eq!(got, want);
         }
     }
 

@@ -164,6 +164,8 @@ pub(crate) struct MapBuilder {
     patch_tmp: Vec<f32>,
     patch_max: Vec<f32>,
     integral: Vec<[f64; 10]>,
+    /// Cell-centre x relative to the newest sensor, by column [m].
+    xs: Vec<f64>,
 }
 
 impl MapBuilder {
@@ -192,6 +194,7 @@ impl MapBuilder {
             patch_tmp: Vec::new(),
             patch_max: Vec::new(),
             integral: Vec::new(),
+            xs: Vec::new(),
         }
     }
 
@@ -335,22 +338,25 @@ impl MapBuilder {
         }
         if let Some(polar) = polar {
             let s = polar.sensor_level;
+            // Cell centres relative to the sensor: x by column, y by row.
+            self.xs.clear();
+            self.xs.extend((0..g.nx).map(|ix| corner.x + (ix as f64 + 0.5) * res - s.x));
+            let (cells, height) = (&self.cells, &mut self.height);
             for iy in 0..g.ny {
                 let y = corner.y + (iy as f64 + 0.5) * res - s.y;
-                for ix in 0..g.nx {
-                    let x = corner.x + (ix as f64 + 0.5) * res - s.x;
-                    let Some(bin) = polar.segmenter.query(x, y) else { continue };
-                    let c = iy * g.nx + ix;
+                let row = iy * g.nx;
+                polar.segmenter.query_row(&self.xs, y, |ix, bin| {
+                    let c = row + ix;
                     if bin.covered {
                         observed[c] = 1.0;
-                        if self.cells[c].ground_n == 0 {
-                            self.height[c] = (bin.ground_z + s.z) as f32;
+                        if cells[c].ground_n == 0 {
+                            height[c] = (bin.ground_z + s.z) as f32;
                         }
                     }
                     if bin.floor_bound_z.is_finite() {
                         depth[c] = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
                     }
-                }
+                });
             }
         }
     }
