@@ -522,20 +522,23 @@ impl MapBuilder {
         let tilt_ramp = self.robot.tilt_ramp_rad();
         let u = self.uncertainty;
         let z0 = body_world.z as f32;
-        let mut mission = vec![0.0f32; n];
-        for item in missions {
-            stamp_mission(g, item, r.mission_margin_m, &mut mission);
-        }
         // One slice per layer, in `Layer::ALL` order, each exactly `n` long.
         let Ok([count_l, ground_count, ground_height, min_height, max_height, _slope, residual, step_height, negative_depth, tilt_angle, observed_l, age_l, collision_l, step_l, negative_l, tilt_l, rough_l, unknown_l, mission_l, risk_l, variance_l]) =
             <[&mut [f32]; 21]>::try_from(map.layers_mut())
         else {
             unreachable!("a RiskMap holds Layer::ALL.len() layers")
         };
+        // The map starts all zeros: the circles are stamped straight into the layer.
+        for item in missions {
+            stamp_mission(g, item, r.mission_margin_m, mission_l);
+        }
         let cells = &self.cells[..n];
         let height = &self.height[..n];
+        // Re-sliced to `n` so that the loops index without bounds checks.
+        let (count_l, ground_count, ground_height, min_height, max_height, age_l) =
+            (&mut count_l[..n], &mut ground_count[..n], &mut ground_height[..n], &mut min_height[..n], &mut max_height[..n], &mut age_l[..n]);
         for c in 0..n {
-            let cell = cells[c];
+            let cell = &cells[c];
             let count = cell.count;
             count_l[c] = count as f32;
             ground_count[c] = cell.ground_n as f32;
@@ -544,6 +547,24 @@ impl MapBuilder {
             min_height[c] = if has { cell.min_z + z0 } else { f32::NAN };
             max_height[c] = if has { cell.max_z + z0 } else { f32::NAN };
             age_l[c] = if has { cell.min_age } else { f32::NAN };
+        }
+        let (residual, step_height, negative_depth, tilt_angle, observed_l) =
+            (&residual[..n], &step_height[..n], &negative_depth[..n], &tilt_angle[..n], &observed_l[..n]);
+        let (collision_l, step_l, negative_l, tilt_l, rough_l, unknown_l, mission_l, risk_l, variance_l) = (
+            &mut collision_l[..n],
+            &mut step_l[..n],
+            &mut negative_l[..n],
+            &mut tilt_l[..n],
+            &mut rough_l[..n],
+            &mut unknown_l[..n],
+            &mut mission_l[..n],
+            &mut risk_l[..n],
+            &mut variance_l[..n],
+        );
+        for c in 0..n {
+            let cell = &cells[c];
+            let count = cell.count;
+            let has = count > 0;
             let observed = observed_l[c] > 0.0;
             let collision = r.collision_points.eval(cell.collision_n as f64);
             let step = r.step_m.eval(step_height[c] as f64);
@@ -551,7 +572,7 @@ impl MapBuilder {
             let tilt = tilt_ramp.eval(tilt_angle[c] as f64);
             let rough = r.roughness_m.eval(residual[c] as f64);
             let unknown = if observed { 0.0 } else { r.unknown };
-            let m = mission[c] as f64;
+            let m = mission_l[c] as f64;
             // Same order as Layer::RISKS.
             collision_l[c] = collision as f32;
             step_l[c] = step as f32;
