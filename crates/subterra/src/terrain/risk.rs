@@ -655,16 +655,32 @@ fn heading_stencil(robot: &RobotConfig, res: f64, yaw: f64) -> HeadingStencil {
 /// `d = h_FL + h_RR - h_FR - h_RL >= 0` on FL-RR and either FR or RL (lifting RL or FR),
 /// else on FR-RL and either FL or RR. Both poses of the pair are stable (it rocks).
 fn settle_tan2(triangles: &[Option<Triangle>; 4], h: &[f64; 4]) -> f64 {
-    let d = h[0] + h[3] - h[1] - h[2];
-    let lifted = if d >= 0.0 { [1, 2] } else { [0, 3] };
-    let mut worst = -1.0f64;
-    for t in lifted.iter().filter_map(|&o| triangles[o].as_ref()) {
-        let (dj, dk) = (h[t.j] - h[t.i], h[t.k] - h[t.i]);
+    // The corners bearing the body when corner `o` is lifted are the other three in order
+    // (see heading_stencil): spelled out per lifted corner so the indices are constants.
+    #[inline(always)]
+    fn support(t: &Option<Triangle>, h: &[f64; 4], i: usize, j: usize, k: usize, worst: f64) -> f64 {
+        let Some(t) = t else { return worst };
+        debug_assert!((t.i, t.j, t.k) == (i, j, k));
+        let (dj, dk) = (h[j] - h[i], h[k] - h[i]);
         let gx = t.inv[0][0] * dj + t.inv[0][1] * dk;
         let gy = t.inv[1][0] * dj + t.inv[1][1] * dk;
-        worst = worst.max(gx * gx + gy * gy);
+        // Both finite and >= 0 (never -0), `worst` >= -1: the same as `worst.max(..)`.
+        let tan2 = gx * gx + gy * gy;
+        if tan2 > worst {
+            tan2
+        } else {
+            worst
+        }
     }
-    worst
+    let d = h[0] + h[3] - h[1] - h[2];
+    if d >= 0.0 {
+        // Lift RL (1) or FR (2): the body rests on FL-RR.
+        let worst = support(&triangles[1], h, 0, 2, 3, -1.0);
+        support(&triangles[2], h, 0, 1, 3, worst)
+    } else {
+        let worst = support(&triangles[0], h, 1, 2, 3, -1.0);
+        support(&triangles[3], h, 0, 1, 2, worst)
+    }
 }
 
 /// Least-squares plane through window sums `s = [n, Σx, Σy, Σz, Σxx, Σxy, Σyy, Σxz, Σyz, Σzz]`,
