@@ -332,9 +332,11 @@ impl GroundSegmenter {
             let row = &mut self.acc[s * bins..(s + 1) * bins];
             let mut farther = f32::INFINITY;
             for bin in row.iter_mut().rev() {
-                let own = if bin.proto_z.is_finite() && bin.proto_r > 0.0 { (bin.proto_z as f64 / bin.proto_r) as f32 } else { f32::INFINITY };
                 bin.ray_slope = farther;
-                farther = farther.min(own);
+                // An empty bin's own slope would be +inf: it leaves `farther` as it is.
+                if bin.proto_z.is_finite() && bin.proto_r > 0.0 {
+                    farther = farther.min((bin.proto_z as f64 / bin.proto_r) as f32);
+                }
             }
         }
     }
@@ -356,13 +358,11 @@ impl GroundSegmenter {
             let mut g = -self.sensor_height_m;
             seg.clear();
             let mut sums = LineSums::default();
-            for k in 0..bins {
-                let sb = s * bins + k;
-                let z = self.acc[sb].proto_z as f64;
-                if !z.is_finite() {
+            for (k, acc) in self.acc[s * bins..(s + 1) * bins].iter().enumerate() {
+                if !acc.proto_z.is_finite() {
                     continue;
                 }
-                let r = self.acc[sb].proto_r;
+                let (r, z) = (acc.proto_r, acc.proto_z as f64);
                 loop {
                     let Some(&(qr, qz, _)) = seg.last() else {
                         seg.push((r, z, k as u32));
@@ -412,43 +412,38 @@ impl GroundSegmenter {
         }
     }
 
-    /// Step 4: the line of each bin of sector `s`.
+    /// Step 4: the line of each bin of sector `s`, range by range: before the first line,
+    /// each line's own bins (a bin shared with the previous line stays with that one), the
+    /// gaps between lines (the nearer line, the earlier on a tie), after the last line.
     fn assign_lines(&mut self, s: usize) {
         let bins = self.bins;
         let (a, b) = self.sector_lines[s];
         let lines = &self.lines[a as usize..b as usize];
-        let row = s * bins..(s + 1) * bins;
-        if lines.is_empty() {
-            self.line[row].fill(BinLine { b: -self.sensor_height_m, ..BinLine::NONE });
+        let row = &mut self.line[s * bins..(s + 1) * bins];
+        let uncovered = |line: &GroundLine| BinLine { m: line.m, b: line.b, cover_lo: f64::INFINITY, cover_hi: f64::NEG_INFINITY };
+        let (Some(first), Some(last)) = (lines.first(), lines.last()) else {
+            row.fill(BinLine { b: -self.sensor_height_m, ..BinLine::NONE });
             return;
-        }
-        let mut j = 0; // the first line whose last bin is >= k
-        for k in 0..bins {
-            while j + 1 < lines.len() && (lines[j].last_bin as usize) < k {
-                j += 1;
-            }
-            let line = &lines[j];
-            let (first, last) = (line.first_bin as usize, line.last_bin as usize);
-            let (chosen, covered) = if k >= first && k <= last {
-                (line, true)
-            } else if k > last {
-                // Beyond the last line.
-                (line, false)
-            } else if j == 0 {
-                // Before the first line.
-                (line, false)
-            } else {
-                // In the gap between lines j-1 and j: the nearer, the earlier on a tie.
+        };
+        // Bins below `next` are assigned.
+        let mut next = (first.first_bin as usize).min(bins);
+        row[..next].fill(uncovered(first));
+        for (j, line) in lines.iter().enumerate() {
+            let (lo, hi) = (line.first_bin as usize, (line.last_bin as usize + 1).min(bins));
+            if j > 0 && next < lo {
+                // The gap after the previous line: bin k goes to it iff k - prev.last <= lo - k.
                 let prev = &lines[j - 1];
-                if k - prev.last_bin as usize <= first - k {
-                    (prev, false)
-                } else {
-                    (line, false)
-                }
-            };
-            let (cover_lo, cover_hi) = if covered { (chosen.first_r_m, chosen.last_r_m) } else { (f64::INFINITY, f64::NEG_INFINITY) };
-            self.line[s * bins + k] = BinLine { m: chosen.m, b: chosen.b, cover_lo, cover_hi };
+                let split = (prev.last_bin as usize + lo) / 2 + 1;
+                row[next..split].fill(uncovered(prev));
+                row[split..lo].fill(uncovered(line));
+                next = lo;
+            }
+            if next < hi {
+                row[next..hi].fill(BinLine { m: line.m, b: line.b, cover_lo: line.first_r_m, cover_hi: line.last_r_m });
+                next = hi;
+            }
         }
+        row[next..].fill(uncovered(last));
     }
 }
 
@@ -666,6 +661,59 @@ mod tests {
             seg.query_row(&xs, y, |i, bin| got.push((i, bin)));
             let want: Vec<_> = xs.iter().enumerate().filter_map(|(i, &x)| seg.query(x, y).map(|bin| (i, bin))).collect();
             assert_eq!(got, want);
+        }
+    }
+
+    /// Step 4 bin by bin, as the module doc states it.
+    fn assign_by_bin(lines: &[GroundLine], bins: usize, h: f64) -> Vec<BinLine> {
+        (0..bins)
+            .map(|k| {
+                if lines.is_empty() {
+                    return BinLine { b: -h, ..BinLine::NONE };
+                }
+                if let Some(line) = lines.iter().find(|l| l.first_bin as usize <= k && k <= l.last_bin as usize) {
+                    return BinLine { m: line.m, b: line.b, cover_lo: line.first_r_m, cover_hi: line.last_r_m };
+                }
+                let dist = |l: &GroundLine| if k < l.first_bin as usize { l.first_bin as usize - k } else { k - l.last_bin as usize };
+                let nearest = lines.iter().min_by_key(|l| dist(l)).unwrap();
+                BinLine { m: nearest.m, b: nearest.b, ..BinLine::NONE }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn bin_lines_by_range_match_bin_by_bin() {
+        let config = GroundConfig { sectors: 1, ..GroundConfig::default() };
+        let mut seg = GroundSegmenter::new(config).unwrap();
+        let bins = seg.bins;
+        seg.sensor_height_m = 0.6;
+        let mut state = 99u64;
+        let mut next = |n: usize| {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 33) % n as u64) as usize
+        };
+        for trial in 0..3000 {
+            // Lines in bin order, each starting at or after the previous one's last bin and
+            // spanning two bins or more (min_line_points >= 2 prototypes, one per bin).
+            let mut lines = Vec::new();
+            let mut at = if trial % 3 == 0 { 0 } else { next(12) };
+            while at + 1 < bins && lines.len() < 1 + trial % 7 {
+                let first = at;
+                let last = (first + [1, 2, 5, 30][next(4)]).min(bins - 1);
+                let m = lines.len() as f64 * 0.01 + trial as f64 * 1e-4;
+                lines.push(GroundLine { m, b: -0.5 - m, first_bin: first as u32, last_bin: last as u32, first_r_m: first as f64 * 0.2 + 0.05, last_r_m: last as f64 * 0.2 + 0.1 });
+                // Shared break bin, adjacent, or a gap (odd and even widths).
+                at = last + [0, 1, 2, 3, 8, 15][next(6)];
+            }
+            seg.lines = lines.clone();
+            seg.sector_lines[0] = (0, lines.len() as u32);
+            seg.assign_lines(0);
+            let want = assign_by_bin(&lines, bins, 0.6);
+            for k in 0..bins {
+                let (a, b) = (&seg.line[k], &want[k]);
+                let bits = |l: &BinLine| [l.m.to_bits(), l.b.to_bits(), l.cover_lo.to_bits(), l.cover_hi.to_bits()];
+                assert_eq!(bits(a), bits(b), "trial {trial}, bin {k}, lines {lines:?}");
+            }
         }
     }
 
