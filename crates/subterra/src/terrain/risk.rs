@@ -129,8 +129,14 @@ impl CellAccumulator {
     #[inline]
     fn add(&mut self, z: f32, h: f32, ground_threshold: f32, collision_lo: f32, collision_hi: f32) {
         self.count += 1;
-        self.min_z = self.min_z.min(z);
-        self.max_z = self.max_z.max(z);
+        // `min_z`/`max_z` are never NaN (they start infinite and only take points' z), so these
+        // are `min`/`max` without the NaN handling.
+        if z < self.min_z {
+            self.min_z = z;
+        }
+        if z > self.max_z {
+            self.max_z = z;
+        }
         if h.abs() <= ground_threshold {
             self.ground_n += 1;
             self.ground_sum += z;
@@ -166,6 +172,8 @@ pub(crate) struct MapBuilder {
     integral: Vec<[f64; 10]>,
     /// Cell-centre x relative to the newest sensor, by column [m].
     xs: Vec<f64>,
+    /// Scratch cells [`bin_scan`](Self::bin_scan) has hit, in order of the first hit.
+    touched: Vec<u32>,
 }
 
 impl MapBuilder {
@@ -195,6 +203,7 @@ impl MapBuilder {
             patch_max: Vec::new(),
             integral: Vec::new(),
             xs: Vec::new(),
+            touched: Vec::new(),
         }
     }
 
@@ -215,24 +224,46 @@ impl MapBuilder {
         let lo = self.robot.ground_clearance_m as f32;
         let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
         let dz = sensor_above_body_m as f32;
+        let touched = &mut self.touched;
+        touched.clear();
+        // The cells are [origin, origin + n) along each axis: floor(q) - origin is in [0, n)
+        // iff q is in [origin, origin + n) (integer bounds), tested on q itself; then
+        // floor_small gives floor(q) exactly. Points are finite (prefiltered), so q is too.
+        let (x_lo, y_lo) = (g.origin_cell.0 as f64, g.origin_cell.1 as f64);
+        let (x_hi, y_hi) = ((g.origin_cell.0 + nx) as f64, (g.origin_cell.1 + ny) as f64);
+        let small = [x_lo, x_hi, y_lo, y_hi].iter().all(|b| b.abs() < FLOOR_SMALL_LIMIT);
         for (p, &h) in points.iter().zip(heights) {
             // The same formula as GridGeometry::cell_of, so every scan agrees on the cells.
-            let ix = floor_i64((p[0] as f64 + origin_world.x) / res) - g.origin_cell.0;
-            let iy = floor_i64((p[1] as f64 + origin_world.y) / res) - g.origin_cell.1;
-            if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
-                continue;
+            let qx = (p[0] as f64 + origin_world.x) / res;
+            let qy = (p[1] as f64 + origin_world.y) / res;
+            let (ix, iy) = if small {
+                if !(qx >= x_lo && qx < x_hi && qy >= y_lo && qy < y_hi) {
+                    continue;
+                }
+                (floor_small(qx) - g.origin_cell.0, floor_small(qy) - g.origin_cell.1)
+            } else {
+                let (ix, iy) = (floor_i64(qx) - g.origin_cell.0, floor_i64(qy) - g.origin_cell.1);
+                if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
+                    continue;
+                }
+                (ix, iy)
+            };
+            let c = (iy * nx + ix) as usize;
+            let cell = &mut self.scratch[c];
+            if cell.count == 0 {
+                touched.push(c as u32);
             }
-            let cell = &mut self.scratch[(iy * nx + ix) as usize];
             cell.add(p[2] + dz, h, thr, lo, hi);
         }
+        // The non-empty cells in the order they were first hit (each global cell once, so
+        // the order does not change any sum the map makes of them).
         out.clear();
-        for (c, cell) in self.scratch.iter_mut().enumerate() {
-            if cell.count > 0 {
-                let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);
-                out.push(BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: *cell });
-                *cell = CellAccumulator::EMPTY;
-            }
-        }
+        out.extend(touched.iter().map(|&c| {
+            let c = c as usize;
+            let cell = std::mem::replace(&mut self.scratch[c], CellAccumulator::EMPTY);
+            let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);
+            BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: cell }
+        }));
     }
 
     pub fn build(
@@ -595,6 +626,20 @@ impl MapBuilder {
     }
 }
 
+/// Inputs of [`floor_small`] stay below this in magnitude.
+const FLOOR_SMALL_LIMIT: f64 = (1u64 << 50) as f64;
+
+/// `floor(x)` for `|x| < 2^50`, exactly, without a libm call or saturation code: adding
+/// 1.5·2^52 rounds x to the nearest integer, held in the low mantissa bits; one comparison
+/// turns the rounding into a floor.
+#[inline]
+fn floor_small(x: f64) -> i64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5·2^52
+    let t = x + MAGIC;
+    let rounded = (t.to_bits() as i64) - (MAGIC.to_bits() as i64);
+    rounded - ((t - MAGIC) > x) as i64
+}
+
 /// `floor(x)` as an integer without a libm call (x86-64 without SSE4.1 has no inline
 /// floor); saturates like `as` for huge or NaN inputs (NaN gives 0).
 #[inline]
@@ -743,6 +788,27 @@ mod tests {
     fn floor_without_libm() {
         for x in [-2.5, -2.0, -1e-300, 0.0, 0.3, 1.0, 1.9999999999999998, 7.5e15] {
             assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+    }
+
+    #[test]
+    fn floor_small_is_floor() {
+        let mut xs = vec![-2.5, -2.0, -1.5, -0.5, -1e-300, -0.0, 0.0, 0.3, 0.5, 1.0, 1.5, 2.5, 1.9999999999999998, -1.0000000000000002, 1e15 + 0.5, -1e15 - 0.5];
+        let mut state = 5u64;
+        for i in 0..200_000 {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+            let scale = [1.0, 100.0, 1e6, 1e12, 1e15][i % 5];
+            let x = (u - 0.5) * 2.0 * scale;
+            // Also integers, halves and their neighbours.
+            let k = x.round();
+            xs.extend([x, k, k + 0.5, f64::from_bits(k.to_bits() + 1), f64::from_bits(k.to_bits().wrapping_sub(1))]);
+        }
+        for x in xs {
+            if x.abs() < FLOOR_SMALL_LIMIT {
+                assert_eq!(floor_small(x), x.floor() as i64, "{x}");
+                assert_eq!(floor_small(x), floor_i64(x), "{x}");
+            }
         }
     }
 
