@@ -454,24 +454,54 @@ impl MapBuilder {
     fn steps(&mut self, g: &GridGeometry, map: &mut RiskMap) {
         let (nx, ny) = (g.nx, g.ny);
         let out = map.get_mut(Layer::StepHeight);
+        let height = &self.height[..nx * ny];
+        // max |H(n) - H(c)| over the 3x3 block clipped to the map, visited in the same
+        // row-major order everywhere (the cell itself adds 0; NaN neighbours never compare
+        // greater).
+        let block = |ix: usize, iy: usize, h: f32| {
+            let mut worst = 0.0f32;
+            for jy in iy.saturating_sub(1)..(iy + 2).min(ny) {
+                for jx in ix.saturating_sub(1)..(ix + 2).min(nx) {
+                    let d = (height[jy * nx + jx] - h).abs();
+                    if d > worst {
+                        worst = d;
+                    }
+                }
+            }
+            worst
+        };
         for iy in 0..ny {
-            for ix in 0..nx {
-                let c = iy * nx + ix;
-                let h = self.height[c];
+            let row = iy * nx;
+            if iy == 0 || iy + 1 == ny || nx < 3 {
+                for ix in 0..nx {
+                    let h = height[row + ix];
+                    out[row + ix] = if h.is_finite() { block(ix, iy, h) } else { f32::NAN };
+                }
+                continue;
+            }
+            // Inner row: the three rows as slices, no clipping between the edge columns.
+            let (above, mid, below) = (&height[row - nx..row], &height[row..row + nx], &height[row + nx..row + 2 * nx]);
+            let out = &mut out[row..row + nx];
+            for ix in [0, nx - 1] {
+                let h = mid[ix];
+                out[ix] = if h.is_finite() { block(ix, iy, h) } else { f32::NAN };
+            }
+            for ix in 1..nx - 1 {
+                let h = mid[ix];
                 if !h.is_finite() {
-                    out[c] = f32::NAN;
+                    out[ix] = f32::NAN;
                     continue;
                 }
                 let mut worst = 0.0f32;
-                for jy in iy.saturating_sub(1)..(iy + 2).min(ny) {
-                    for jx in ix.saturating_sub(1)..(ix + 2).min(nx) {
-                        let d = (self.height[jy * nx + jx] - h).abs();
+                for r in [above, mid, below] {
+                    for &v in &r[ix - 1..ix + 2] {
+                        let d = (v - h).abs();
                         if d > worst {
                             worst = d;
                         }
                     }
                 }
-                out[c] = worst;
+                out[ix] = worst;
             }
         }
     }
