@@ -398,42 +398,57 @@ impl MapBuilder {
         let (nx, ny) = (g.nx, g.ny);
         let res = g.resolution_m;
         let w = nx + 1;
-        self.integral.clear();
-        self.integral.resize(w * (ny + 1), [0.0; 10]);
-        for iy in 0..ny {
-            let mut row = [0.0f64; 10];
-            for ix in 0..nx {
-                let z = self.height[iy * nx + ix];
-                if z.is_finite() {
-                    let (x, y, z) = (ix as f64 * res, iy as f64 * res, z as f64);
-                    let m = [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z];
-                    for k in 0..10 {
-                        row[k] += m[k];
-                    }
-                }
-                let above = self.integral[iy * w + ix + 1];
-                let cell = &mut self.integral[(iy + 1) * w + ix + 1];
-                for k in 0..10 {
-                    cell[k] = above[k] + row[k];
-                }
-            }
-        }
         let hw = self.plane_half;
+        // The summed-area table, row r (0..=ny, row 0 all zeros) in slot r % slots: map row
+        // iy reads rows iy - hw and iy + hw + 1 (clipped), so 2·hw + 2 slots hold every row
+        // still needed.
+        let slots = (2 * hw + 2).min(ny + 1);
+        self.integral.clear();
+        self.integral.resize(slots * w, [0.0; 10]);
         let min_cells = self.layers.plane_min_cells as f64;
         let Ok([_count, _ground_count, _ground_height, _min, _max, slope, residual, ..]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
             unreachable!("a RiskMap holds Layer::ALL.len() layers")
         };
         slope.fill(f32::NAN);
         residual.fill(f32::NAN);
+        let height = &self.height[..nx * ny];
+        let mut built = 0;
         for iy in 0..ny {
             let (y0, y1) = (iy.saturating_sub(hw), (iy + hw + 1).min(ny));
+            while built < y1 {
+                // Row built + 1 = row built + the running sums along map row `built`.
+                let (a, b) = (built % slots, (built + 1) % slots);
+                let (above, cur) = if a < b {
+                    let (lo, hi) = self.integral.split_at_mut(b * w);
+                    (&lo[a * w..(a + 1) * w], &mut hi[..w])
+                } else {
+                    let (lo, hi) = self.integral.split_at_mut(a * w);
+                    (&hi[..w], &mut lo[b * w..(b + 1) * w])
+                };
+                let mut row = [0.0f64; 10];
+                let y = built as f64 * res;
+                for (ix, (&z, (cell, above))) in height[built * nx..(built + 1) * nx].iter().zip(cur[1..].iter_mut().zip(&above[1..])).enumerate() {
+                    if z.is_finite() {
+                        let (x, z) = (ix as f64 * res, z as f64);
+                        let m = [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z];
+                        for k in 0..10 {
+                            row[k] += m[k];
+                        }
+                    }
+                    for k in 0..10 {
+                        cell[k] = above[k] + row[k];
+                    }
+                }
+                built += 1;
+            }
+            let (top, bottom) = (&self.integral[(y0 % slots) * w..][..w], &self.integral[(y1 % slots) * w..][..w]);
+            let hrow = &height[iy * nx..(iy + 1) * nx];
             for ix in 0..nx {
-                let c = iy * nx + ix;
-                if !self.height[c].is_finite() {
+                if !hrow[ix].is_finite() {
                     continue;
                 }
                 let (x0, x1) = (ix.saturating_sub(hw), (ix + hw + 1).min(nx));
-                let (a, b, cc, d) = (&self.integral[y1 * w + x1], &self.integral[y0 * w + x1], &self.integral[y1 * w + x0], &self.integral[y0 * w + x0]);
+                let (a, b, cc, d) = (&bottom[x1], &top[x1], &bottom[x0], &top[x0]);
                 let mut s = [0.0f64; 10];
                 for k in 0..10 {
                     s[k] = a[k] - b[k] - cc[k] + d[k];
@@ -443,6 +458,7 @@ impl MapBuilder {
                     continue;
                 }
                 if let Some((grad, rms)) = fit_plane(&s, ix as f64 * res, iy as f64 * res) {
+                    let c = iy * nx + ix;
                     slope[c] = grad.atan() as f32;
                     residual[c] = rms as f32;
                 }
