@@ -288,9 +288,14 @@ impl GroundSegmenter {
         // r < max_range_m, so r / bin_m is in [0, bins]: `as i64` truncates as `as usize` would.
         let k = ((r * self.inv_bin) as i64 as usize).min(self.bins - 1);
         let sb = s * self.bins + k;
-        let (line, acc) = (&self.line[sb], &self.acc[sb]);
+        // Both tables have one entry per polar bin: one bounds check for the two.
+        let n = self.line.len().min(self.acc.len());
+        let (line, acc) = (&self.line[..n][sb], &self.acc[..n][sb]);
         let ground_z = line.m * r + line.b;
-        let floor_bound_z = (acc.proto_z as f64).min(acc.ray_slope as f64 * r);
+        // `min` of the two where the prototype's z is never NaN (+inf when empty): the ray
+        // bound is taken only when lower (a NaN ray bound, inf·0, leaves the prototype's z).
+        let (proto_z, ray_z) = (acc.proto_z as f64, acc.ray_slope as f64 * r);
+        let floor_bound_z = if ray_z < proto_z { ray_z } else { proto_z };
         PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z }
     }
 
@@ -301,16 +306,19 @@ impl GroundSegmenter {
         let sector_scale = c.sectors as f64 / std::f64::consts::TAU;
         let (max_r, bin_m) = (c.max_range_m, c.bin_m);
         self.acc.fill(BinAccumulator::EMPTY);
+        // Sized first and filled by a plain loop, so that everything the loop reads stays in
+        // registers.
         self.point_bin.clear();
-        let (acc, edges) = (&mut self.acc, &self.sector_edges[..]);
+        self.point_bin.resize(points.len(), NO_BIN);
+        let (acc, edges) = (&mut self.acc[..], &self.sector_edges[..]);
         // The previous point's sector: scans come ring by ring or column by column, so the
         // next point is usually in it or beside it.
         let mut last = usize::MAX;
-        self.point_bin.extend(points.iter().map(|p| {
+        for (bin, p) in self.point_bin.iter_mut().zip(points) {
             let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
             let r = (x * x + y * y).sqrt();
             if !(r < max_r) || !z.is_finite() {
-                return NO_BIN;
+                continue;
             }
             let s = match sector_beside(edges, last, x, y) {
                 Some(s) => s,
@@ -325,8 +333,8 @@ impl GroundSegmenter {
                 acc.proto_z = p[2];
                 acc.proto_r = r;
             }
-            sb as u32
-        }));
+            *bin = sb as u32;
+        }
         // Per bin: the steepest ray to any point of a farther bin of the sector.
         for s in 0..sectors {
             let row = &mut self.acc[s * bins..(s + 1) * bins];
