@@ -717,8 +717,8 @@ mod tests {
             seg.sector_lines[0] = (0, lines.len() as u32);
             seg.assign_lines(0);
             let want = assign_by_bin(&lines, bins, 0.6);
-            for k in 0..bins {
-                let (a, b) = (&seg.line[k], &want[k]);
+            for (k, b) in want.iter().enumerate() {
+                let a = &seg.line[k];
                 let bits = |l: &BinLine| [l.m.to_bits(), l.b.to_bits(), l.cover_lo.to_bits(), l.cover_hi.to_bits()];
                 assert_eq!(bits(a), bits(b), "trial {trial}, bin {k}, lines {lines:?}");
             }

@@ -443,8 +443,8 @@ impl MapBuilder {
             }
             let (top, bottom) = (&self.integral[(y0 % slots) * w..][..w], &self.integral[(y1 % slots) * w..][..w]);
             let hrow = &height[iy * nx..(iy + 1) * nx];
-            for ix in 0..nx {
-                if !hrow[ix].is_finite() {
+            for (ix, h) in hrow.iter().enumerate() {
+                if !h.is_finite() {
                     continue;
                 }
                 let (x0, x1) = (ix.saturating_sub(hw), (ix + hw + 1).min(nx));
