@@ -129,8 +129,14 @@ impl CellAccumulator {
     #[inline]
     fn add(&mut self, z: f32, h: f32, ground_threshold: f32, collision_lo: f32, collision_hi: f32) {
         self.count += 1;
-        self.min_z = self.min_z.min(z);
-        self.max_z = self.max_z.max(z);
+        // `min_z`/`max_z` are never NaN (they start infinite and only take points' z), so these
+        // are `min`/`max` without the NaN handling.
+        if z < self.min_z {
+            self.min_z = z;
+        }
+        if z > self.max_z {
+            self.max_z = z;
+        }
         if h.abs() <= ground_threshold {
             self.ground_n += 1;
             self.ground_sum += z;
@@ -164,6 +170,10 @@ pub(crate) struct MapBuilder {
     patch_tmp: Vec<f32>,
     patch_max: Vec<f32>,
     integral: Vec<[f64; 10]>,
+    /// Cell-centre x relative to the newest sensor, by column [m].
+    xs: Vec<f64>,
+    /// Scratch cells [`bin_scan`](Self::bin_scan) has hit, in order of the first hit.
+    touched: Vec<u32>,
 }
 
 impl MapBuilder {
@@ -192,6 +202,8 @@ impl MapBuilder {
             patch_tmp: Vec::new(),
             patch_max: Vec::new(),
             integral: Vec::new(),
+            xs: Vec::new(),
+            touched: Vec::new(),
         }
     }
 
@@ -212,24 +224,46 @@ impl MapBuilder {
         let lo = self.robot.ground_clearance_m as f32;
         let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
         let dz = sensor_above_body_m as f32;
+        let touched = &mut self.touched;
+        touched.clear();
+        // The cells are [origin, origin + n) along each axis: floor(q) - origin is in [0, n)
+        // iff q is in [origin, origin + n) (integer bounds), tested on q itself; then
+        // floor_small gives floor(q) exactly. Points are finite (prefiltered), so q is too.
+        let (x_lo, y_lo) = (g.origin_cell.0 as f64, g.origin_cell.1 as f64);
+        let (x_hi, y_hi) = ((g.origin_cell.0 + nx) as f64, (g.origin_cell.1 + ny) as f64);
+        let small = [x_lo, x_hi, y_lo, y_hi].iter().all(|b| b.abs() < FLOOR_SMALL_LIMIT);
         for (p, &h) in points.iter().zip(heights) {
             // The same formula as GridGeometry::cell_of, so every scan agrees on the cells.
-            let ix = floor_i64((p[0] as f64 + origin_world.x) / res) - g.origin_cell.0;
-            let iy = floor_i64((p[1] as f64 + origin_world.y) / res) - g.origin_cell.1;
-            if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
-                continue;
+            let qx = (p[0] as f64 + origin_world.x) / res;
+            let qy = (p[1] as f64 + origin_world.y) / res;
+            let (ix, iy) = if small {
+                if !(qx >= x_lo && qx < x_hi && qy >= y_lo && qy < y_hi) {
+                    continue;
+                }
+                (floor_small(qx) - g.origin_cell.0, floor_small(qy) - g.origin_cell.1)
+            } else {
+                let (ix, iy) = (floor_i64(qx) - g.origin_cell.0, floor_i64(qy) - g.origin_cell.1);
+                if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
+                    continue;
+                }
+                (ix, iy)
+            };
+            let c = (iy * nx + ix) as usize;
+            let cell = &mut self.scratch[c];
+            if cell.count == 0 {
+                touched.push(c as u32);
             }
-            let cell = &mut self.scratch[(iy * nx + ix) as usize];
             cell.add(p[2] + dz, h, thr, lo, hi);
         }
+        // The non-empty cells in the order they were first hit (each global cell once, so
+        // the order does not change any sum the map makes of them).
         out.clear();
-        for (c, cell) in self.scratch.iter_mut().enumerate() {
-            if cell.count > 0 {
-                let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);
-                out.push(BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: *cell });
-                *cell = CellAccumulator::EMPTY;
-            }
-        }
+        out.extend(touched.iter().map(|&c| {
+            let c = c as usize;
+            let cell = std::mem::replace(&mut self.scratch[c], CellAccumulator::EMPTY);
+            let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);
+            BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: cell }
+        }));
     }
 
     pub fn build(
@@ -335,22 +369,25 @@ impl MapBuilder {
         }
         if let Some(polar) = polar {
             let s = polar.sensor_level;
+            // Cell centres relative to the sensor: x by column, y by row.
+            self.xs.clear();
+            self.xs.extend((0..g.nx).map(|ix| corner.x + (ix as f64 + 0.5) * res - s.x));
+            let (cells, height) = (&self.cells, &mut self.height);
             for iy in 0..g.ny {
                 let y = corner.y + (iy as f64 + 0.5) * res - s.y;
-                for ix in 0..g.nx {
-                    let x = corner.x + (ix as f64 + 0.5) * res - s.x;
-                    let Some(bin) = polar.segmenter.query(x, y) else { continue };
-                    let c = iy * g.nx + ix;
+                let row = iy * g.nx;
+                polar.segmenter.query_row(&self.xs, y, |ix, bin| {
+                    let c = row + ix;
                     if bin.covered {
                         observed[c] = 1.0;
-                        if self.cells[c].ground_n == 0 {
-                            self.height[c] = (bin.ground_z + s.z) as f32;
+                        if cells[c].ground_n == 0 {
+                            height[c] = (bin.ground_z + s.z) as f32;
                         }
                     }
                     if bin.floor_bound_z.is_finite() {
                         depth[c] = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
                     }
-                }
+                });
             }
         }
     }
@@ -361,42 +398,57 @@ impl MapBuilder {
         let (nx, ny) = (g.nx, g.ny);
         let res = g.resolution_m;
         let w = nx + 1;
-        self.integral.clear();
-        self.integral.resize(w * (ny + 1), [0.0; 10]);
-        for iy in 0..ny {
-            let mut row = [0.0f64; 10];
-            for ix in 0..nx {
-                let z = self.height[iy * nx + ix];
-                if z.is_finite() {
-                    let (x, y, z) = (ix as f64 * res, iy as f64 * res, z as f64);
-                    let m = [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z];
-                    for k in 0..10 {
-                        row[k] += m[k];
-                    }
-                }
-                let above = self.integral[iy * w + ix + 1];
-                let cell = &mut self.integral[(iy + 1) * w + ix + 1];
-                for k in 0..10 {
-                    cell[k] = above[k] + row[k];
-                }
-            }
-        }
         let hw = self.plane_half;
+        // The summed-area table, row r (0..=ny, row 0 all zeros) in slot r % slots: map row
+        // iy reads rows iy - hw and iy + hw + 1 (clipped), so 2·hw + 2 slots hold every row
+        // still needed.
+        let slots = (2 * hw + 2).min(ny + 1);
+        self.integral.clear();
+        self.integral.resize(slots * w, [0.0; 10]);
         let min_cells = self.layers.plane_min_cells as f64;
         let Ok([_count, _ground_count, _ground_height, _min, _max, slope, residual, ..]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
             unreachable!("a RiskMap holds Layer::ALL.len() layers")
         };
         slope.fill(f32::NAN);
         residual.fill(f32::NAN);
+        let height = &self.height[..nx * ny];
+        let mut built = 0;
         for iy in 0..ny {
             let (y0, y1) = (iy.saturating_sub(hw), (iy + hw + 1).min(ny));
-            for ix in 0..nx {
-                let c = iy * nx + ix;
-                if !self.height[c].is_finite() {
+            while built < y1 {
+                // Row built + 1 = row built + the running sums along map row `built`.
+                let (a, b) = (built % slots, (built + 1) % slots);
+                let (above, cur) = if a < b {
+                    let (lo, hi) = self.integral.split_at_mut(b * w);
+                    (&lo[a * w..(a + 1) * w], &mut hi[..w])
+                } else {
+                    let (lo, hi) = self.integral.split_at_mut(a * w);
+                    (&hi[..w], &mut lo[b * w..(b + 1) * w])
+                };
+                let mut row = [0.0f64; 10];
+                let y = built as f64 * res;
+                for (ix, (&z, (cell, above))) in height[built * nx..(built + 1) * nx].iter().zip(cur[1..].iter_mut().zip(&above[1..])).enumerate() {
+                    if z.is_finite() {
+                        let (x, z) = (ix as f64 * res, z as f64);
+                        let m = [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z];
+                        for k in 0..10 {
+                            row[k] += m[k];
+                        }
+                    }
+                    for k in 0..10 {
+                        cell[k] = above[k] + row[k];
+                    }
+                }
+                built += 1;
+            }
+            let (top, bottom) = (&self.integral[(y0 % slots) * w..][..w], &self.integral[(y1 % slots) * w..][..w]);
+            let hrow = &height[iy * nx..(iy + 1) * nx];
+            for (ix, h) in hrow.iter().enumerate() {
+                if !h.is_finite() {
                     continue;
                 }
                 let (x0, x1) = (ix.saturating_sub(hw), (ix + hw + 1).min(nx));
-                let (a, b, cc, d) = (&self.integral[y1 * w + x1], &self.integral[y0 * w + x1], &self.integral[y1 * w + x0], &self.integral[y0 * w + x0]);
+                let (a, b, cc, d) = (&bottom[x1], &top[x1], &bottom[x0], &top[x0]);
                 let mut s = [0.0f64; 10];
                 for k in 0..10 {
                     s[k] = a[k] - b[k] - cc[k] + d[k];
@@ -406,6 +458,7 @@ impl MapBuilder {
                     continue;
                 }
                 if let Some((grad, rms)) = fit_plane(&s, ix as f64 * res, iy as f64 * res) {
+                    let c = iy * nx + ix;
                     slope[c] = grad.atan() as f32;
                     residual[c] = rms as f32;
                 }
@@ -417,24 +470,54 @@ impl MapBuilder {
     fn steps(&mut self, g: &GridGeometry, map: &mut RiskMap) {
         let (nx, ny) = (g.nx, g.ny);
         let out = map.get_mut(Layer::StepHeight);
+        let height = &self.height[..nx * ny];
+        // max |H(n) - H(c)| over the 3x3 block clipped to the map, visited in the same
+        // row-major order everywhere (the cell itself adds 0; NaN neighbours never compare
+        // greater).
+        let block = |ix: usize, iy: usize, h: f32| {
+            let mut worst = 0.0f32;
+            for jy in iy.saturating_sub(1)..(iy + 2).min(ny) {
+                for jx in ix.saturating_sub(1)..(ix + 2).min(nx) {
+                    let d = (height[jy * nx + jx] - h).abs();
+                    if d > worst {
+                        worst = d;
+                    }
+                }
+            }
+            worst
+        };
         for iy in 0..ny {
-            for ix in 0..nx {
-                let c = iy * nx + ix;
-                let h = self.height[c];
+            let row = iy * nx;
+            if iy == 0 || iy + 1 == ny || nx < 3 {
+                for ix in 0..nx {
+                    let h = height[row + ix];
+                    out[row + ix] = if h.is_finite() { block(ix, iy, h) } else { f32::NAN };
+                }
+                continue;
+            }
+            // Inner row: the three rows as slices, no clipping between the edge columns.
+            let (above, mid, below) = (&height[row - nx..row], &height[row..row + nx], &height[row + nx..row + 2 * nx]);
+            let out = &mut out[row..row + nx];
+            for ix in [0, nx - 1] {
+                let h = mid[ix];
+                out[ix] = if h.is_finite() { block(ix, iy, h) } else { f32::NAN };
+            }
+            for ix in 1..nx - 1 {
+                let h = mid[ix];
                 if !h.is_finite() {
-                    out[c] = f32::NAN;
+                    out[ix] = f32::NAN;
                     continue;
                 }
                 let mut worst = 0.0f32;
-                for jy in iy.saturating_sub(1)..(iy + 2).min(ny) {
-                    for jx in ix.saturating_sub(1)..(ix + 2).min(nx) {
-                        let d = (self.height[jy * nx + jx] - h).abs();
+                for r in [above, mid, below] {
+                    for &v in &r[ix - 1..ix + 2] {
+                        let d = (v - h).abs();
                         if d > worst {
                             worst = d;
                         }
                     }
                 }
-                out[c] = worst;
+                out[ix] = worst;
             }
         }
     }
@@ -516,20 +599,23 @@ impl MapBuilder {
         let tilt_ramp = self.robot.tilt_ramp_rad();
         let u = self.uncertainty;
         let z0 = body_world.z as f32;
-        let mut mission = vec![0.0f32; n];
-        for item in missions {
-            stamp_mission(g, item, r.mission_margin_m, &mut mission);
-        }
         // One slice per layer, in `Layer::ALL` order, each exactly `n` long.
         let Ok([count_l, ground_count, ground_height, min_height, max_height, _slope, residual, step_height, negative_depth, tilt_angle, observed_l, age_l, collision_l, step_l, negative_l, tilt_l, rough_l, unknown_l, mission_l, risk_l, variance_l]) =
             <[&mut [f32]; 21]>::try_from(map.layers_mut())
         else {
             unreachable!("a RiskMap holds Layer::ALL.len() layers")
         };
+        // The map starts all zeros: the circles are stamped straight into the layer.
+        for item in missions {
+            stamp_mission(g, item, r.mission_margin_m, mission_l);
+        }
         let cells = &self.cells[..n];
         let height = &self.height[..n];
+        // Re-sliced to `n` so that the loops index without bounds checks.
+        let (count_l, ground_count, ground_height, min_height, max_height, age_l) =
+            (&mut count_l[..n], &mut ground_count[..n], &mut ground_height[..n], &mut min_height[..n], &mut max_height[..n], &mut age_l[..n]);
         for c in 0..n {
-            let cell = cells[c];
+            let cell = &cells[c];
             let count = cell.count;
             count_l[c] = count as f32;
             ground_count[c] = cell.ground_n as f32;
@@ -538,6 +624,24 @@ impl MapBuilder {
             min_height[c] = if has { cell.min_z + z0 } else { f32::NAN };
             max_height[c] = if has { cell.max_z + z0 } else { f32::NAN };
             age_l[c] = if has { cell.min_age } else { f32::NAN };
+        }
+        let (residual, step_height, negative_depth, tilt_angle, observed_l) =
+            (&residual[..n], &step_height[..n], &negative_depth[..n], &tilt_angle[..n], &observed_l[..n]);
+        let (collision_l, step_l, negative_l, tilt_l, rough_l, unknown_l, mission_l, risk_l, variance_l) = (
+            &mut collision_l[..n],
+            &mut step_l[..n],
+            &mut negative_l[..n],
+            &mut tilt_l[..n],
+            &mut rough_l[..n],
+            &mut unknown_l[..n],
+            &mut mission_l[..n],
+            &mut risk_l[..n],
+            &mut variance_l[..n],
+        );
+        for c in 0..n {
+            let cell = &cells[c];
+            let count = cell.count;
+            let has = count > 0;
             let observed = observed_l[c] > 0.0;
             let collision = r.collision_points.eval(cell.collision_n as f64);
             let step = r.step_m.eval(step_height[c] as f64);
@@ -545,7 +649,7 @@ impl MapBuilder {
             let tilt = tilt_ramp.eval(tilt_angle[c] as f64);
             let rough = r.roughness_m.eval(residual[c] as f64);
             let unknown = if observed { 0.0 } else { r.unknown };
-            let m = mission[c] as f64;
+            let m = mission_l[c] as f64;
             // Same order as Layer::RISKS.
             collision_l[c] = collision as f32;
             step_l[c] = step as f32;
@@ -566,6 +670,20 @@ impl MapBuilder {
             variance_l[c] = (sigma * sigma) as f32;
         }
     }
+}
+
+/// Inputs of [`floor_small`] stay below this in magnitude.
+const FLOOR_SMALL_LIMIT: f64 = (1u64 << 50) as f64;
+
+/// `floor(x)` for `|x| < 2^50`, exactly, without a libm call or saturation code: adding
+/// 1.5·2^52 rounds x to the nearest integer, held in the low mantissa bits; one comparison
+/// turns the rounding into a floor.
+#[inline]
+fn floor_small(x: f64) -> i64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5·2^52
+    let t = x + MAGIC;
+    let rounded = (t.to_bits() as i64) - (MAGIC.to_bits() as i64);
+    rounded - ((t - MAGIC) > x) as i64
 }
 
 /// `floor(x)` as an integer without a libm call (x86-64 without SSE4.1 has no inline
@@ -628,16 +746,32 @@ fn heading_stencil(robot: &RobotConfig, res: f64, yaw: f64) -> HeadingStencil {
 /// `d = h_FL + h_RR - h_FR - h_RL >= 0` on FL-RR and either FR or RL (lifting RL or FR),
 /// else on FR-RL and either FL or RR. Both poses of the pair are stable (it rocks).
 fn settle_tan2(triangles: &[Option<Triangle>; 4], h: &[f64; 4]) -> f64 {
-    let d = h[0] + h[3] - h[1] - h[2];
-    let lifted = if d >= 0.0 { [1, 2] } else { [0, 3] };
-    let mut worst = -1.0f64;
-    for t in lifted.iter().filter_map(|&o| triangles[o].as_ref()) {
-        let (dj, dk) = (h[t.j] - h[t.i], h[t.k] - h[t.i]);
+    // The corners bearing the body when corner `o` is lifted are the other three in order
+    // (see heading_stencil): spelled out per lifted corner so the indices are constants.
+    #[inline(always)]
+    fn support(t: &Option<Triangle>, h: &[f64; 4], i: usize, j: usize, k: usize, worst: f64) -> f64 {
+        let Some(t) = t else { return worst };
+        debug_assert!((t.i, t.j, t.k) == (i, j, k));
+        let (dj, dk) = (h[j] - h[i], h[k] - h[i]);
         let gx = t.inv[0][0] * dj + t.inv[0][1] * dk;
         let gy = t.inv[1][0] * dj + t.inv[1][1] * dk;
-        worst = worst.max(gx * gx + gy * gy);
+        // Both finite and >= 0 (never -0), `worst` >= -1: the same as `worst.max(..)`.
+        let tan2 = gx * gx + gy * gy;
+        if tan2 > worst {
+            tan2
+        } else {
+            worst
+        }
     }
-    worst
+    let d = h[0] + h[3] - h[1] - h[2];
+    if d >= 0.0 {
+        // Lift RL (1) or FR (2): the body rests on FL-RR.
+        let worst = support(&triangles[1], h, 0, 2, 3, -1.0);
+        support(&triangles[2], h, 0, 1, 3, worst)
+    } else {
+        let worst = support(&triangles[0], h, 1, 2, 3, -1.0);
+        support(&triangles[3], h, 0, 1, 2, worst)
+    }
 }
 
 /// Least-squares plane through window sums `s = [n, Σx, Σy, Σz, Σxx, Σxy, Σyy, Σxz, Σyz, Σzz]`,
@@ -700,6 +834,27 @@ mod tests {
     fn floor_without_libm() {
         for x in [-2.5, -2.0, -1e-300, 0.0, 0.3, 1.0, 1.9999999999999998, 7.5e15] {
             assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+    }
+
+    #[test]
+    fn floor_small_is_floor() {
+        let mut xs = vec![-2.5, -2.0, -1.5, -0.5, -1e-300, -0.0, 0.0, 0.3, 0.5, 1.0, 1.5, 2.5, 1.9999999999999998, -1.0000000000000002, 1e15 + 0.5, -1e15 - 0.5];
+        let mut state = 5u64;
+        for i in 0..200_000 {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+            let scale = [1.0, 100.0, 1e6, 1e12, 1e15][i % 5];
+            let x = (u - 0.5) * 2.0 * scale;
+            // Also integers, halves and their neighbours.
+            let k = x.round();
+            xs.extend([x, k, k + 0.5, f64::from_bits(k.to_bits() + 1), f64::from_bits(k.to_bits().wrapping_sub(1))]);
+        }
+        for x in xs {
+            if x.abs() < FLOOR_SMALL_LIMIT {
+                assert_eq!(floor_small(x), x.floor() as i64, "{x}");
+                assert_eq!(floor_small(x), floor_i64(x), "{x}");
+            }
         }
     }
 
