@@ -178,32 +178,18 @@ def assert_layer_matches(name, rust, ref):
     assert not bad.any(), f"{name}: {bad.sum()} cells differ by more than {tol} (largest {diff.max():.3g})"
 
 
-#: What a plane fit in a cell feeds: its slope and residual, the tilt there when the slope
-#: stands in, their ramps, the combined risk and its CVaR.
-PLANE_FED = ("slope", "plane_residual", "tilt_angle", "tilt", "roughness", "risk")
-#: Most cells of one map whose plane window is collinear (see below); seen: 0-5.
-MAX_COLLINEAR_CELLS = 20
-
-
 def assert_maps_match(rust, ref):
-    """Every layer of Rust's coarse map against the reference, plus cvar.
-
-    Known Rust bug (test_collinear_ground_cells_have_no_plane): where a cell's plane window
-    holds enough ground cells but all in one row or column, Rust fits a plane anyway (slope
-    0.3°-90° seen). Those cells (``ref.collinear``, at most MAX_COLLINEAR_CELLS) are left
-    out of the PLANE_FED layers and cvar; everything else is compared everywhere."""
+    """Every layer of Rust's coarse map against the reference, everywhere, plus cvar.
+    (Cells whose plane window is collinear have no plane in both: see
+    test_collinear_ground_cells_have_no_plane.)"""
     assert list(rust.layer_names) == list(reference.LAYER_NAMES)
     assert set(EXACT_LAYERS).isdisjoint(TOLERANCE) and set(EXACT_LAYERS) | set(TOLERANCE) == set(reference.LAYER_NAMES)
     assert tuple(rust.origin_cell) == ref.geometry.origin_cell and rust.shape == ref.geometry.shape
-    skip = ref.collinear
-    assert skip.sum() <= MAX_COLLINEAR_CELLS and np.isnan(ref.layer("slope")[skip]).all()
+    assert np.isnan(ref.layer("slope")[ref.collinear]).all()
     for name in reference.LAYER_NAMES:
-        a, b = rust.layer(name), ref.layer(name)
-        if name in PLANE_FED:
-            a, b = a[~skip], b[~skip]
-        assert_layer_matches(name, a, b)
+        assert_layer_matches(name, rust.layer(name), ref.layer(name))
     for alpha in CVAR_ALPHAS:
-        np.testing.assert_allclose(rust.cvar(alpha)[~skip], ref.cvar(alpha)[~skip], rtol=0, atol=CVAR_TOLERANCE, err_msg=f"cvar({alpha})")
+        np.testing.assert_allclose(rust.cvar(alpha), ref.cvar(alpha), rtol=0, atol=CVAR_TOLERANCE, err_msg=f"cvar({alpha})")
 
 
 def assert_comparison_is_sharp(ref, names):
@@ -427,12 +413,6 @@ def test_reference_plane_fit_and_settling_by_hand():
     assert abs(tilt[10, 10] - math.atan(0.1 / 0.6)) < 1e-7
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="Rust bug (risk.rs fit_plane): the degeneracy test |det| > 1e-9·|xx·yy·n| is relative to xx (or yy), "
-    "itself ~0 when the window's cells lie in one column (row); summed-area-table rounding then passes it and "
-    "gives an arbitrary slope (up to 90°: lethal tilt via the slope fallback) instead of no plane.",
-)
 def test_collinear_ground_cells_have_no_plane(config):
     """A single column of ground cells 5 m ahead, rising 3 cm/m along y: no window holds
     a plane (the documented plane fit needs non-collinear cells), so slope is NaN."""

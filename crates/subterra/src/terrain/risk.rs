@@ -776,6 +776,9 @@ fn settle_tan2(triangles: &[Option<Triangle>; 4], h: &[f64; 4]) -> f64 {
 
 /// Least-squares plane through window sums `s = [n, Σx, Σy, Σz, Σxx, Σxy, Σyy, Σxz, Σyz, Σzz]`,
 /// centred at `(xc, yc)`; returns `(|∇z|, rms residual)`.
+/// Below this eigenvalue ratio of the cells' spread, a window's cells count as collinear.
+const COLLINEAR_RATIO: f64 = 1e-6;
+
 fn fit_plane(s: &[f64; 10], xc: f64, yc: f64) -> Option<(f64, f64)> {
     let [n, sx, sy, sz, sxx, sxy, syy, sxz, syz, szz] = *s;
     let x = sx - n * xc;
@@ -787,8 +790,14 @@ fn fit_plane(s: &[f64; 10], xc: f64, yc: f64) -> Option<(f64, f64)> {
     let yz = syz - yc * sz;
     // Normal equations [xx xy x; xy yy y; x y n] [a b c] = [xz yz sz], by Cramer's rule.
     let det = xx * (yy * n - y * y) - xy * (xy * n - y * x) + x * (xy * y - yy * x);
-    // Relative to the product of the diagonal: ~0 when the cells are collinear.
-    if !(det.abs() > 1e-9 * (xx * yy * n).abs()) {
+    // Collinear cells have no plane. The spread of the cells about their mean, `C`, has
+    // `det C = det / n`; its eigenvalue ratio `λ_min/λ_max ≈ det C / (tr C)²` is >= ~1e-3 for
+    // any non-collinear set of cells in a window (cells lie on a lattice) and ~1e-10 for
+    // collinear ones (rounding of the window sums), so the test is scale-free. (Comparing
+    // `det` with `xx·yy·n` instead passes on noise when the cells lie in one row or column:
+    // `xx` or `yy` is then itself ~0. Regression test `collinear_ground_cells_have_no_plane`.)
+    let trace = (xx - x * x / n) + (yy - y * y / n);
+    if !(det / n > COLLINEAR_RATIO * trace * trace) {
         return None;
     }
     let a = (xz * (yy * n - y * y) - xy * (yz * n - y * sz) + x * (yz * y - yy * sz)) / det;
@@ -874,6 +883,32 @@ mod tests {
         }
         let (grad, rms) = fit_plane(&s, 1.0, 1.0).unwrap();
         assert!((grad - 0.05f64.sqrt()).abs() < 1e-9 && rms < 1e-6, "{grad} {rms}");
+    }
+
+    #[test]
+    fn collinear_ground_cells_have_no_plane() {
+        // Window sums of cells at absolute positions far from the origin (as the map's
+        // summed-area tables give them), centred at (xc, yc).
+        fn sums(cells: &[(f64, f64, f64)]) -> [f64; 10] {
+            let mut s = [0.0; 10];
+            for &(x, y, z) in cells {
+                for (k, v) in [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z].into_iter().enumerate() {
+                    s[k] += v;
+                }
+            }
+            s
+        }
+        let (x0, y0) = (123.45, -678.95);
+        // One column of cells 0.1 m apart, rising 3 cm/m: no plane.
+        let column: Vec<_> = (0..9).map(|k| (x0, y0 + 0.1 * k as f64, 0.03 * 0.1 * k as f64)).collect();
+        assert_eq!(fit_plane(&sums(&column), x0, y0 + 0.4), None);
+        let row: Vec<_> = (0..9).map(|k| (x0 + 0.1 * k as f64, y0, 0.01 * k as f64)).collect();
+        assert_eq!(fit_plane(&sums(&row), x0 + 0.4, y0), None);
+        // The same column plus one cell beside its end: a plane, with the column's slope.
+        let mut l_shape = column.clone();
+        l_shape.push((x0 + 0.1, y0, 0.0));
+        let (grad, rms) = fit_plane(&sums(&l_shape), x0, y0 + 0.4).expect("an L of cells spans a plane");
+        assert!((grad - 0.03).abs() < 1e-6 && rms < 1e-9, "{grad} {rms}");
     }
 
     #[test]

@@ -37,12 +37,10 @@ How close it comes (``tests/python/test_terrain_reference.py`` checks each):
   stands in and ``tilt``, ``roughness`` and ``risk`` there (tests: 1e-6 rad or m, 1e-5
   for the ramps); :func:`cvar` within 1e-6 (Rust's Φ⁻¹ is Acklam's approximation,
   relative error 1.2e-9; this module uses :class:`statistics.NormalDist`).
-* **Not the same, by a Rust bug**: where a cell's plane window holds
-  ``plane_min_cells`` ground cells or more that all lie in one row or column, there is no
-  plane (this module: NaN), but Rust's degeneracy test (``|det| > 1e-9·|xx·yy·n|``,
-  relative to ``xx`` or ``yy``, which is itself ~0 then) passes on rounding noise and
-  Rust reports an arbitrary slope, up to 90°. :attr:`CoarseMap.collinear` marks those
-  cells (a handful at the edge of a scan's coverage, if any).
+* Where a cell's plane window holds ``plane_min_cells`` ground cells or more that all lie
+  in one row or column, there is no plane: NaN here (exact integer test) and in Rust (a
+  scale-free eigenvalue-ratio test since the fix of a degeneracy bug that passed on
+  rounding noise). :attr:`CoarseMap.collinear` marks those cells.
 
 Not reproduced (documented here so that nobody believes otherwise):
 
