@@ -376,15 +376,19 @@ const NO_PARENT: u8 = u8::MAX;
 /// Search state of one cell; valid only when `stamp` is the planner's current stamp.
 #[derive(Debug, Clone, Copy, Default)]
 struct Node {
-    /// Cost from the start (`+inf`: not reached).
+    /// Cost from the start: `+inf` not reached, [`CLOSED`] expanded (the goal keeps its cost).
     g: f64,
     /// Cell cost `λ + ρ` (`+inf`: untraversable).
     cost: f64,
     stamp: u32,
     /// The move (index into `MOVES`) that reached this cell.
     parent: u8,
-    closed: bool,
 }
+
+/// `g` of an expanded cell: no new cost is below it, so a closed cell is never improved, and an
+/// untraversable neighbour's `+inf` cost never improves anything either (one comparison tests
+/// all three).
+const CLOSED: f64 = f64::NEG_INFINITY;
 
 /// An open-list entry: the key `f.to_bits() << 64 | (h as f32).to_bits() << 32 | iy << 16 | ix`
 /// as one integer, ordered so that `BinaryHeap` pops the smallest. `f, h >= 0`, so their bits
@@ -492,7 +496,7 @@ impl RiskAStar {
     fn touch(nodes: &mut [Node], stamp: u32, config: &RiskAStarConfig, risk: &[f32], i: usize) -> Node {
         let node = &mut nodes[i];
         if node.stamp != stamp {
-            *node = Node { g: f64::INFINITY, cost: config.cell_cost(risk[i]), stamp, parent: NO_PARENT, closed: false };
+            *node = Node { g: f64::INFINITY, cost: config.cell_cost(risk[i]), stamp, parent: NO_PARENT };
         }
         *node
     }
@@ -533,15 +537,15 @@ impl RiskAStar {
             let (ax, ay) = top.cell();
             let a = ay * nx + ax;
             let node_a = &mut nodes[a];
-            if node_a.closed {
+            let (g_a, cost_a) = (node_a.g, node_a.cost);
+            if g_a == CLOSED {
                 continue; // stale entry
             }
-            node_a.closed = true;
             expanded += 1;
             if a == goal {
                 return (PlanStatus::Found, expanded);
             }
-            let (g_a, cost_a) = (node_a.g, node_a.cost);
+            node_a.g = CLOSED;
             // Away from the border every move stays inside the grid.
             let interior = ax > 0 && ay > 0 && ax + 1 < nx && ay + 1 < ny;
             let mut orthogonal_open = [false; 4];
@@ -561,15 +565,10 @@ impl RiskAStar {
                 }
                 let b = a.wrapping_add_signed(offsets[k]);
                 let node_b = Self::touch(nodes, stamp, &config, risk, b);
-                if node_b.cost.is_infinite() {
-                    continue;
-                }
                 if !diagonal {
-                    orthogonal_open[k] = true;
+                    orthogonal_open[k] = node_b.cost < f64::INFINITY;
                 }
-                if node_b.closed {
-                    continue;
-                }
+                // `+inf` for an untraversable `b`; never below a closed `b`'s CLOSED.
                 let g = g_a + step[diagonal as usize] * (cost_a + node_b.cost) * 0.5;
                 if g < node_b.g {
                     let node = &mut nodes[b];
