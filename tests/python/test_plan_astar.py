@@ -410,6 +410,8 @@ def test_bench_plan_reports_the_same_cost_and_runs_extra_cases(tmp_path, monkeyp
         assert case["same_optimal_cost"] and case["astar_corner_cutting"]["cost"] == pytest.approx(case["mcp_geometric"]["cost"], rel=1e-9)
         assert case["astar_corner_cutting"]["wall"]["runs"] == 2 and case["speedup_vs_mcp_total_median"] > 0
         assert case["astar_default_no_corner_cutting"]["cost"] >= case["astar_corner_cutting"]["cost"] - 1e-12
+    mine = report["astar_mine_200x200"]
+    assert len(mine["statuses"]) == 8 and "found" in mine["statuses"] and mine["same_optimal_cost_goals"] >= 1
 
 
 def test_benchmark_grid_is_seeded():

@@ -7,7 +7,10 @@ opposite corner, against scikit-image's ``MCP_Geometric`` (``find_costs`` to the
 so the optimal costs must agree (asserted to 1e-9 relative) and the time ratio is reported.
 MCP lets diagonals cut corners, so the compared A* runs with ``allow_corner_cutting=True``;
 the default A* (no corner cutting) is timed beside it. ``r_total = 1`` so that every run
-returns its path (the search is the same whatever the budget).
+returns its path (the search is the same whatever the budget). The random grids carry risk
+almost everywhere (about 1% of cells are exactly 0), so the heuristic ``lam * octile`` is weak
+and A* expands about half the grid: a hard case. A terrain map is easier: the last case plans
+on the coarse map of a simulated ``mine`` scan, to 8 goals 8 m around the robot.
 
 Other planning benchmarks plug in through :data:`EXTRA_CASES` (the MPC solve benchmark is
 meant to land there): each is a callable ``(repeats, seed) -> dict`` whose JSON-ready result
@@ -189,10 +192,75 @@ def _astar_case(n: int, repeats: int, seed: int) -> dict[str, Any]:
     }
 
 
-def bench_plan(sizes: tuple[int, ...] | None = None, repeats: int = 20, seed: int = 0) -> dict[str, Any]:
+def _mine_case(repeats: int, seed: int) -> dict[str, Any]:
+    """A* on a terrain map: the coarse map (200x200, 0.1 m) of one simulated OS1-64 scan of the
+    ``mine`` scenario (seed ``seed``, sensor 0.7 m up), from the robot to 8 goals on a ring of
+    8 m around it (every 45 degrees from its heading). Default config (no corner cutting,
+    ``r_total`` 0.5) timed on all 8; the corner-cutting A* (``r_total`` 1) is checked against
+    MCP_Geometric (set-up + ``find_costs`` + ``traceback``, one run per goal) and timed on
+    every goal it reaches."""
+    import subterra
+    from skimage.graph import MCP_Geometric
+
+    from subterra.bench.reference.plan import cell_costs
+    from subterra.sim import Lidar, World
+    from subterra.sim.render import pose_matrix, start_pose
+    from subterra.terrain import translation
+
+    world = World.scenario("mine", seed)
+    position, yaw, _ = start_pose(world)
+    ground = world.ground_height(position[0], position[1]) or 0.0
+    world_from_body = pose_matrix(np.array([position[0], position[1], ground]), yaw)
+    body_from_sensor = translation(z=0.7)
+    points, _ = Lidar("os1_64").scan(world, world_from_body @ body_from_sensor)
+    risk_map = subterra.TerrainMapper().update(points, world_from_body=world_from_body, body_from_sensor=body_from_sensor)
+    start = (float(position[0]), float(position[1]))
+    goals = [(start[0] + 8.0 * math.cos(yaw + a), start[1] + 8.0 * math.sin(yaw + a)) for a in np.radians(np.arange(0, 360, 45))]
+    planner = subterra.RiskAStar()
+    cutting = subterra.RiskAStar(r_total=1.0, allow_corner_cutting=True)
+    times, statuses, expanded = [], [], []
+    for goal in goals:
+        t, result = _time(lambda goal=goal: planner.plan(risk_map, start, goal), repeats)
+        times += t
+        statuses.append(result.status)
+        expanded.append(result.expanded)
+    costs, _ = cell_costs(risk_map.layer("risk"), lam=0.1, r_inst=0.8, unknown_risk=0.15)
+    checked = 0
+    cut_times, mcp_times = [], []
+    for goal in goals:
+        t, result = _time(lambda goal=goal: cutting.plan(risk_map, start, goal), repeats)
+        if not result.found:
+            continue
+        cut_times += t
+        (sx, sy), (gx, gy) = result.start_cell, result.goal_cell
+        t0 = time.perf_counter()
+        mcp = MCP_Geometric(costs, fully_connected=True)
+        cumulative, _ = mcp.find_costs([(sy, sx)], [(gy, gx)])
+        mcp.traceback((gy, gx))
+        mcp_times.append(time.perf_counter() - t0)
+        reference = float(cumulative[gy, gx]) * risk_map.resolution
+        if not math.isclose(result.cost, reference, rel_tol=1e-9):
+            raise AssertionError(f"mine goal {goal}: A* cost {result.cost} vs MCP_Geometric {reference}")
+        checked += 1
+    return {
+        "map": {"scenario": "mine", "seed": seed, "shape": list(risk_map.shape), "resolution_m": risk_map.resolution, "points": int(len(points))},
+        "start": start,
+        "goals": [list(g) for g in goals],
+        "statuses": statuses,
+        "expanded": expanded,
+        "astar_default_per_plan": _summary(times),
+        "astar_corner_cutting_per_plan_on_the_checked_goals": _summary(cut_times) if cut_times else None,
+        "mcp_geometric_per_plan_on_the_checked_goals": _summary(mcp_times) if mcp_times else None,
+        "same_optimal_cost_goals": checked,
+        "speedup_vs_mcp_total_median": _summary(mcp_times)["median_ms"] / _summary(cut_times)["median_ms"] if cut_times else None,
+    }
+
+
+def bench_plan(sizes: tuple[int, ...] | None = None, repeats: int = 20, seed: int = 0, mine: bool = True) -> dict[str, Any]:
     """Times the planners on one thread and returns a JSON-ready report: per grid size
     ``astar_<n>x<n>`` for each size (default :data:`GRID_SIZES`): A* with and without corner
-    cutting, ``MCP_Geometric`` on the same costs, the speed-ups; and ``extra``
+    cutting, ``MCP_Geometric`` on the same costs, the speed-ups; with ``mine``,
+    ``astar_mine_200x200``: plans on a simulated terrain map (:func:`_mine_case`); and ``extra``
     (:data:`EXTRA_CASES`). Wall times are medians of
     ``repeats`` runs after one warm-up run; the A* wall time includes the Python call and the
     grid's O(cells) check, ``core_time_s`` only the search."""
@@ -210,6 +278,8 @@ def bench_plan(sizes: tuple[int, ...] | None = None, repeats: int = 20, seed: in
     }
     for n in sizes:
         report[f"astar_{n}x{n}"] = _astar_case(n, repeats, seed)
+    if mine:
+        report["astar_mine_200x200"] = _mine_case(repeats, seed)
     report["extra"] = {name: case(repeats, seed) for name, case in EXTRA_CASES.items()}
     report["load_average_after"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
     return report

@@ -36,7 +36,9 @@
 //! the length of the shortest 8-connected path, so `h` is admissible and consistent (every move
 //! costs at least `λ·d` because `ρ >= 0`): the first time the goal is popped its `g` is the
 //! optimal cost, and a closed cell is never reopened. It is never smaller than DESIGN's
-//! `λ·euclid` bound, so it expands no more cells. The open list is a binary heap ordered by
+//! `λ·euclid` bound (a better-informed heuristic: up to ties, A* with it expands a subset of
+//! the cells it would expand with `λ·euclid`). An expanded cell's `g` is set to `-inf`, so one
+//! comparison `g_new < g` skips closed and untraversable neighbours. The open list is a binary heap ordered by
 //! `f = g + h`, ties broken by the smaller `h` (as `f32`) and then the smaller flat index
 //! `iy·nx + ix`, with stale entries skipped when popped, so a plan is deterministic. A cell's
 //! `g` improves only when strictly smaller, so among equal-cost predecessors the first one
