@@ -15,6 +15,9 @@ z forward), metres, seconds, radians. Every error is a :class:`subterra.errors.S
 
 Terrain risk for ground robots (DESIGN §2, :mod:`subterra.terrain`): ``TerrainMapper``
 turns lidar scans into a multi-layer ``RiskMap``; ``segment_ground`` labels ground points.
+
+Planning (DESIGN §3, ``docs/planning.md``): ``RiskAStar`` finds the least-risk path on a
+``RiskMap`` or any risk array and returns a ``PlanResult``.
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ from subterra._core import (
     PerceptionConfig,
     PerceptionOutput,
     PinholeCamera,
+    PlanResult,
+    RiskAStar,
     RiskMap,
     RobotConfig,
     TerrainConfig,
@@ -48,6 +53,8 @@ __all__ = [
     "PerceptionConfig",
     "PerceptionOutput",
     "PinholeCamera",
+    "PlanResult",
+    "RiskAStar",
     "RiskMap",
     "RobotConfig",
     "TerrainConfig",

@@ -52,10 +52,10 @@ def _parser() -> argparse.ArgumentParser:
     per.add_argument("--out", default="runs/perceive", help="output folder (default runs/perceive)")
 
     bench = sub.add_parser("bench", help="benchmarks against the NumPy reference")
-    bench.add_argument("what", choices=["perception", "sim", "terrain", "replay"])
+    bench.add_argument("what", choices=["perception", "plan", "replay", "sim", "terrain"])
     bench.add_argument("--frames", type=int, default=300)
     bench.add_argument("--reference-frames", type=int, default=30)
-    bench.add_argument("--repeats", type=int, default=20, help="terrain: timed map updates (default 20)")
+    bench.add_argument("--repeats", type=int, default=20, help="terrain: timed map updates; plan: timed plans per case (default 20)")
     bench.add_argument("--mode", choices=["particle", "histogram"], default="particle")
     bench.add_argument("--messages", type=int, default=20, help="replay: clouds and images per recording (default 20)")
     bench.add_argument("--seed", type=int, default=0)
@@ -140,6 +140,10 @@ def _bench(args: argparse.Namespace) -> int:
         from subterra.bench.replay import bench_replay
 
         report = bench_replay(messages=args.messages, seed=args.seed)
+    elif args.what == "plan":
+        from subterra.bench.plan import bench_plan
+
+        report = bench_plan(repeats=args.repeats, seed=args.seed)
     elif args.what == "terrain":
         from subterra.bench.terrain import bench_terrain
 

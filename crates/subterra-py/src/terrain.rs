@@ -278,6 +278,11 @@ pub struct PyRiskMap {
 }
 
 impl PyRiskMap {
+    /// The core map (the planner bindings read its `risk` layer in place).
+    pub(crate) fn map(&self) -> &RiskMap {
+        &self.inner
+    }
+
     fn dims(&self) -> [usize; 2] {
         let g = self.inner.geometry();
         [g.ny, g.nx]

@@ -6,11 +6,10 @@
 //! `cargo bench -p subterra --bench astar`
 
 use std::hint::black_box;
+use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec2;
-use rand::{RngExt, SeedableRng};
-use rand_xoshiro::Xoshiro256PlusPlus;
 use subterra::plan::{PlanStatus, RiskAStar, RiskAStarConfig, RiskGrid};
 use subterra::terrain::CellIndex;
 
@@ -21,50 +20,66 @@ const BLOBS: usize = 40;
 /// Lethal rectangles per grid.
 const OBSTACLES: usize = 30;
 
-/// An `n x n` risk grid: the hazard `s = Σ a·exp(-|p - c|²/2σ²)` of `BLOBS` Gaussian blobs
-/// (centre uniform, σ in [0.02n, 0.08n] cells, a in [0.1, 1.5] per metre, cut at 4σ), risk
-/// `1 - exp(-s)`; then `OBSTACLES` lethal rectangles (sides in [0.01n, 0.06n] cells, risk 1);
-/// then the `0.02n`-cell squares at the start (0, 0) and goal (n-1, n-1) corners cleared to 0.
-/// Same recipe as `subterra.bench.plan.random_risk_grid` (not the same random numbers).
+/// SplitMix64 (Steele, Lea, Flood 2014): the few random numbers of [`random_risk_grid`], drawn
+/// identically by `subterra.bench.plan.SplitMix64`, so both benchmarks plan on the same grids.
+struct SplitMix64(u64);
+
+impl SplitMix64 {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [lo, hi): the top 53 bits as a fraction.
+    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * ((self.next() >> 11) as f64 * (-53f64).exp2())
+    }
+}
+
+/// An `n x n` risk grid, the same as `subterra.bench.plan.random_risk_grid` makes (same draws
+/// in the same order; values equal up to the last bit of `exp`): the hazard
+/// `s = Σ a·exp(-|p - c|²/2σ²)` of `BLOBS` Gaussian blobs (centre uniform over the grid, σ in
+/// [0.02n, 0.08n] cells, a in [0.1, 1.5] per metre, cut at 4σ; cell centres at `i + 0.5`), risk
+/// `1 - exp(-s)`; then `OBSTACLES` lethal rectangles (risk 1; lower corner
+/// `floor(uniform(0, n))`, sides `floor(uniform(max(1, 0.01n), max(2, 0.06n)))` cells); then the
+/// `max(2, floor(0.02n))`-cell squares at the start (0, 0) and goal (n-1, n-1) corners cleared to 0.
 fn random_risk_grid(n: usize, seed: u64) -> Vec<f32> {
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut rng = SplitMix64(seed);
     let nf = n as f64;
     let mut hazard = vec![0.0f64; n * n];
     for _ in 0..BLOBS {
-        let (cx, cy) = (rng.random_range(0.0..nf), rng.random_range(0.0..nf));
-        let sigma = rng.random_range(0.02 * nf..0.08 * nf);
-        let a = rng.random_range(0.1..1.5);
-        let lo = |c: f64| ((c - 4.0 * sigma).floor().max(0.0)) as usize;
-        let hi = |c: f64| ((c + 4.0 * sigma).ceil().min(nf - 1.0)) as usize;
+        let (cx, cy) = (rng.uniform(0.0, nf), rng.uniform(0.0, nf));
+        let sigma = rng.uniform(0.02 * nf, 0.08 * nf);
+        let a = rng.uniform(0.1, 1.5);
+        let lo = |c: f64| (c - 4.0 * sigma).floor().max(0.0) as usize;
+        let hi = |c: f64| (c + 4.0 * sigma).ceil().min(nf - 1.0) as usize;
         for iy in lo(cy)..=hi(cy) {
+            let y = iy as f64 + 0.5 - cy;
             for ix in lo(cx)..=hi(cx) {
-                let d2 = (ix as f64 + 0.5 - cx).powi(2) + (iy as f64 + 0.5 - cy).powi(2);
-                hazard[iy * n + ix] += a * (-d2 / (2.0 * sigma * sigma)).exp();
+                let x = ix as f64 + 0.5 - cx;
+                hazard[iy * n + ix] += a * (-(x * x + y * y) / (2.0 * sigma * sigma)).exp();
             }
         }
     }
     let mut risk: Vec<f32> = hazard.iter().map(|s| -(-s).exp_m1() as f32).collect();
-    let side = |rng: &mut Xoshiro256PlusPlus| rng.random_range((0.01 * nf).max(1.0)..(0.06 * nf).max(2.0)) as usize;
+    let (lo, hi) = ((0.01 * nf).max(1.0), (0.06 * nf).max(2.0));
     for _ in 0..OBSTACLES {
-        let (x0, y0) = (rng.random_range(0..n), rng.random_range(0..n));
-        let (w, h) = (side(&mut rng), side(&mut rng));
+        let (x0, y0) = (rng.uniform(0.0, nf).floor() as usize, rng.uniform(0.0, nf).floor() as usize);
+        let (w, h) = (rng.uniform(lo, hi).floor() as usize, rng.uniform(lo, hi).floor() as usize);
         for iy in y0..(y0 + h).min(n) {
             risk[iy * n + x0..iy * n + (x0 + w).min(n)].fill(1.0);
         }
     }
-    let clear = ((0.02 * nf) as usize).max(2).min(n);
+    let clear = ((0.02 * nf).floor() as usize).max(2).min(n);
     for iy in 0..clear {
         risk[iy * n..iy * n + clear].fill(0.0);
         let top = n - 1 - iy;
         risk[top * n + n - clear..top * n + n].fill(0.0);
     }
     risk
-}
-
-/// CPU time this thread has run [ns] (Linux `schedstat`), to see past a loaded machine's
-/// wall-clock noise; `None` elsewhere.
-fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat").ok()?.split_whitespace().next()?.parse().ok()
 }
 
 fn bench_astar(c: &mut Criterion) {
@@ -79,7 +94,8 @@ fn bench_astar(c: &mut Criterion) {
         let path = out.path.as_ref().unwrap();
         let lethal = risk.iter().filter(|&&r| r as f64 >= config.r_inst).count();
         println!(
-            "{n}x{n}: {:.1}% cells untraversable; path {} cells, {:.2} m, cost {:.4}, accumulated risk {:.4}; expanded {} cells ({:.1}%)",
+            "{n}x{n}: risk sum {:.4} (subterra.bench.plan.random_risk_grid({n}, 0).sum() is the same), {:.1}% cells untraversable; path {} cells, {:.2} m, cost {:.4}, accumulated risk {:.4}; expanded {} cells ({:.1}%)",
+            risk.iter().map(|&r| r as f64).sum::<f64>(),
             100.0 * lethal as f64 / (n * n) as f64,
             path.cells.len(),
             path.length_m,
@@ -88,13 +104,17 @@ fn bench_astar(c: &mut Criterion) {
             out.expanded,
             100.0 * out.expanded as f64 / (n * n) as f64
         );
-        let runs = if n <= 200 { 200 } else { 10 };
-        let cpu_start = thread_cpu_ns();
-        for _ in 0..runs {
-            black_box(planner.plan_cells(&grid, start, goal).unwrap());
-        }
-        let cpu_ms = cpu_start.zip(thread_cpu_ns()).map(|(a, b)| (b - a) as f64 / runs as f64 / 1e6).unwrap_or(f64::NAN);
-        println!("{n}x{n}: {cpu_ms:.3} ms CPU per plan (mean of {runs})");
+        // Per-plan wall time: on a loaded machine the minimum is the run that kept its core.
+        let runs = if n <= 200 { 300 } else { 20 };
+        let mut ms: Vec<f64> = (0..runs)
+            .map(|_| {
+                let t0 = Instant::now();
+                black_box(planner.plan_cells(&grid, start, goal).unwrap());
+                t0.elapsed().as_secs_f64() * 1e3
+            })
+            .collect();
+        ms.sort_by(f64::total_cmp);
+        println!("{n}x{n}: wall per plan: min {:.3} ms, median {:.3} ms ({runs} plans)", ms[0], ms[runs / 2]);
         c.bench_function(&format!("astar_{n}x{n}"), |b| b.iter(|| planner.plan_cells(black_box(&grid), start, goal).unwrap()));
     }
 }

@@ -36,7 +36,9 @@
 //! the length of the shortest 8-connected path, so `h` is admissible and consistent (every move
 //! costs at least `λ·d` because `ρ >= 0`): the first time the goal is popped its `g` is the
 //! optimal cost, and a closed cell is never reopened. It is never smaller than DESIGN's
-//! `λ·euclid` bound, so it expands no more cells. The open list is a binary heap ordered by
+//! `λ·euclid` bound (a better-informed heuristic: up to ties, A* with it expands a subset of
+//! the cells it would expand with `λ·euclid`). An expanded cell's `g` is set to `-inf`, so one
+//! comparison `g_new < g` skips closed and untraversable neighbours. The open list is a binary heap ordered by
 //! `f = g + h`, ties broken by the smaller `h` (as `f32`) and then the smaller flat index
 //! `iy·nx + ix`, with stale entries skipped when popped, so a plan is deterministic. A cell's
 //! `g` improves only when strictly smaller, so among equal-cost predecessors the first one
@@ -66,13 +68,15 @@ use glam::DVec2;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{require_positive, Error, Result};
-use crate::terrain::{CellIndex, Layer, RiskMap};
+use crate::terrain::{CellIndex, GridGeometry, Layer, RiskMap};
 
 /// Largest risk used in `-ln(1 - r)`: `1 - 2^-24`, the largest `f32` below 1. Keeps the hazard
 /// finite (at most `24·ln 2 = 16.64` per metre).
 pub const MAX_RISK: f64 = 1.0 - 1.0 / 16_777_216.0;
 /// Most cells of a grid (2^24 = 4096 x 4096; the search state takes 24 bytes per cell).
 pub const MAX_GRID_CELLS: usize = 1 << 24;
+/// Most cells along one side of a grid (2^16).
+pub const MAX_SIDE: usize = 1 << 16;
 /// Largest cell side accepted [m]; beyond it the geometry is a mistake.
 pub const MAX_RESOLUTION_M: f64 = 1.0e4;
 /// Largest length weight λ accepted [1/m]; keeps every path cost finite.
@@ -162,6 +166,9 @@ pub struct RiskGrid<'a> {
     ny: usize,
     resolution_m: f64,
     origin_m: DVec2,
+    /// The terrain map's geometry when the grid is a [`RiskMap`]'s: cells are then found and
+    /// placed exactly as the map does (world-aligned global cells).
+    map_geometry: Option<GridGeometry>,
 }
 
 impl<'a> RiskGrid<'a> {
@@ -173,8 +180,8 @@ impl<'a> RiskGrid<'a> {
         if nx == 0 || ny == 0 {
             return Err(Error::input("risk", format!("is empty (shape ({ny}, {nx})); a grid needs at least one cell")));
         }
-        let cells = nx.checked_mul(ny).filter(|&n| n <= MAX_GRID_CELLS).ok_or_else(|| {
-            Error::input("risk", format!("has shape ({ny}, {nx}), more than {MAX_GRID_CELLS} cells"))
+        let cells = nx.checked_mul(ny).filter(|&n| n <= MAX_GRID_CELLS && nx <= MAX_SIDE && ny <= MAX_SIDE).ok_or_else(|| {
+            Error::input("risk", format!("has shape ({ny}, {nx}); at most {MAX_GRID_CELLS} cells and {MAX_SIDE} on a side"))
         })?;
         if risk.len() != cells {
             return Err(Error::input("risk", format!("has {} values but the shape ({ny}, {nx}) needs {cells}", risk.len())));
@@ -192,13 +199,15 @@ impl<'a> RiskGrid<'a> {
                 format!("has the negative value {} at row {}, column {}; risks must be in [0, 1] (NaN = unknown)", risk[i], i / nx, i % nx),
             ));
         }
-        Ok(Self { risk, nx, ny, resolution_m, origin_m })
+        Ok(Self { risk, nx, ny, resolution_m, origin_m, map_geometry: None })
     }
 
-    /// The `risk` layer of a terrain map, with its geometry.
+    /// The `risk` layer of a terrain map, with its geometry: a world position is in the cell
+    /// [`GridGeometry::cell_of`] gives, and a cell's centre is [`GridGeometry::centre_of`].
     pub fn from_map(map: &'a RiskMap) -> Result<Self> {
         let g = map.geometry();
-        Self::new(map.get(Layer::Risk), g.nx, g.ny, g.resolution_m, g.origin_m())
+        let grid = Self::new(map.get(Layer::Risk), g.nx, g.ny, g.resolution_m, g.origin_m())?;
+        Ok(Self { map_geometry: Some(*g), ..grid })
     }
 
     /// Cells along world x.
@@ -222,8 +231,12 @@ impl<'a> RiskGrid<'a> {
         self.risk
     }
 
-    /// The cell holding the world position `p` (`floor((p - origin)/res)`), if inside the grid.
+    /// The cell holding the world position `p` (`floor((p - origin)/res)`, or the map's rule),
+    /// if inside the grid.
     pub fn cell_of(&self, p: DVec2) -> Option<CellIndex> {
+        if let Some(g) = &self.map_geometry {
+            return g.cell_of(p.x, p.y);
+        }
         let q = ((p - self.origin_m) / self.resolution_m).floor();
         if q.x >= 0.0 && q.y >= 0.0 && q.x < self.nx as f64 && q.y < self.ny as f64 {
             Some(CellIndex { ix: q.x as u32, iy: q.y as u32 })
@@ -234,6 +247,9 @@ impl<'a> RiskGrid<'a> {
 
     /// World position of a cell's centre [m].
     pub fn centre_of(&self, cell: CellIndex) -> DVec2 {
+        if let Some(g) = &self.map_geometry {
+            return g.centre_of(cell);
+        }
         self.origin_m + (DVec2::new(cell.ix as f64, cell.iy as f64) + 0.5) * self.resolution_m
     }
 
@@ -353,7 +369,7 @@ impl PlanOutcome {
 }
 
 /// The 8 moves `(dx, dy)`: orthogonal first (E, N, W, S), then diagonal (NE, NW, SW, SE).
-const MOVES: [(i64, i64); 8] = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1)];
+const MOVES: [(i32, i32); 8] = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1)];
 /// For diagonal move `4 + k`, the two orthogonal moves whose cells share its corner.
 const CORNERS: [(usize, usize); 4] = [(0, 1), (2, 1), (2, 3), (0, 3)];
 /// Parent of the start cell.
@@ -362,42 +378,50 @@ const NO_PARENT: u8 = u8::MAX;
 /// Search state of one cell; valid only when `stamp` is the planner's current stamp.
 #[derive(Debug, Clone, Copy, Default)]
 struct Node {
-    /// Cost from the start (`+inf`: not reached).
+    /// Cost from the start: `+inf` not reached, [`CLOSED`] expanded (the goal keeps its cost).
     g: f64,
     /// Cell cost `λ + ρ` (`+inf`: untraversable).
     cost: f64,
     stamp: u32,
     /// The move (index into `MOVES`) that reached this cell.
     parent: u8,
-    closed: bool,
 }
 
-/// An open-list entry, ordered so that `BinaryHeap` pops the smallest `(f, h, index)`.
+/// `g` of an expanded cell: no new cost is below it, so a closed cell is never improved, and an
+/// untraversable neighbour's `+inf` cost never improves anything either (one comparison tests
+/// all three).
+const CLOSED: f64 = f64::NEG_INFINITY;
+
+/// An open-list entry: the key `f.to_bits() << 64 | (h as f32).to_bits() << 32 | iy << 16 | ix`
+/// as one integer, ordered so that `BinaryHeap` pops the smallest. `f, h >= 0`, so their bits
+/// order as their values, and `(iy, ix)` orders as the flat index `iy·nx + ix`: entries pop in
+/// the order of `(f, h, flat index)`. Sides are at most [`MAX_SIDE`] cells.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Open {
-    /// `f.to_bits()`: `f >= 0`, so the bits order as the values.
-    f_bits: u64,
-    /// `(h as f32).to_bits() << 32 | flat index`.
-    tie: u64,
-}
+struct Open(u128);
 
 impl Open {
-    fn new(f: f64, h: f64, index: usize) -> Self {
-        Self { f_bits: f.to_bits(), tie: (((h as f32).to_bits() as u64) << 32) | index as u64 }
+    #[inline]
+    fn new(f: f64, h: f64, x: usize, y: usize) -> Self {
+        let tie = (((h as f32).to_bits() as u64) << 32) | ((y as u64) << 16) | x as u64;
+        Self(((f.to_bits() as u128) << 64) | tie as u128)
     }
 
-    fn index(self) -> usize {
-        (self.tie & 0xffff_ffff) as usize
+    /// `(ix, iy)`.
+    #[inline]
+    fn cell(self) -> (usize, usize) {
+        ((self.0 & 0xffff) as usize, ((self.0 >> 16) & 0xffff) as usize)
     }
 }
 
 impl Ord for Open {
+    #[inline]
     fn cmp(&self, other: &Self) -> Ordering {
-        other.f_bits.cmp(&self.f_bits).then(other.tie.cmp(&self.tie))
+        other.0.cmp(&self.0)
     }
 }
 
 impl PartialOrd for Open {
+    #[inline]
     fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
         Some(self.cmp(other))
     }
@@ -474,7 +498,7 @@ impl RiskAStar {
     fn touch(nodes: &mut [Node], stamp: u32, config: &RiskAStarConfig, risk: &[f32], i: usize) -> Node {
         let node = &mut nodes[i];
         if node.stamp != stamp {
-            *node = Node { g: f64::INFINITY, cost: config.cell_cost(risk[i]), stamp, parent: NO_PARENT, closed: false };
+            *node = Node { g: f64::INFINITY, cost: config.cell_cost(risk[i]), stamp, parent: NO_PARENT };
         }
         *node
     }
@@ -483,8 +507,8 @@ impl RiskAStar {
     /// set; the budget is checked by the caller), `StartBlocked`, `GoalBlocked` or `NoPath`, and
     /// the number of expanded cells.
     fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize) -> (PlanStatus, usize) {
-        let (nx, ny) = (grid.nx as i64, grid.ny as i64);
-        self.begin(grid.nx * grid.ny);
+        let (nx, ny) = (grid.nx, grid.ny);
+        self.begin(nx * ny);
         let stamp = self.stamp;
         let config = self.config;
         let risk = grid.risk;
@@ -497,33 +521,41 @@ impl RiskAStar {
         }
         let res = grid.resolution_m;
         let step = [res, res * std::f64::consts::SQRT_2];
-        let (gx, gy) = ((goal % grid.nx) as i64, (goal / grid.nx) as i64);
+        let (gx, gy) = ((goal % nx) as f64, (goal / nx) as f64);
         let h_scale = config.lam * res;
-        let heuristic = |x: i64, y: i64| {
-            let (dx, dy) = ((x - gx).abs() as f64, (y - gy).abs() as f64);
+        let heuristic = |x: usize, y: usize| {
+            let (dx, dy) = ((x as f64 - gx).abs(), (y as f64 - gy).abs());
             h_scale * (dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy))
         };
+        // Flat offsets of MOVES.
+        let w = nx as isize;
+        let offsets: [isize; 8] = [1, w, -1, -w, w + 1, w - 1, -w - 1, -w + 1];
         nodes[start].g = 0.0;
-        let (sx, sy) = ((start % grid.nx) as i64, (start / grid.nx) as i64);
+        let (sx, sy) = (start % nx, start / nx);
         let h0 = heuristic(sx, sy);
-        self.open.push(Open::new(h0, h0, start));
+        self.open.push(Open::new(h0, h0, sx, sy));
         let mut expanded = 0;
         while let Some(top) = self.open.pop() {
-            let a = top.index();
-            if nodes[a].closed {
+            let (ax, ay) = top.cell();
+            let a = ay * nx + ax;
+            let node_a = &mut nodes[a];
+            let (g_a, cost_a) = (node_a.g, node_a.cost);
+            if g_a == CLOSED {
                 continue; // stale entry
             }
-            nodes[a].closed = true;
             expanded += 1;
             if a == goal {
                 return (PlanStatus::Found, expanded);
             }
-            let (g_a, cost_a) = (nodes[a].g, nodes[a].cost);
-            let (ax, ay) = ((a % grid.nx) as i64, (a / grid.nx) as i64);
+            node_a.g = CLOSED;
+            // Away from the border every move stays inside the grid.
+            let interior = ax > 0 && ay > 0 && ax + 1 < nx && ay + 1 < ny;
             let mut orthogonal_open = [false; 4];
-            for (k, &(dx, dy)) in MOVES.iter().enumerate() {
-                let (bx, by) = (ax + dx, ay + dy);
-                if bx < 0 || by < 0 || bx >= nx || by >= ny {
+            for k in 0..8 {
+                let (dx, dy) = MOVES[k];
+                let (bx, by) = (ax.wrapping_add_signed(dx as isize), ay.wrapping_add_signed(dy as isize));
+                // Off the grid, a coordinate wraps to a huge value.
+                if !interior && (bx >= nx || by >= ny) {
                     continue;
                 }
                 let diagonal = k >= 4;
@@ -533,24 +565,19 @@ impl RiskAStar {
                         continue;
                     }
                 }
-                let b = (by * nx + bx) as usize;
+                let b = a.wrapping_add_signed(offsets[k]);
                 let node_b = Self::touch(nodes, stamp, &config, risk, b);
-                if node_b.cost.is_infinite() {
-                    continue;
-                }
                 if !diagonal {
-                    orthogonal_open[k] = true;
+                    orthogonal_open[k] = node_b.cost < f64::INFINITY;
                 }
-                if node_b.closed {
-                    continue;
-                }
+                // `+inf` for an untraversable `b`; never below a closed `b`'s CLOSED.
                 let g = g_a + step[diagonal as usize] * (cost_a + node_b.cost) * 0.5;
                 if g < node_b.g {
                     let node = &mut nodes[b];
                     node.g = g;
                     node.parent = k as u8;
                     let h = heuristic(bx, by);
-                    self.open.push(Open::new(g + h, h, b));
+                    self.open.push(Open::new(g + h, h, bx, by));
                 }
             }
         }
@@ -563,7 +590,7 @@ impl RiskAStar {
         let mut flat = vec![goal];
         let mut i = goal;
         while let Some(&(dx, dy)) = MOVES.get(self.nodes[i].parent as usize) {
-            let (x, y) = ((i % grid.nx) as i64 - dx, (i / grid.nx) as i64 - dy);
+            let (x, y) = ((i % grid.nx) as i64 - dx as i64, (i / grid.nx) as i64 - dy as i64);
             i = (y * grid.nx as i64 + x) as usize;
             flat.push(i);
         }
@@ -739,6 +766,30 @@ mod tests {
         assert!(p.plan(&grid, DVec2::ZERO, DVec2::new(3.0, 0.5)).unwrap_err().to_string().contains("`goal`"));
         assert!(p.plan(&grid, DVec2::new(-1e-9, 0.5), DVec2::ZERO).unwrap_err().to_string().contains("`start`"));
         assert!(p.plan_cells(&grid, cell(0, 2), cell(0, 0)).unwrap_err().to_string().contains("`start`"));
+    }
+
+    #[test]
+    fn a_terrain_map_is_planned_on_its_own_cells() {
+        use crate::terrain::{GridGeometry, MapConfig};
+        let config = MapConfig { resolution_m: 0.1, size_x_m: 2.0, size_y_m: 1.0 };
+        let mut map = RiskMap::zeros(GridGeometry::centred_on(&config, 0.37, -0.21), 0.0);
+        let geometry = *map.geometry();
+        // A lethal column through the map but for its top row.
+        for iy in 0..geometry.ny - 1 {
+            map.get_mut(Layer::Risk)[geometry.flat(CellIndex { ix: 12, iy: iy as u32 })] = 1.0;
+        }
+        let grid = RiskGrid::from_map(&map).unwrap();
+        let (start, goal) = (DVec2::new(-0.3, -0.5), DVec2::new(1.05, -0.55));
+        let out = planner(|c| c.r_total = 1.0).plan(&grid, start, goal).unwrap();
+        assert_eq!(out.status, PlanStatus::Found);
+        assert_eq!(Some(out.start_cell), geometry.cell_of(start.x, start.y));
+        assert_eq!(Some(out.goal_cell), geometry.cell_of(goal.x, goal.y));
+        let path = out.path.unwrap();
+        assert!(path.cells.iter().all(|&c| map.get(Layer::Risk)[geometry.flat(c)] < 0.8));
+        assert!(path.cells.iter().any(|c| c.iy as usize == geometry.ny - 1), "goes over the wall's top");
+        for (c, p) in path.cells.iter().zip(&path.points_world) {
+            assert_eq!(*p, geometry.centre_of(*c));
+        }
     }
 
     #[test]
