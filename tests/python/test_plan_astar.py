@@ -420,3 +420,27 @@ def test_benchmark_grid_is_seeded():
     assert not np.array_equal(a, random_risk_grid(80, 6))
     assert a.dtype == np.float32 and a.min() >= 0.0 and a.max() == 1.0
     assert np.all(a[:2, :2] == 0.0) and np.all(a[-2:, -2:] == 0.0)
+
+
+def test_additive_baseline_cost_model():
+    """The Nav2-style baseline: cost 1 + k·r per metre, R_inst cells blocked, no budget.
+    A 0.88-risk band across the grid with a gap at the far side: the risk-aware planner
+    (λ = 0.1) walks round through the gap (crossing: 0.4 m x -ln(0.12) = 0.85 > the
+    detour's 7.6 m x λ = 0.76), the additive one (k = 2: crossing costs 0.70 extra, the
+    detour 7.6) crosses the band, and is not stopped by the budget."""
+    risk = np.zeros((40, 40), np.float32)
+    risk[:, 19:23] = 0.88
+    risk[38:, 19:23] = 0.0  # the gap at the top
+    aware = subterra.RiskAStar(r_inst=0.9, r_total=0.99).plan(risk, (0.5, 0.5), (3.5, 0.5), resolution=0.1)
+    additive = subterra.RiskAStar(r_inst=0.9, r_total=0.01, cost_model="additive").plan(risk, (0.5, 0.5), (3.5, 0.5), resolution=0.1)
+    assert aware.status == "found" and additive.status == "found"
+    assert aware.length_m > 6.0 and additive.length_m < 3.5
+    assert additive.accumulated_risk > 0.01  # over the budget, yet found: the baseline has none
+    rows = additive.path_cells[:, 1]
+    assert (rows == 5).all()  # straight across, on the start's row
+    expected = 3.0 + 2.0 * float(np.float32(0.88)) * 0.4  # 3 m of length plus k·r over the band's 0.4 m
+    assert additive.cost == pytest.approx(expected, rel=1e-12)
+    with pytest.raises(subterra.errors.ConfigError, match="cost_model"):
+        subterra.RiskAStar(cost_model="nav2")
+    with pytest.raises(subterra.errors.ConfigError, match="additive_weight"):
+        subterra.RiskAStar(cost_model="additive", additive_weight=-1.0)

@@ -7,7 +7,7 @@ use std::borrow::Cow;
 use glam::DVec2;
 use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use subterra::plan::{PlanOutcome, RiskAStar, RiskAStarConfig, RiskGrid};
+use subterra::plan::{CostModel, PlanOutcome, RiskAStar, RiskAStarConfig, RiskGrid};
 use subterra::terrain::{CellIndex, RiskMap};
 
 use crate::convert::type_name;
@@ -163,7 +163,7 @@ impl PyRiskAStar {
 #[pymethods]
 impl PyRiskAStar {
     #[new]
-    #[pyo3(signature = (*, lam = None, r_inst = None, r_total = None, carrot_m = None, unknown_risk = None, allow_corner_cutting = None))]
+    #[pyo3(signature = (*, lam = None, r_inst = None, r_total = None, carrot_m = None, unknown_risk = None, allow_corner_cutting = None, cost_model = "risk", additive_weight = None))]
     fn new(
         py: Python<'_>,
         lam: Option<&Bound<'_, PyAny>>,
@@ -172,8 +172,15 @@ impl PyRiskAStar {
         carrot_m: Option<&Bound<'_, PyAny>>,
         unknown_risk: Option<&Bound<'_, PyAny>>,
         allow_corner_cutting: Option<&Bound<'_, PyAny>>,
+        cost_model: &str,
+        additive_weight: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let d = RiskAStarConfig::default();
+        let cost_model = match cost_model {
+            "risk" => CostModel::Risk,
+            "additive" => CostModel::Additive,
+            other => return Err(config_error(py, format!("argument `cost_model` must be \"risk\" or \"additive\", got {other:?}"))),
+        };
         let allow_corner_cutting = match allow_corner_cutting {
             None => d.allow_corner_cutting,
             Some(v) => v
@@ -187,6 +194,8 @@ impl PyRiskAStar {
             carrot_m: float_arg(py, "carrot_m", carrot_m, d.carrot_m)?,
             unknown_risk: float_arg(py, "unknown_risk", unknown_risk, d.unknown_risk)?,
             allow_corner_cutting,
+            cost_model,
+            additive_weight: float_arg(py, "additive_weight", additive_weight, d.additive_weight)?,
         };
         Ok(Self { inner: RiskAStar::new(config).py_err(py)? })
     }

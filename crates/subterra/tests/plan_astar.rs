@@ -7,7 +7,7 @@ use std::collections::BinaryHeap;
 
 use glam::DVec2;
 use proptest::prelude::*;
-use subterra::plan::{PlanStatus, RiskAStar, RiskAStarConfig, RiskGrid};
+use subterra::plan::{CostModel, PlanStatus, RiskAStar, RiskAStarConfig, RiskGrid};
 use subterra::terrain::CellIndex;
 
 /// The effective risk of a cell: NaN is unknown.
@@ -27,7 +27,11 @@ fn traversable(config: &RiskAStarConfig, r: f32) -> bool {
 /// written from the cost model of the module docs: cost `λ - ln(1 - r)`, move `d·(c_a + c_b)/2`,
 /// no diagonal past an untraversable corner unless corner cutting is allowed.
 fn dijkstra(config: &RiskAStarConfig, risk: &[f32], nx: usize, ny: usize, res: f64, start: usize) -> Vec<f64> {
-    let cost = |i: usize| config.lam - (1.0 - effective(config, risk[i]).min(1.0 - 1.0 / 16_777_216.0)).ln();
+    let cost = |i: usize| match config.cost_model {
+        CostModel::Risk => config.lam - (1.0 - effective(config, risk[i]).min(1.0 - 1.0 / 16_777_216.0)).ln(),
+        // The baseline: 1 + k·r per metre.
+        CostModel::Additive => 1.0 + config.additive_weight * effective(config, risk[i]),
+    };
     let mut dist = vec![f64::INFINITY; nx * ny];
     let mut done = vec![false; nx * ny];
     let mut heap = BinaryHeap::new();
@@ -81,14 +85,18 @@ fn grid_strategy() -> impl Strategy<Value = (usize, usize, Vec<f32>)> {
 }
 
 fn config_strategy() -> impl Strategy<Value = RiskAStarConfig> {
-    (0.01f64..2.0, 0.3f64..=1.0, any::<bool>(), 0.0f64..0.6).prop_map(|(lam, r_inst, allow_corner_cutting, unknown_risk)| RiskAStarConfig {
-        lam,
-        r_inst,
-        r_total: 1.0,
-        carrot_m: 1.0,
-        unknown_risk,
-        allow_corner_cutting,
-    })
+    (0.01f64..2.0, 0.3f64..=1.0, any::<bool>(), 0.0f64..0.6, any::<bool>(), 0.0f64..20.0).prop_map(
+        |(lam, r_inst, allow_corner_cutting, unknown_risk, additive, additive_weight)| RiskAStarConfig {
+            lam,
+            r_inst,
+            r_total: 1.0,
+            carrot_m: 1.0,
+            unknown_risk,
+            allow_corner_cutting,
+            cost_model: if additive { CostModel::Additive } else { CostModel::Risk },
+            additive_weight,
+        },
+    )
 }
 
 proptest! {
@@ -133,7 +141,8 @@ proptest! {
                     }
                     let d = if diagonal { res * 2f64.sqrt() } else { res };
                     let rho = |c: CellIndex| config.hazard(risk[c.iy as usize * nx + c.ix as usize]).unwrap();
-                    cost += d * (2.0 * config.lam + rho(w[0]) + rho(w[1])) / 2.0;
+                    let c = |c: CellIndex| config.cell_cost(risk[c.iy as usize * nx + c.ix as usize]);
+                    cost += d * (c(w[0]) + c(w[1])) / 2.0;
                     length += d;
                     integral += d * (rho(w[0]) + rho(w[1])) / 2.0;
                 }
@@ -190,6 +199,7 @@ proptest! {
         let Some(path) = probe.path else { return Ok(()) };
         let r = path.accumulated_risk;
         prop_assume!(r > 0.0);
+        prop_assume!(config.cost_model == CostModel::Risk); // the additive baseline has no budget
         let at = RiskAStar::new(RiskAStarConfig { r_total: r, ..config }).unwrap().plan_cells(&grid, cell(start), cell(goal)).unwrap();
         prop_assert_eq!(at.status, PlanStatus::Found);
         let below = RiskAStarConfig { r_total: f64::from_bits(r.to_bits() - 1), ..config };

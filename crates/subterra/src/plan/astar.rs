@@ -82,6 +82,19 @@ pub const MAX_RESOLUTION_M: f64 = 1.0e4;
 /// Largest length weight λ accepted [1/m]; keeps every path cost finite.
 pub const MAX_LAMBDA_PER_M: f64 = 1.0e6;
 
+/// How a cell's risk becomes a cost per metre.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum CostModel {
+    /// DESIGN §3: `c = λ - ln(1 - r)`; the accumulated-risk budget `R_total` applies.
+    #[default]
+    Risk,
+    /// The conventional baseline (Nav2 Smac-style): `c = 1 + k·r` with `k` =
+    /// `additive_weight`; cells at or above `R_inst` blocked; **no** budget (a path is
+    /// `Found` whatever its accumulated risk, which is still reported).
+    Additive,
+}
+
 /// Settings of [`RiskAStar`]. "subterra" as a source means an engineering choice of this
 /// library, not a published value.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -103,11 +116,30 @@ pub struct RiskAStarConfig {
     /// Whether a diagonal move may pass an untraversable cell at the corner it crosses (see the
     /// module docs). subterra: false.
     pub allow_corner_cutting: bool,
+    /// The cost model: `risk` (DESIGN §3) or `additive` (the baseline). subterra: risk.
+    #[serde(default)]
+    pub cost_model: CostModel,
+    /// `k` of the additive model `1 + k·r` [1]. Nav2 Smac planner's `cost_penalty`: 2.0.
+    #[serde(default = "default_additive_weight")]
+    pub additive_weight: f64,
+}
+
+fn default_additive_weight() -> f64 {
+    2.0
 }
 
 impl Default for RiskAStarConfig {
     fn default() -> Self {
-        Self { lam: 0.1, r_inst: 0.8, r_total: 0.5, carrot_m: 1.0, unknown_risk: 0.15, allow_corner_cutting: false }
+        Self {
+            lam: 0.1,
+            r_inst: 0.8,
+            r_total: 0.5,
+            carrot_m: 1.0,
+            unknown_risk: 0.15,
+            allow_corner_cutting: false,
+            cost_model: CostModel::Risk,
+            additive_weight: default_additive_weight(),
+        }
     }
 }
 
@@ -130,6 +162,9 @@ impl RiskAStarConfig {
         if !(0.0..=1.0).contains(&self.unknown_risk) {
             return Err(Error::config("astar.unknown_risk", "must be in [0, 1]", self.unknown_risk));
         }
+        if !(self.additive_weight.is_finite() && self.additive_weight >= 0.0 && self.additive_weight <= MAX_LAMBDA_PER_M) {
+            return Err(Error::config("astar.additive_weight", format!("must be in [0, {MAX_LAMBDA_PER_M:e}]"), self.additive_weight));
+        }
         Ok(())
     }
 
@@ -151,10 +186,26 @@ impl RiskAStarConfig {
         }
     }
 
-    /// The cost `λ - ln(1 - r)` [1/m] of a cell of risk `r`; `+inf` if it is untraversable.
+    /// The cost [1/m] of a cell of risk `r`: `λ - ln(1 - r)`, or `1 + k·r` with the additive
+    /// model; `+inf` if it is untraversable.
     #[inline]
     pub fn cell_cost(&self, risk: f32) -> f64 {
-        self.hazard(risk).map_or(f64::INFINITY, |rho| self.lam + rho)
+        match self.cost_model {
+            CostModel::Risk => self.hazard(risk).map_or(f64::INFINITY, |rho| self.lam + rho),
+            CostModel::Additive => {
+                let r = if risk.is_nan() { self.unknown_risk } else { risk as f64 };
+                if r >= self.r_inst { f64::INFINITY } else { 1.0 + self.additive_weight * r.max(0.0) }
+            }
+        }
+    }
+
+    /// The least cost per metre of any cell: the heuristic's scale [1/m].
+    #[inline]
+    pub fn min_cell_cost(&self) -> f64 {
+        match self.cost_model {
+            CostModel::Risk => self.lam,
+            CostModel::Additive => 1.0,
+        }
     }
 }
 
@@ -469,7 +520,7 @@ impl RiskAStar {
             _ => None,
         };
         let status = match &path {
-            Some(p) if p.accumulated_risk > self.config.r_total => PlanStatus::BudgetExceeded,
+            Some(p) if self.config.cost_model == CostModel::Risk && p.accumulated_risk > self.config.r_total => PlanStatus::BudgetExceeded,
             _ => status,
         };
         let carrot_world = match (&path, status) {
@@ -522,7 +573,7 @@ impl RiskAStar {
         let res = grid.resolution_m;
         let step = [res, res * std::f64::consts::SQRT_2];
         let (gx, gy) = ((goal % nx) as f64, (goal / nx) as f64);
-        let h_scale = config.lam * res;
+        let h_scale = config.min_cell_cost() * res;
         let heuristic = |x: usize, y: usize| {
             let (dx, dy) = ((x as f64 - gx).abs(), (y as f64 - gy).abs());
             h_scale * (dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy))

@@ -10,5 +10,5 @@
 pub mod astar;
 pub mod recovery;
 
-pub use astar::{PlanOutcome, PlanStatus, PlannedPath, RiskAStar, RiskAStarConfig, RiskGrid};
+pub use astar::{CostModel, PlanOutcome, PlanStatus, PlannedPath, RiskAStar, RiskAStarConfig, RiskGrid};
 pub use recovery::{Behaviour, Directive, PlanFeedback, RecoveryConfig, RecoveryInput, RecoveryMachine, Target, Transition};
