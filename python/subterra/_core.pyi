@@ -263,7 +263,10 @@ class RiskAStar:
     ``1 - exp(-sum d * (rho(a) + rho(b)) / 2)`` (``rho = -ln(1 - r)``) exceeds ``r_total`` the
     status is ``"budget_exceeded"``. Defaults: ``lam=0.1``, ``r_inst=0.8``, ``r_total=0.5``,
     ``carrot_m=1.0``, ``unknown_risk=0.15``, ``allow_corner_cutting=False``
-    (``configs/astar.toml``). Bad values raise :class:`subterra.errors.ConfigError`.
+    (``configs/astar.toml``). ``cost_model="additive"`` is the conventional baseline:
+    ``c = 1 + additive_weight * r`` (default 2.0, Nav2 Smac's ``cost_penalty``), cells with
+    ``r >= r_inst`` blocked, no budget (always ``"found"`` when reachable). Bad values raise
+    :class:`subterra.errors.ConfigError`.
     """
 
     def __init__(
@@ -275,6 +278,8 @@ class RiskAStar:
         carrot_m: float = 1.0,
         unknown_risk: float = 0.15,
         allow_corner_cutting: bool = False,
+        cost_model: Literal["risk", "additive"] = "risk",
+        additive_weight: float = 2.0,
     ) -> None: ...
     def plan(
         self,
