@@ -4,11 +4,16 @@
 //!   [`RiskMap`](crate::terrain::RiskMap)'s `risk` layer, or any row-major `(ny, nx)` array
 //!   of per-metre risks), a start and a goal. Out: the least-cost path with its accumulated
 //!   risk, length and carrot point, or the reason there is none.
+//! - [`mpc`]: tracks a reference path with a kinodynamic MPC ([`MpcTracker`]): risk-limited
+//!   speed, obstacle half-planes from the lethal cells, a backup stop when no safe plan
+//!   exists.
 //! - [`recovery`]: adaptive thresholds and recovery behaviours, a state machine that
 //!   decides what to do when no path exists or the robot stops making progress.
 
 pub mod astar;
+pub mod mpc;
 pub mod recovery;
 
 pub use astar::{CostModel, PlanOutcome, PlanStatus, PlannedPath, RiskAStar, RiskAStarConfig, RiskGrid};
+pub use mpc::{ConvexPolygon, MpcCommand, MpcConfig, MpcOutput, MpcStatus, MpcTracker, UnicycleInput, UnicycleState};
 pub use recovery::{Behaviour, Directive, PlanFeedback, RecoveryConfig, RecoveryInput, RecoveryMachine, Target, Transition};
