@@ -17,7 +17,8 @@ Terrain risk for ground robots (DESIGN §2, :mod:`subterra.terrain`): ``TerrainM
 turns lidar scans into a multi-layer ``RiskMap``; ``segment_ground`` labels ground points.
 
 Planning (DESIGN §3, ``docs/planning.md``): ``RiskAStar`` finds the least-risk path on a
-``RiskMap`` or any risk array and returns a ``PlanResult``.
+``RiskMap`` or any risk array and returns a ``PlanResult``; ``Navigator`` wires the terrain
+mapper, the planner, the MPC tracker and the recovery behaviours for a robot's own loop.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ from subterra._core import (
     Command,
     DepthPerception,
     MostProbableVoxel,
+    Navigator,
+    NavigatorOutput,
     PerceptionConfig,
     PerceptionOutput,
     PinholeCamera,
@@ -50,6 +53,8 @@ __all__ = [
     "Command",
     "DepthPerception",
     "MostProbableVoxel",
+    "Navigator",
+    "NavigatorOutput",
     "PerceptionConfig",
     "PerceptionOutput",
     "PinholeCamera",

@@ -5,6 +5,7 @@
 mod convert;
 mod errors;
 mod plan_astar;
+mod plan_nav;
 mod sim;
 mod terrain;
 
@@ -566,5 +567,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     sim::register(m)?;
     terrain::register(m)?;
     plan_astar::register(m)?;
+    plan_nav::register(m)?;
     Ok(())
 }

@@ -5,10 +5,10 @@
   closed at its far end; the goal lies beyond. No path to the goal exists: the robot
   climbs the whole recovery ladder (clear map, rotate, raise thresholds, back out),
   gives up the goal and drives home.
-- ``risky-slope``: a 0.4 m high, 20° ridge across the whole hall between start and goal.
-  Its flanks carry a tilt risk of about 0.67 (the Husky's tilt ramp is 10°-25°), above
-  the nominal ``R_inst`` = 0.6: the robot must raise its thresholds to cross, then reaches
-  the goal (20° is far from the 35° rollover limit).
+- ``risky-slope``: a 19.5° ramp, 0.5 m up to a plateau, across the whole hall between
+  start and goal. Its tilt risk, about 0.63 (the Husky's tilt ramp is 10°-25°), is above
+  the nominal ``R_inst`` = 0.6: the robot must raise its thresholds to climb, then reaches
+  the goal on the plateau (19.5° is far from the 35° rollover limit).
 - ``blocked-return``: the dead end, and the base the robot should return to is walled in
   too: after the ladder has run on the way to the goal and again on the way to the base,
   the robot stops (``failed``), without touching anything.
@@ -34,9 +34,12 @@ WALL_HEIGHT_M = 1.5
 WALL_THICKNESS_M = 0.2
 #: Height-field spacing [m].
 FLOOR_RESOLUTION_M = 0.1
-#: Slope of the ridge in ``risky-slope`` [deg] and its height [m].
-RIDGE_SLOPE_DEG = 20.0
-RIDGE_HEIGHT_M = 0.4
+#: ``risky-slope``: the ramp's slope [deg] (tilt risk (19.5 - 10)/15 = 0.63 for the
+#: Husky: above the nominal R_inst = 0.6), height [m] (1.4 m of ramp: an accumulated
+#: risk of ~0.75, within the budget once raised) and where its foot is [m].
+RAMP_SLOPE_DEG = 19.5
+RAMP_HEIGHT_M = 0.5
+RAMP_FOOT_X_M = 11.0
 
 RECOVERY_SCENARIOS = ("dead-end", "risky-slope", "blocked-return")
 
@@ -133,15 +136,13 @@ def recovery_scenario(name: str) -> GroundScenario:
         final = "home"
         description = "a corridor closed at its far end is the only way on: give up the goal, back out, go home"
     elif name == "risky-slope":
-        run = RIDGE_HEIGHT_M / np.tan(np.radians(RIDGE_SLOPE_DEG))
-        x0, top = 11.0, 1.0  # foot of the ridge [m], width of its crest [m]
-        up = np.clip((xg - x0) / run, 0.0, 1.0)
-        down = np.clip((xg - (x0 + run + top)) / run, 0.0, 1.0)
-        heights = RIDGE_HEIGHT_M * (up - down)
+        run = RAMP_HEIGHT_M / np.tan(np.radians(RAMP_SLOPE_DEG))
+        heights = RAMP_HEIGHT_M * np.clip((xg - RAMP_FOOT_X_M) / run, 0.0, 1.0)
         home = start
         expect = ("raise_thresholds",)
         final = "goal_reached"
-        description = f"a {RIDGE_HEIGHT_M} m, {RIDGE_SLOPE_DEG:.0f}° ridge across the hall: raise the thresholds to cross it"
+        description = (f"a {RAMP_SLOPE_DEG:.1f}° ramp {RAMP_HEIGHT_M} m up to a plateau, wall to wall: raise the "
+                       "thresholds to climb it")
     elif name == "blocked-return":
         parts += _dead_end_walls()
         home = (5.0, 2.0)

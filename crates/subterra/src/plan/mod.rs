@@ -7,13 +7,17 @@
 //! - [`mpc`]: tracks a reference path with a kinodynamic MPC ([`MpcTracker`]): risk-limited
 //!   speed, obstacle half-planes from the lethal cells, a backup stop when no safe plan
 //!   exists.
+//! - [`navigator`]: all of it wired for a robot's control loop ([`Navigator`]): terrain
+//!   mapper, planner, tracker and recovery, one step per tick.
 //! - [`recovery`]: adaptive thresholds and recovery behaviours, a state machine that
 //!   decides what to do when no path exists or the robot stops making progress.
 
 pub mod astar;
 pub mod mpc;
+pub mod navigator;
 pub mod recovery;
 
 pub use astar::{CostModel, PlanOutcome, PlanStatus, PlannedPath, RiskAStar, RiskAStarConfig, RiskGrid};
 pub use mpc::{ConvexPolygon, MpcCommand, MpcConfig, MpcOutput, MpcStatus, MpcTracker, UnicycleInput, UnicycleState};
+pub use navigator::{Navigator, NavigatorConfig, NavigatorInput, NavigatorOutput, NavigatorSettings};
 pub use recovery::{Behaviour, Directive, PlanFeedback, RecoveryConfig, RecoveryInput, RecoveryMachine, Target, Transition};

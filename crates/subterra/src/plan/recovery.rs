@@ -33,8 +33,11 @@
 //!    `Failed` (the robot stops).
 //!
 //! **Progress relaxes the thresholds**: after `relax_after_s` seconds of tracking
-//! without a trigger, the ladder goes back to rung 0 and the thresholds to their nominal
-//! values (the adaptive part: raised thresholds are a temporary permission). Reaching the
+//! without a trigger, the thresholds go back to their nominal values (the adaptive part:
+//! raised thresholds are a temporary permission); the ladder itself goes back to rung 0
+//! only when the robot is `progress_min_m` closer to the target (straight line) than the
+//! least distance it had reached before the ladder's first trigger (it got past where it was stuck), so
+//! a robot that keeps failing at the same place does reach back-out and giving up. Reaching the
 //! target (distance `<= goal_tolerance_m`) ends in `GoalReached` (or `Home` on the way
 //! back). Every transition is recorded as a [`Transition`] with its time and reason
 //! (a relaxation too, as `track -> track`).
@@ -241,6 +244,10 @@ pub struct RecoveryInput {
     /// Distance from the robot to the current target [m] (path length if known, else
     /// straight line).
     pub distance_to_target_m: f64,
+    /// Straight-line distance from the robot to the target [m] (decides when the robot got
+    /// past where it was stuck; the path-based distance above jumps when a replan finds
+    /// another way).
+    pub straight_distance_m: f64,
     /// How the planner's last call went.
     pub plan: PlanFeedback,
     /// Heading of most clearance around the robot, world frame [rad], if the navigator
@@ -313,6 +320,10 @@ pub struct RecoveryMachine {
     /// Breadcrumbs, oldest first.
     trail: VecDeque<DVec2>,
     rotate_to: Option<f64>,
+    /// Least distance to the target while tracking since the ladder was last reset [m].
+    best_distance: f64,
+    /// `best_distance` when the ladder's first rung was climbed [m].
+    stuck_distance: f64,
     backout_start: Option<DVec2>,
     backout_index: usize,
     last_time_s: Option<f64>,
@@ -341,6 +352,8 @@ impl RecoveryMachine {
             progress: VecDeque::new(),
             trail: VecDeque::new(),
             rotate_to: None,
+            best_distance: f64::INFINITY,
+            stuck_distance: f64::INFINITY,
             backout_start: None,
             backout_index: 0,
             last_time_s: None,
@@ -366,6 +379,15 @@ impl RecoveryMachine {
     /// Where `ReturnHome` drives to.
     pub fn home(&self) -> DVec2 {
         self.home
+    }
+
+    /// Moves home (world frame [m]).
+    pub fn set_home(&mut self, home: DVec2) -> Result<()> {
+        if !home.is_finite() {
+            return Err(Error::input("home", format!("must be finite, got ({}, {})", home.x, home.y)));
+        }
+        self.home = home;
+        Ok(())
     }
 
     /// The planner thresholds `(R_inst, R_total)` in force.
@@ -435,23 +457,12 @@ impl RecoveryMachine {
                 self.enter(t, to, format!("{what} reached ({:.2} m away)", input.distance_to_target_m));
             } else if let Some(reason) = self.trigger(input) {
                 clear_map = self.climb(t, input, reason);
-            } else if self.rung > 0 && t - self.last_trigger_s >= self.config.relax_after_s {
-                let was = (self.r_inst, self.r_total);
-                self.rung = 0;
-                self.r_inst = self.config.r_inst;
-                self.r_total = self.config.r_total;
-                self.backout_start = None;
-                self.last_trigger_s = t;
-                let reason = if was == (self.r_inst, self.r_total) {
-                    format!("progress for {:.1} s: recovery ladder reset", self.config.relax_after_s)
-                } else {
-                    format!(
-                        "progress for {:.1} s: thresholds back to nominal (R_inst {:.2} -> {:.2}, R_total {:.2} -> {:.2})",
-                        self.config.relax_after_s, was.0, self.r_inst, was.1, self.r_total,
-                    )
-                };
-                self.log(t, Behaviour::Track, Behaviour::Track, reason);
+            } else {
+                self.relax(t, input.straight_distance_m);
             }
+        }
+        if self.behaviour == Behaviour::Track {
+            self.best_distance = self.best_distance.min(input.straight_distance_m);
         }
         self.record_progress(t, input.distance_to_target_m);
 
@@ -481,6 +492,9 @@ impl RecoveryMachine {
         }
         if !(input.distance_to_target_m.is_finite() && input.distance_to_target_m >= 0.0) {
             return Err(Error::input("distance_to_target_m", format!("must be finite and >= 0, got {}", input.distance_to_target_m)));
+        }
+        if !(input.straight_distance_m.is_finite() && input.straight_distance_m >= 0.0) {
+            return Err(Error::input("straight_distance_m", format!("must be finite and >= 0, got {}", input.straight_distance_m)));
         }
         if let Some(h) = input.clearance_heading_rad {
             if !h.is_finite() {
@@ -516,6 +530,9 @@ impl RecoveryMachine {
     fn climb(&mut self, t: f64, input: &RecoveryInput, reason: String) -> bool {
         self.last_trigger_s = t;
         self.plan_failures = 0;
+        if self.rung == 0 {
+            self.stuck_distance = self.best_distance.min(input.straight_distance_m);
+        }
         self.rung += 1;
         let can_raise = self.r_inst < self.config.r_inst_ceiling - RAISE_EPS || self.r_total < self.config.r_total_ceiling - RAISE_EPS;
         match self.rung {
@@ -528,6 +545,17 @@ impl RecoveryMachine {
                 self.rotate_to = Some(heading);
                 self.enter(t, Behaviour::Rotate, format!("{reason}; turning to {heading:.2} rad"));
             }
+            // Backed out already and still stuck: give up (thresholds that relaxed while
+            // backing out must not restart the raises).
+            _ if self.backout_start.is_some() => match self.target {
+                Target::Goal => {
+                    self.target = Target::Home;
+                    self.reset_ladder();
+                    (self.r_inst, self.r_total) = (self.config.r_inst, self.config.r_total);
+                    self.enter(t, Behaviour::Track, format!("{reason}; every behaviour tried: giving up the goal, returning home"));
+                }
+                Target::Home => self.enter(t, Behaviour::Failed, format!("{reason}; every behaviour tried on the way home")),
+            },
             _ if can_raise => {
                 let was = (self.r_inst, self.r_total);
                 self.r_inst = raise(self.r_inst, self.config.r_inst_step, self.config.r_inst_ceiling);
@@ -536,27 +564,43 @@ impl RecoveryMachine {
                     "{reason}; R_inst {:.2} -> {:.2}, R_total {:.2} -> {:.2}", was.0, self.r_inst, was.1, self.r_total,
                 ));
             }
-            _ if self.backout_start.is_none() => {
+            _ => {
                 self.backout_start = Some(input.position);
                 self.backout_index = self.trail.len().saturating_sub(1);
                 self.enter(t, Behaviour::BackOut, format!("{reason}; thresholds at their ceilings, reversing along the trail"));
             }
-            _ => match self.target {
-                Target::Goal => {
-                    self.target = Target::Home;
-                    self.reset_ladder();
-                    self.enter(t, Behaviour::Track, format!("{reason}; every behaviour tried: giving up the goal, returning home"));
-                }
-                Target::Home => self.enter(t, Behaviour::Failed, format!("{reason}; every behaviour tried on the way home")),
-            },
         }
         false
     }
 
+    /// The adaptive part: raised thresholds go back to nominal after `relax_after_s` of
+    /// tracking without a trigger; the ladder itself (the way to back-out and giving up)
+    /// starts again only once the robot is `progress_min_m` closer to the target than it
+    /// ever was before it got stuck.
+    fn relax(&mut self, t: f64, distance: f64) {
+        let nominal = (self.config.r_inst, self.config.r_total);
+        if (self.r_inst, self.r_total) != nominal && t - self.last_trigger_s >= self.config.relax_after_s {
+            let was = (self.r_inst, self.r_total);
+            (self.r_inst, self.r_total) = nominal;
+            self.log(t, Behaviour::Track, Behaviour::Track, format!(
+                "no trigger for {:.1} s: thresholds back to nominal (R_inst {:.2} -> {:.2}, R_total {:.2} -> {:.2})",
+                self.config.relax_after_s, was.0, self.r_inst, was.1, self.r_total,
+            ));
+        }
+        if self.rung > 0 && distance < self.stuck_distance - self.config.progress_min_m {
+            let stuck = self.stuck_distance;
+            self.reset_ladder();
+            self.log(t, Behaviour::Track, Behaviour::Track, format!(
+                "{distance:.2} m from the target, past where it got stuck ({stuck:.2} m): recovery ladder reset"
+            ));
+        }
+    }
+
+    /// Back to rung 0 (thresholds stay: they relax with time, see [`Self::relax`]).
     fn reset_ladder(&mut self) {
         self.rung = 0;
-        self.r_inst = self.config.r_inst;
-        self.r_total = self.config.r_total;
+        self.stuck_distance = f64::INFINITY;
+        self.best_distance = f64::INFINITY;
         self.backout_start = None;
         self.rotate_to = None;
         self.progress.clear();
@@ -628,6 +672,7 @@ mod tests {
             position: DVec2::new(x, 0.0),
             yaw_rad: 0.0,
             distance_to_target_m: d,
+            straight_distance_m: d,
             plan,
             clearance_heading_rad: Some(1.0),
         }
@@ -749,7 +794,7 @@ mod tests {
         }
         let out = m.step(&input(t + 0.1, 0.0, d - 0.05, PlanFeedback::Found)).unwrap();
         assert_eq!((out.r_inst, out.r_total), (cfg.r_inst, cfg.r_total));
-        assert!(m.transitions().last().unwrap().reason.contains("back to nominal"));
+        assert!(m.transitions().iter().any(|tr| tr.reason.contains("past where it got stuck")), "{:?}", m.transitions().last());
     }
 
     #[test]
