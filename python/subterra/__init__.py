@@ -15,6 +15,10 @@ z forward), metres, seconds, radians. Every error is a :class:`subterra.errors.S
 
 Terrain risk for ground robots (DESIGN §2, :mod:`subterra.terrain`): ``TerrainMapper``
 turns lidar scans into a multi-layer ``RiskMap``; ``segment_ground`` labels ground points.
+
+Path tracking (DESIGN §3): ``MpcTracker`` follows a reference path with a kinodynamic MPC
+(risk-limited speed, obstacle half-planes, a backup stop); ``solve`` returns an
+``MpcResult`` with the command ``(v, ω)`` to send. See ``docs/mpc.md``.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ from subterra._core import (
     Command,
     DepthPerception,
     MostProbableVoxel,
+    MpcResult,
+    MpcTracker,
     PerceptionConfig,
     PerceptionOutput,
     PinholeCamera,
@@ -45,6 +51,8 @@ __all__ = [
     "Command",
     "DepthPerception",
     "MostProbableVoxel",
+    "MpcResult",
+    "MpcTracker",
     "PerceptionConfig",
     "PerceptionOutput",
     "PinholeCamera",

@@ -4,6 +4,7 @@
 
 mod convert;
 mod errors;
+mod plan_mpc;
 mod sim;
 mod terrain;
 
@@ -564,5 +565,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(preset_names, m)?)?;
     sim::register(m)?;
     terrain::register(m)?;
+    plan_mpc::register(m)?;
     Ok(())
 }
