@@ -19,6 +19,10 @@ turns lidar scans into a multi-layer ``RiskMap``; ``segment_ground`` labels grou
 Planning (DESIGN §3, ``docs/planning.md``): ``RiskAStar`` finds the least-risk path on a
 ``RiskMap`` or any risk array and returns a ``PlanResult``; ``Navigator`` wires the terrain
 mapper, the planner, the MPC tracker and the recovery behaviours for a robot's own loop.
+
+Path tracking (DESIGN §3): ``MpcTracker`` follows a reference path with a kinodynamic MPC
+(risk-limited speed, obstacle half-planes, a backup stop); ``solve`` returns an
+``MpcResult`` with the command ``(v, ω)`` to send. See ``docs/mpc.md``.
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ from subterra._core import (
     Command,
     DepthPerception,
     MostProbableVoxel,
+    MpcResult,
+    MpcTracker,
     Navigator,
     NavigatorOutput,
     PerceptionConfig,
@@ -53,6 +59,8 @@ __all__ = [
     "Command",
     "DepthPerception",
     "MostProbableVoxel",
+    "MpcResult",
+    "MpcTracker",
     "Navigator",
     "NavigatorOutput",
     "PerceptionConfig",

@@ -359,6 +359,91 @@ class PlanResult:
     def time_s(self) -> float:
         """Seconds the core spent searching and tracing the path."""
 
+class MpcResult:
+    """What one ``MpcTracker.solve`` gives (slacks, clearance and limits describe ``predicted``)."""
+
+    @property
+    def command(self) -> tuple[float, float]:
+        """``(v, ω)`` to send now: speed at the end of the first step [m/s], yaw rate [rad/s]."""
+    @property
+    def predicted(self) -> npt.NDArray[np.float64]:
+        """Predicted states ``[x, y, heading, speed]``, ``(N+1, 4)``; row 0 is the given state."""
+    @property
+    def inputs(self) -> npt.NDArray[np.float64]:
+        """Planned inputs ``[accel, yaw_rate]``, ``(N, 2)`` [m/s², rad/s]."""
+    @property
+    def status(self) -> Literal["solved", "solved_inexact", "infeasible_backup", "solver_failed_backup"]:
+        """How the solve ended; the two ``*_backup`` values mean ``predicted`` is the backup stop."""
+    @property
+    def is_backup(self) -> bool:
+        """Whether ``predicted`` is the backup stop (brake along the heading, ω = 0)."""
+    @property
+    def iterations(self) -> int:
+        """QPs solved (re-linearisations)."""
+    @property
+    def qp_iterations(self) -> int:
+        """Interior-point iterations over all QPs."""
+    @property
+    def solve_time_s(self) -> float:
+        """Wall time of the solve [s]."""
+    @property
+    def max_slack(self) -> float:
+        """``max(max_speed_slack, max_obstacle_slack)``."""
+    @property
+    def max_speed_slack(self) -> float:
+        """Largest excess of a predicted speed over its limits [m/s]."""
+    @property
+    def max_obstacle_slack(self) -> float:
+        """Largest intrusion of a predicted footprint into an obstacle's margin [m]."""
+    @property
+    def min_clearance(self) -> float:
+        """Smallest signed distance from a predicted footprint to a lethal polygon [m]; inf if none."""
+    @property
+    def speed_limits(self) -> npt.NDArray[np.float64]:
+        """Speed limit ``v_max·(1 - r)`` at predicted states 1..N, ``(N,)`` [m/s]."""
+    @property
+    def reference_points(self) -> npt.NDArray[np.float64]:
+        """Reference points of predicted states 1..N, ``(N, 2)`` [m]."""
+    @property
+    def polygons(self) -> list[npt.NDArray[np.float64]]:
+        """The lethal polygons considered, each ``(K, 2)`` counter-clockwise [m] (for plotting)."""
+
+class MpcTracker:
+    """Kinodynamic MPC path tracker of a ground robot (DESIGN §3, docs/mpc.md).
+
+    ``config``: None (the ``configs/mpc.toml`` defaults), a partial nested dict laid over them
+    (``{"limits": {"max_speed_m_s": 0.5}}``), or a TOML path. Keeps its last plan to
+    warm-start the next solve; ``reset()`` forgets it.
+    """
+
+    def __init__(self, config: dict[str, Any] | str | os.PathLike[str] | None = None) -> None: ...
+    @staticmethod
+    def default_config() -> dict[str, Any]: ...
+    def solve(
+        self,
+        state: Sequence[float] | npt.ArrayLike,
+        reference_path: npt.ArrayLike,
+        *,
+        risk: npt.ArrayLike | None = None,
+        resolution: float | None = None,
+        origin: Sequence[float] | None = None,
+        risk_map: RiskMap | None = None,
+        desired_speed: float | None = None,
+    ) -> MpcResult:
+        """One solve from ``state`` ``[x, y, heading, speed]`` along ``reference_path`` ``(M, 2)``.
+
+        Risk: ``risk`` (``(ny, nx)``, row ``iy`` along world y) with ``resolution`` [m/cell]
+        and ``origin`` (world x, y of the lower-left corner of cell (0, 0)), or ``risk_map``
+        (its ``risk`` layer); neither means no risk and no obstacles. Releases the GIL.
+        """
+    def reset(self) -> None: ...
+    @property
+    def config(self) -> dict[str, Any]: ...
+    @property
+    def horizon(self) -> int: ...
+    @property
+    def dt(self) -> float: ...
+
 class _SimModule(ModuleType):
     """The simulator (``subterra.sim`` re-exports it with its docs)."""
 

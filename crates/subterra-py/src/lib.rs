@@ -6,6 +6,7 @@ mod convert;
 mod errors;
 mod plan_astar;
 mod plan_nav;
+mod plan_mpc;
 mod sim;
 mod terrain;
 
@@ -568,5 +569,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     terrain::register(m)?;
     plan_astar::register(m)?;
     plan_nav::register(m)?;
+    plan_mpc::register(m)?;
     Ok(())
 }

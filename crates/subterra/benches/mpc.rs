@@ -74,7 +74,7 @@ fn bench_mpc(c: &mut Criterion) {
     }
     times.sort_by(f64::total_cmp);
     println!(
-        "closed loop, {RUN_STEPS} solves: median {:.3} ms, p90 {:.3} ms, max {:.3} ms; {:.2} QPs and {:.1} interior-point iterations per solve; up to {polygons} polygons; a third QP would change the first input by at most {change:.3} (m/s², rad/s)",
+        "closed loop, {RUN_STEPS} solves: wall median {:.3} ms, p90 {:.3} ms, max {:.3} ms; {:.2} QPs and {:.1} interior-point iterations per solve; up to {polygons} polygons; a third QP would change the first input by at most {change:.3} (m/s², rad/s)",
         times[times.len() / 2],
         times[times.len() * 9 / 10],
         times[times.len() - 1],

@@ -130,6 +130,8 @@ const STAGE_VARS: usize = 7;
 const ENVELOPE_SLACK_M_S: f64 = 1e-3;
 /// A line-search step may not raise the largest speed-limit excess by more than this [m/s].
 const SPEED_FILTER_M_S: f64 = 1e-4;
+/// Right-hand side of an unused obstacle row, `-σo <= this` [m]: never binding.
+const UNUSED_ROW_RHS_M: f64 = 1e3;
 /// Sufficient-decrease fraction of the line search (Armijo).
 const ARMIJO: f64 = 1e-4;
 /// A predicted decrease of the QP model smaller than this means the nominal is optimal.
@@ -800,6 +802,7 @@ fn build_qp(c: &MpcConfig, ws: &mut Workspace, previous_input: Option<UnicycleIn
         }
     }
     let rows_per_stage = 2 * c.obstacles.max_per_stage;
+    let uniform_rows = ws.rows.chunks(rows_per_stage.max(1)).map(|stage| stage.iter().take_while(|r| r.used).count()).max().unwrap_or(0);
     for k in 1..=n {
         let t = ws.targets[k - 1];
         let v = ws.x[k].speed_m_s;
@@ -811,13 +814,16 @@ fn build_qp(c: &MpcConfig, ws: &mut Workspace, previous_input: Option<UnicycleIn
         a.push(row + 2, iso(k), -1.0);
         b.push(0.0);
         row += 3;
-        for r in ws.rows[(k - 1) * rows_per_stage..k * rows_per_stage].iter().filter(|r| r.used) {
-            // -(n·δp + lever·δθ) - σo <= d̄ - margin.
+        // Every stage gets `uniform_rows` obstacle rows, the most any stage uses: the pattern
+        // then depends on that one number and the cached solvers are reused.
+        for r in ws.rows[(k - 1) * rows_per_stage..(k - 1) * rows_per_stage + uniform_rows].iter() {
+            // -(n·δp + lever·δθ) - σo <= d̄ - margin; an unused row only bounds σo below by
+            // -UNUSED_ROW_RHS_M.
             a.push(row, ix(k, 0), -r.normal.x);
             a.push(row, ix(k, 1), -r.normal.y);
             a.push(row, ix(k, 2), -r.lever_m);
             a.push(row, iso(k), -1.0);
-            b.push(r.distance_m - c.obstacles.margin_m);
+            b.push(if r.used { r.distance_m - c.obstacles.margin_m } else { UNUSED_ROW_RHS_M });
             row += 1;
         }
     }

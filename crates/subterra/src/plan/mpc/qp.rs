@@ -104,16 +104,40 @@ pub(crate) enum QpOutcome {
     Failed,
 }
 
-/// The Clarabel solver, kept while the QP's sparsity stays the same.
+/// Solvers kept for the most recently seen sparsity patterns.
+const CACHED_SOLVERS: usize = 4;
+
+/// The sparsity of a QP: `P`'s and `A`'s patterns (no values) and the equality count.
+#[derive(Debug, Clone, PartialEq)]
+struct Pattern {
+    p: Csc,
+    a: Csc,
+    equalities: usize,
+}
+
+impl Pattern {
+    fn of(qp: &QpProblem) -> Self {
+        let strip = |m: &Csc| Csc { rows: m.rows, cols: m.cols, colptr: m.colptr.clone(), rowval: m.rowval.clone(), nzval: Vec::new() };
+        Self { p: strip(&qp.p), a: strip(&qp.a), equalities: qp.equalities }
+    }
+
+    fn matches(&self, qp: &QpProblem) -> bool {
+        self.equalities == qp.equalities && self.p.same_pattern(&qp.p) && self.a.same_pattern(&qp.a)
+    }
+}
+
+/// Clarabel solvers for the last few sparsity patterns (most recent first): a QP whose
+/// pattern was seen recently overwrites that solver's values instead of building a new one
+/// (ordering and symbolic factorisation are the expensive part of a build). With presolve
+/// and equilibration off, a reused solver computes exactly what a new one would.
 pub(crate) struct QpSolver {
-    solver: Option<DefaultSolver<f64>>,
-    pattern: (Csc, Csc, usize),
+    cache: Vec<(Pattern, DefaultSolver<f64>)>,
     max_iter: u32,
 }
 
 impl std::fmt::Debug for QpSolver {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("QpSolver").field("built", &self.solver.is_some()).field("max_iter", &self.max_iter).finish()
+        f.debug_struct("QpSolver").field("cached", &self.cache.len()).field("max_iter", &self.max_iter).finish()
     }
 }
 
@@ -121,22 +145,23 @@ impl std::fmt::Debug for QpSolver {
 /// tighter than the tracker needs (mm and mm/s), looser than Clarabel's 1e-8 default
 /// (one or two interior-point iterations fewer).
 const QP_TOLERANCE: f64 = 1e-6;
-/// Most iterative-refinement steps per KKT solve (Clarabel: 10). These QPs are small and
-/// well scaled; one or two steps reach the tolerance below, and each step costs a solve.
+/// Most iterative-refinement steps per KKT solve (Clarabel: 10).
 const REFINEMENT_STEPS: u32 = 2;
-/// Iterative refinement stops below this residual, relative and absolute (Clarabel: 1e-13,
-/// 1e-12): far below `QP_TOLERANCE` still.
-const REFINEMENT_TOLERANCE: f64 = 1e-10;
+/// Iterative refinement runs only when a KKT solve's residual is above this, relative and
+/// absolute (Clarabel: 1e-13, 1e-12): a tenth of `QP_TOLERANCE`. These QPs are small and
+/// well scaled, the direct solve is mostly that good already, and each refinement step
+/// costs another solve (refining always: 20% more time on the benchmark run).
+const REFINEMENT_TOLERANCE: f64 = 1e-7;
 
 impl QpSolver {
     /// No solver yet; QPs stop after `max_iter` interior-point iterations.
     pub fn new(max_iter: u32) -> Self {
-        Self { solver: None, pattern: Default::default(), max_iter }
+        Self { cache: Vec::new(), max_iter }
     }
 
-    /// Forgets the solver (the next QP builds a new one).
+    /// Forgets the solvers (the next QP builds a new one).
     pub fn reset(&mut self) {
-        self.solver = None;
+        self.cache.clear();
     }
 
     fn settings(&self) -> DefaultSettings<f64> {
@@ -161,43 +186,42 @@ impl QpSolver {
     /// Solves `qp`, writing the primal solution into `z`. Returns the outcome and the
     /// interior-point iterations.
     pub fn solve(&mut self, qp: &QpProblem, z: &mut Vec<f64>) -> (QpOutcome, u32) {
-        let same = self.solver.is_some() && self.pattern.0.same_pattern(&qp.p) && self.pattern.1.same_pattern(&qp.a) && self.pattern.2 == qp.equalities;
-        let settings = self.settings();
-        let solver_slot = &mut self.solver;
-        let run = catch_unwind(AssertUnwindSafe(|| {
-            if same {
-                let solver = solver_slot.as_mut()?;
-                solver.update_data(&qp.p.nzval, &qp.q, &qp.a.nzval, &qp.b).ok()?;
-            } else {
+        // The matching solver, moved to the front; else a new one there.
+        match self.cache.iter().position(|(pattern, _)| pattern.matches(qp)) {
+            Some(i) => {
+                let entry = self.cache.remove(i);
+                self.cache.insert(0, entry);
+            }
+            None => {
+                let settings = self.settings();
                 let mut cones = Vec::with_capacity(2);
                 if qp.equalities > 0 {
                     cones.push(SupportedConeT::ZeroConeT(qp.equalities));
                 }
                 cones.push(SupportedConeT::NonnegativeConeT(qp.b.len() - qp.equalities));
-                let solver = DefaultSolver::new(&qp.p.to_clarabel(), &qp.q, &qp.a.to_clarabel(), &qp.b, &cones, settings).ok()?;
-                *solver_slot = Some(solver);
+                let built = catch_unwind(AssertUnwindSafe(|| DefaultSolver::new(&qp.p.to_clarabel(), &qp.q, &qp.a.to_clarabel(), &qp.b, &cones, settings).ok()));
+                let Ok(Some(solver)) = built else { return (QpOutcome::Failed, 0) };
+                self.cache.insert(0, (Pattern::of(qp), solver));
+                self.cache.truncate(CACHED_SOLVERS);
             }
-            let solver = solver_slot.as_mut()?;
+        }
+        let solver = &mut self.cache[0].1;
+        let run = catch_unwind(AssertUnwindSafe(|| {
+            solver.update_data(&qp.p.nzval, &qp.q, &qp.a.nzval, &qp.b).ok()?;
             solver.solve();
             Some((solver.solution.status, solver.solution.iterations))
         }));
-        let (status, iterations) = match run {
-            Ok(Some(r)) => r,
-            _ => {
-                self.solver = None;
-                return (QpOutcome::Failed, 0);
-            }
+        let Ok(Some((status, iterations))) = run else {
+            // A panic may have left the solver half-updated: drop it.
+            self.cache.remove(0);
+            return (QpOutcome::Failed, 0);
         };
-        if !same {
-            self.pattern = (qp.p.clone(), qp.a.clone(), qp.equalities);
-        }
         let outcome = match status {
             SolverStatus::Solved => QpOutcome::Solved,
             SolverStatus::AlmostSolved | SolverStatus::MaxIterations | SolverStatus::MaxTime => QpOutcome::Inexact,
             _ => QpOutcome::Failed,
         };
-        let Some(solver) = self.solver.as_ref() else { return (QpOutcome::Failed, iterations) };
-        let x = &solver.solution.x;
+        let x = &self.cache[0].1.solution.x;
         if outcome == QpOutcome::Failed || x.len() != qp.q.len() || x.iter().any(|v| !v.is_finite()) {
             return (QpOutcome::Failed, iterations);
         }
@@ -258,5 +282,39 @@ mod tests {
         b.finish(3, 2, &mut qp.a);
         qp.b = vec![2.0, 0.5, -1.0];
         assert_eq!(solver.solve(&qp, &mut z).0, QpOutcome::Failed);
+    }
+
+    #[test]
+    fn a_cached_solver_gives_the_bits_of_a_new_one() {
+        // Two patterns in turn: the second visit of each reuses its cached solver.
+        let problem = |rows: usize, shift: f64| {
+            let mut qp = QpProblem::default();
+            let mut b = CscBuilder::default();
+            b.push(0, 0, 2.0);
+            b.push(1, 1, 1.0 + shift);
+            b.finish(2, 2, &mut qp.p);
+            qp.q = vec![-1.0 - shift, -3.0];
+            b.clear();
+            for r in 0..rows {
+                b.push(r, 0, 1.0);
+                b.push(r, 1, 0.5 + r as f64);
+            }
+            b.finish(rows, 2, &mut qp.a);
+            qp.b = (0..rows).map(|r| 1.0 + 0.1 * r as f64 + shift).collect();
+            qp
+        };
+        let mut cached = QpSolver::new(50);
+        let mut z = Vec::new();
+        for round in 0..3 {
+            for rows in [1, 2] {
+                let qp = problem(rows, 0.1 * round as f64);
+                let (outcome, _) = cached.solve(&qp, &mut z);
+                let mut fresh_z = Vec::new();
+                QpSolver::new(50).solve(&qp, &mut fresh_z);
+                assert_eq!(outcome, QpOutcome::Solved);
+                assert_eq!(z, fresh_z, "round {round}, {rows} rows");
+            }
+        }
+        assert_eq!(cached.cache.len(), 2);
     }
 }

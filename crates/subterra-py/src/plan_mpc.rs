@@ -1,0 +1,416 @@
+//! Bindings of `subterra::plan::mpc`: `MpcTracker` and `MpcResult`.
+//!
+//! Conversions, error mapping and GIL release only; every algorithm lives in the core crate.
+
+use std::borrow::Cow;
+
+use glam::DVec2;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyString};
+use serde_json::Value;
+use subterra::plan::mpc::{ConvexPolygon, MpcConfig, MpcOutput, MpcTracker, RiskGrid, UnicycleState};
+
+use crate::convert::type_name;
+use crate::errors::{config_error, input_error, raise, IntoPyResult};
+use crate::terrain::PyRiskMap;
+
+// ---------------------------------------------------------------- config
+
+/// Overlays `patch` on `base`: objects merge key by key (recursively), anything else replaces.
+fn merge(base: &mut Value, patch: Value) {
+    match (base, patch) {
+        (Value::Object(b), Value::Object(p)) => {
+            for (k, v) in p {
+                match b.get_mut(&k) {
+                    Some(slot) => merge(slot, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (slot, v) => *slot = v,
+    }
+}
+
+/// A `ConfigError` naming the first non-finite number in the nested dict `d` (JSON has no
+/// NaN, so the parser alone could only say where in the text it stopped).
+fn check_finite(py: Python<'_>, prefix: &str, d: &Bound<'_, PyAny>) -> PyResult<()> {
+    let Ok(dict) = d.cast::<PyDict>() else { return Ok(()) };
+    for (key, value) in dict.iter() {
+        let field = if prefix.is_empty() { key.str()?.to_string() } else { format!("{prefix}.{}", key.str()?) };
+        if value.cast::<PyDict>().is_ok() {
+            check_finite(py, &field, &value)?;
+        } else if let Ok(x) = value.extract::<f64>() {
+            if !x.is_finite() {
+                return Err(config_error(py, format!("config field `{field}` is invalid: must be finite (got {x})")));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The default config with the (partial, nested) dict `d` laid over it, validated; unknown
+/// keys are a `ConfigError` naming them.
+fn config_from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<MpcConfig> {
+    check_finite(py, "", d)?;
+    let text: String = py
+        .import("json")?
+        .call_method1("dumps", (d,))
+        .map_err(|e| config_error(py, format!("argument `config` cannot be serialised to JSON: {e}")))?
+        .extract()?;
+    let patch: Value = serde_json::from_str(&text).map_err(|e| config_error(py, format!("argument `config` could not be parsed: {e}")))?;
+    let mut base = serde_json::to_value(MpcConfig::default()).map_err(|e| config_error(py, e.to_string()))?;
+    merge(&mut base, patch);
+    let config: MpcConfig =
+        serde_json::from_value(base).map_err(|e| config_error(py, format!("argument `config`: config could not be parsed: {e}")))?;
+    config.validate().py_err(py)?;
+    Ok(config)
+}
+
+fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<MpcConfig> {
+    let Some(config) = config else { return Ok(MpcConfig::default()) };
+    if config.cast::<PyDict>().is_ok() {
+        return config_from_dict(py, config);
+    }
+    if config.is_instance_of::<PyString>() || config.hasattr("__fspath__")? {
+        let path: String = py.import("os")?.call_method1("fspath", (config,))?.extract()?;
+        let text = std::fs::read_to_string(&path).map_err(|e| raise(py, "FileFormatError", format!("cannot read config file: {e}: {path}")))?;
+        return MpcConfig::from_toml_str(&text).map_err(|e| raise(py, "ConfigError", format!("{e}: {path}")));
+    }
+    Err(config_error(py, format!("argument `config` must be None, a dict or a TOML path, got {}", type_name(config))))
+}
+
+fn config_dict<'py>(py: Python<'py>, config: &MpcConfig) -> PyResult<Bound<'py, PyAny>> {
+    let text = serde_json::to_string(config).map_err(|e| config_error(py, e.to_string()))?;
+    py.import("json")?.call_method1("loads", (text,))
+}
+
+// ---------------------------------------------------------------- inputs
+
+/// A finite float array of `value` with `ndim` dimensions (any real dtype is converted).
+fn float_array<'py>(py: Python<'py>, argument: &str, value: &Bound<'py, PyAny>, what: &str) -> PyResult<Bound<'py, PyAny>> {
+    let np = py.import("numpy")?;
+    let raw = np.call_method1("asarray", (value,)).map_err(|_| input_error(py, format!("argument `{argument}` must be {what}, got {}", type_name(value))))?;
+    let kind: String = raw.getattr("dtype")?.getattr("kind")?.extract()?;
+    if !matches!(kind.as_str(), "f" | "i" | "u") {
+        return Err(input_error(py, format!("argument `{argument}` must be {what} of real numbers, got {}", type_name(&raw))));
+    }
+    Ok(raw)
+}
+
+fn state_of(py: Python<'_>, state: &Bound<'_, PyAny>) -> PyResult<UnicycleState> {
+    let what = "4 numbers [x, y, heading, speed]";
+    let raw = float_array(py, "state", state, what)?;
+    let v: Vec<f64> = raw.call_method1("astype", ("float64",))?.call_method0("ravel")?.call_method0("tolist")?.extract()?;
+    let ndim: usize = raw.getattr("ndim")?.extract()?;
+    if ndim != 1 || v.len() != 4 {
+        return Err(input_error(py, format!("argument `state` must be {what}, got {}", type_name(&raw))));
+    }
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(input_error(py, format!("argument `state` must be finite, got {v:?}")));
+    }
+    Ok(UnicycleState::from_array([v[0], v[1], v[2], v[3]]))
+}
+
+fn path_of(py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<Vec<DVec2>> {
+    let what = "an (M, 2) array of world points [m], M >= 2";
+    let raw = float_array(py, "reference_path", path, what)?;
+    let shape: Vec<usize> = raw.getattr("shape")?.extract()?;
+    if shape.len() != 2 || shape[1] != 2 {
+        return Err(input_error(py, format!("argument `reference_path` must be {what}, got shape {shape:?}")));
+    }
+    let flat: Vec<f64> = raw.call_method1("astype", ("float64",))?.call_method0("ravel")?.call_method0("tolist")?.extract()?;
+    Ok(flat.chunks_exact(2).map(|p| DVec2::new(p[0], p[1])).collect())
+}
+
+/// A risk grid held for the duration of one call: row-major `(ny, nx)` values and geometry.
+struct RiskInput<'a> {
+    values: Cow<'a, [f32]>,
+    nx: usize,
+    ny: usize,
+    resolution_m: f64,
+    origin_m: DVec2,
+}
+
+fn origin_of(py: Python<'_>, origin: &Bound<'_, PyAny>) -> PyResult<DVec2> {
+    let raw = float_array(py, "origin", origin, "2 numbers (x, y) [m]")?;
+    let v: Vec<f64> = raw.call_method1("astype", ("float64",))?.call_method0("ravel")?.call_method0("tolist")?.extract()?;
+    if v.len() != 2 {
+        return Err(input_error(py, format!("argument `origin` must be 2 numbers (x, y) [m], got {} of them", v.len())));
+    }
+    Ok(DVec2::new(v[0], v[1]))
+}
+
+/// Calls `f` with the risk grid of `risk` (+ `resolution`, `origin`) or `risk_map`, if any.
+fn with_risk<T>(
+    py: Python<'_>,
+    risk: Option<&Bound<'_, PyAny>>,
+    resolution: Option<f64>,
+    origin: Option<&Bound<'_, PyAny>>,
+    risk_map: Option<&Bound<'_, PyAny>>,
+    f: impl FnOnce(Option<&RiskInput<'_>>) -> T,
+) -> PyResult<T> {
+    match (risk, risk_map) {
+        (Some(_), Some(_)) => Err(input_error(py, "arguments `risk` and `risk_map` are exclusive: give the array with `resolution` and `origin`, or a RiskMap")),
+        (None, None) => {
+            if resolution.is_some() || origin.is_some() {
+                return Err(input_error(py, "arguments `resolution` and `origin` describe `risk`, which was not given"));
+            }
+            Ok(f(None))
+        }
+        (None, Some(map)) => {
+            if resolution.is_some() || origin.is_some() {
+                return Err(input_error(py, "arguments `resolution` and `origin` are taken from `risk_map`; do not pass them with it"));
+            }
+            let map = map.cast::<PyRiskMap>().map_err(|_| input_error(py, format!("argument `risk_map` must be a subterra.RiskMap, got {}", type_name(map))))?;
+            let layer = map.call_method1("layer", ("risk",))?;
+            let layer = layer.cast::<PyArray2<f32>>().map_err(|_| input_error(py, "argument `risk_map`: its risk layer is not a float32 array"))?;
+            let view = layer.readonly();
+            let (ny, nx) = (view.shape()[0], view.shape()[1]);
+            let resolution_m: f64 = map.getattr("resolution")?.extract()?;
+            let (ox, oy): (f64, f64) = map.getattr("origin")?.extract()?;
+            let values = match view.as_array().to_slice() {
+                Some(s) => Cow::Borrowed(s),
+                None => Cow::Owned(view.as_array().iter().copied().collect()),
+            };
+            Ok(f(Some(&RiskInput { values, nx, ny, resolution_m, origin_m: DVec2::new(ox, oy) })))
+        }
+        (Some(risk), None) => {
+            let resolution_m = resolution.ok_or_else(|| input_error(py, "argument `resolution` [m/cell] is required with `risk`"))?;
+            let origin_m = match origin {
+                Some(o) => origin_of(py, o)?,
+                None => return Err(input_error(py, "argument `origin` (world x, y of the lower-left corner of cell (0, 0)) [m] is required with `risk`")),
+            };
+            let what = "a 2-D (ny, nx) array of risks in [0, 1] (float32 preferred)";
+            let converted;
+            let array = match risk.cast::<PyArray2<f32>>() {
+                Ok(a) => a.clone(),
+                Err(_) => {
+                    let raw = float_array(py, "risk", risk, what)?;
+                    let ndim: usize = raw.getattr("ndim")?.extract()?;
+                    if ndim != 2 {
+                        return Err(input_error(py, format!("argument `risk` must be {what}, got {}", type_name(&raw))));
+                    }
+                    converted = raw.call_method1("astype", ("float32",))?;
+                    converted.cast::<PyArray2<f32>>().map_err(|_| input_error(py, format!("argument `risk` must be {what}")))?.clone()
+                }
+            };
+            let view = array.readonly();
+            let (ny, nx) = (view.shape()[0], view.shape()[1]);
+            let values = match view.as_array().to_slice() {
+                Some(s) => Cow::Borrowed(s),
+                None => Cow::Owned(view.as_array().iter().copied().collect()),
+            };
+            Ok(f(Some(&RiskInput { values, nx, ny, resolution_m, origin_m })))
+        }
+    }
+}
+
+// ---------------------------------------------------------------- MpcResult
+
+fn rows_array<'py, const W: usize>(py: Python<'py>, rows: impl Iterator<Item = [f64; W]>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let flat: Vec<f64> = rows.flatten().collect();
+    let n = flat.len() / W;
+    flat.into_pyarray(py).reshape([n, W])
+}
+
+fn polygon_array<'py>(py: Python<'py>, p: &ConvexPolygon) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    rows_array(py, p.vertices.iter().map(|v| [v.x, v.y]))
+}
+
+/// What one `MpcTracker.solve` gives.
+#[pyclass(name = "MpcResult", module = "subterra._core", frozen)]
+pub struct PyMpcResult {
+    inner: MpcOutput,
+}
+
+#[pymethods]
+impl PyMpcResult {
+    /// `(v, ω)` to send now: the speed at the end of the first step [m/s] and the yaw rate
+    /// over it [rad/s].
+    #[getter]
+    fn command(&self) -> (f64, f64) {
+        (self.inner.command.speed_m_s, self.inner.command.yaw_rate_rad_s)
+    }
+    /// Predicted states `[x, y, heading, speed]`, `(N+1, 4)` float64; row 0 is the given state.
+    #[getter]
+    fn predicted<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        rows_array(py, self.inner.predicted.iter().map(|s| s.to_array()))
+    }
+    /// Planned inputs `[accel, yaw_rate]`, `(N, 2)` float64 [m/s², rad/s].
+    #[getter]
+    fn inputs<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        rows_array(py, self.inner.inputs.iter().map(|u| [u.accel_m_s2, u.yaw_rate_rad_s]))
+    }
+    /// `"solved"`, `"solved_inexact"`, `"infeasible_backup"` or `"solver_failed_backup"`.
+    #[getter]
+    fn status(&self) -> &'static str {
+        self.inner.status.name()
+    }
+    /// Whether `predicted` is the backup stop.
+    #[getter]
+    fn is_backup(&self) -> bool {
+        self.inner.status.is_backup()
+    }
+    /// QPs solved (re-linearisations).
+    #[getter]
+    fn iterations(&self) -> u32 {
+        self.inner.sqp_iterations
+    }
+    /// Interior-point iterations over all QPs.
+    #[getter]
+    fn qp_iterations(&self) -> u32 {
+        self.inner.qp_iterations
+    }
+    /// Wall time of the solve [s].
+    #[getter]
+    fn solve_time_s(&self) -> f64 {
+        self.inner.solve_time_s
+    }
+    /// `max(max_speed_slack, max_obstacle_slack)` of `predicted`.
+    #[getter]
+    fn max_slack(&self) -> f64 {
+        self.inner.max_slack
+    }
+    /// Largest excess of a predicted speed over its limits [m/s].
+    #[getter]
+    fn max_speed_slack(&self) -> f64 {
+        self.inner.max_speed_slack_m_s
+    }
+    /// Largest intrusion of a predicted footprint into an obstacle's margin [m].
+    #[getter]
+    fn max_obstacle_slack(&self) -> f64 {
+        self.inner.max_obstacle_slack_m
+    }
+    /// Smallest signed distance from a predicted footprint to a lethal polygon [m]; inf if none.
+    #[getter]
+    fn min_clearance(&self) -> f64 {
+        self.inner.min_clearance_m
+    }
+    /// Speed limit `v_max·(1 - r)` at predicted states 1..N, `(N,)` float64 [m/s].
+    #[getter]
+    fn speed_limits<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.speed_limits_m_s.clone().into_pyarray(py)
+    }
+    /// Reference points of predicted states 1..N, `(N, 2)` float64 [m].
+    #[getter]
+    fn reference_points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        rows_array(py, self.inner.reference_points.iter().map(|p| [p.x, p.y]))
+    }
+    /// The lethal polygons considered: a list of `(K, 2)` float64 arrays, counter-clockwise [m].
+    #[getter]
+    fn polygons<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyArray2<f64>>>> {
+        self.inner.polygons.iter().map(|p| polygon_array(py, p)).collect()
+    }
+    fn __repr__(&self) -> String {
+        let o = &self.inner;
+        format!(
+            "MpcResult(status={:?}, command=({:.3}, {:.3}), iterations={}, max_slack={:.4}, solve_time_s={:.6})",
+            o.status.name(),
+            o.command.speed_m_s,
+            o.command.yaw_rate_rad_s,
+            o.sqp_iterations,
+            o.max_slack,
+            o.solve_time_s
+        )
+    }
+}
+
+// ---------------------------------------------------------------- MpcTracker
+
+/// The MPC path tracker of a ground robot (DESIGN §3): keeps its last plan to warm-start
+/// the next solve.
+#[pyclass(name = "MpcTracker", module = "subterra._core")]
+pub struct PyMpcTracker {
+    inner: MpcTracker,
+}
+
+#[pymethods]
+impl PyMpcTracker {
+    /// `config`: None (the `configs/mpc.toml` defaults), a partial nested dict laid over
+    /// them (`{"limits": {"max_speed_m_s": 0.5}}`), or a TOML path.
+    #[new]
+    #[pyo3(signature = (config = None))]
+    fn new(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let config = resolve_config(py, config)?;
+        Ok(Self { inner: MpcTracker::new(config).py_err(py)? })
+    }
+
+    /// The default config as a nested dict.
+    #[staticmethod]
+    fn default_config(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+        config_dict(py, &MpcConfig::default())
+    }
+
+    /// One solve from `state` `[x, y, heading, speed]` along `reference_path` `(M, 2)`
+    /// (world [m], M >= 2). Risk: either `risk` (a `(ny, nx)` array, row `iy` along world
+    /// y) with `resolution` [m/cell] and `origin` (world x, y of the lower-left corner of
+    /// cell (0, 0)) [m], or `risk_map` (a `RiskMap`, its `risk` layer); neither means no
+    /// risk and no obstacles. `desired_speed` [m/s]: None takes the config's. Releases the
+    /// GIL while it runs.
+    #[pyo3(signature = (state, reference_path, *, risk = None, resolution = None, origin = None, risk_map = None, desired_speed = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn solve(
+        &mut self,
+        py: Python<'_>,
+        state: &Bound<'_, PyAny>,
+        reference_path: &Bound<'_, PyAny>,
+        risk: Option<&Bound<'_, PyAny>>,
+        resolution: Option<f64>,
+        origin: Option<&Bound<'_, PyAny>>,
+        risk_map: Option<&Bound<'_, PyAny>>,
+        desired_speed: Option<f64>,
+    ) -> PyResult<PyMpcResult> {
+        let state = state_of(py, state)?;
+        let path = path_of(py, reference_path)?;
+        let tracker = &mut self.inner;
+        let result = with_risk(py, risk, resolution, origin, risk_map, |grid| {
+            let grid = match grid {
+                None => None,
+                Some(g) => match RiskGrid::new(&g.values, g.nx, g.ny, g.resolution_m, g.origin_m) {
+                    Ok(grid) => Some(grid),
+                    Err(e) => return Err(e),
+                },
+            };
+            py.detach(|| tracker.solve(&state, &path, grid.as_ref(), desired_speed))
+        })?;
+        Ok(PyMpcResult { inner: result.py_err(py)? })
+    }
+
+    /// Forgets the last plan: the next solve starts from zero inputs.
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+
+    /// The config as a nested dict.
+    #[getter]
+    fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        config_dict(py, self.inner.config())
+    }
+
+    /// Steps N of the horizon.
+    #[getter]
+    fn horizon(&self) -> usize {
+        self.inner.config().horizon
+    }
+
+    /// Step [s].
+    #[getter]
+    fn dt(&self) -> f64 {
+        self.inner.config().dt_s
+    }
+
+    fn __repr__(&self) -> String {
+        let c = self.inner.config();
+        format!("MpcTracker(horizon={}, dt={}, max_speed_m_s={})", c.horizon, c.dt_s, c.limits.max_speed_m_s)
+    }
+}
+
+/// Adds the MPC classes to the module.
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyMpcTracker>()?;
+    m.add_class::<PyMpcResult>()?;
+    Ok(())
+}
