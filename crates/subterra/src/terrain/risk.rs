@@ -679,16 +679,20 @@ impl MapBuilder {
             let rough = r.roughness_m.eval(residual[c] as f64);
             let unknown = if observed { 0.0 } else { r.unknown };
             let m = mission_l[c] as f64;
-            // Same order as Layer::RISKS.
-            collision_l[c] = collision as f32;
-            step_l[c] = step as f32;
-            negative_l[c] = negative as f32;
-            tilt_l[c] = tilt as f32;
-            rough_l[c] = rough as f32;
-            unknown_l[c] = unknown as f32;
-            mission_l[c] = m as f32;
-            let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
-            risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
+            // The risk layers start all zeros (the mission layer holds its own value): a cell
+            // with every risk 0 (ramps give +0, never -0) keeps them, and its combined risk
+            // is 1 - 1 = 0.
+            if collision != 0.0 || step != 0.0 || negative != 0.0 || tilt != 0.0 || rough != 0.0 || unknown != 0.0 || m != 0.0 {
+                // Same order as Layer::RISKS.
+                collision_l[c] = collision as f32;
+                step_l[c] = step as f32;
+                negative_l[c] = negative as f32;
+                tilt_l[c] = tilt as f32;
+                rough_l[c] = rough as f32;
+                unknown_l[c] = unknown as f32;
+                let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
+                risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
+            }
             let sigma = if observed {
                 let age = if has { cell.min_age as f64 } else { 0.0 };
                 let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
