@@ -236,6 +236,9 @@ impl MapBuilder {
         let (x_lo, y_lo) = (g.origin_cell.0 as f64, g.origin_cell.1 as f64);
         let (x_hi, y_hi) = ((g.origin_cell.0 + nx) as f64, (g.origin_cell.1 + ny) as f64);
         let small = [x_lo, x_hi, y_lo, y_hi].iter().all(|b| b.abs() < FLOOR_SMALL_LIMIT);
+        // A local slice: its pointer and length stay in registers (the pushes to `touched`
+        // could otherwise alias `self.scratch`).
+        let scratch = &mut self.scratch[..n];
         for (p, &h) in points.iter().zip(heights) {
             // The same formula as GridGeometry::cell_of, so every scan agrees on the cells.
             let qx = (p[0] as f64 + origin_world.x) / res;
@@ -253,7 +256,7 @@ impl MapBuilder {
                 (ix, iy)
             };
             let c = (iy * nx + ix) as usize;
-            let cell = &mut self.scratch[c];
+            let cell = &mut scratch[c];
             if cell.count == 0 {
                 touched.push(c as u32);
             }
@@ -508,22 +511,23 @@ impl MapBuilder {
                 let h = mid[ix];
                 out[ix] = if h.is_finite() { block(ix, iy, h) } else { f32::NAN };
             }
-            for ix in 1..nx - 1 {
-                let h = mid[ix];
-                if !h.is_finite() {
-                    out[ix] = f32::NAN;
-                    continue;
-                }
+            // Branch-free over the inner cells, so that the loop vectorises: every candidate
+            // `|v - h|` is +0 or positive (abs), NaN ones never win, so the largest does
+            // whatever the order, the same as the block order above; the cell itself (0) is
+            // left out, and a cell without ground gives NaN.
+            let m = nx - 2;
+            let (a0, a1, a2) = (&above[..m], &above[1..m + 1], &above[2..m + 2]);
+            let (m0, m1, m2) = (&mid[..m], &mid[1..m + 1], &mid[2..m + 2]);
+            let (b0, b1, b2) = (&below[..m], &below[1..m + 1], &below[2..m + 2]);
+            let out_inner = &mut out[1..m + 1];
+            for i in 0..m {
+                let h = m1[i];
                 let mut worst = 0.0f32;
-                for r in [above, mid, below] {
-                    for &v in &r[ix - 1..ix + 2] {
-                        let d = (v - h).abs();
-                        if d > worst {
-                            worst = d;
-                        }
-                    }
+                for v in [a0[i], a1[i], a2[i], m0[i], m2[i], b0[i], b1[i], b2[i]] {
+                    let d = (v - h).abs();
+                    worst = if d > worst { d } else { worst };
                 }
-                out[ix] = worst;
+                out_inner[i] = if h.is_finite() { worst } else { f32::NAN };
             }
         }
     }
