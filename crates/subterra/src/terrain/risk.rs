@@ -671,6 +671,18 @@ impl MapBuilder {
             &mut risk_l[..n],
             &mut variance_l[..n],
         );
+        // σ² of an observed cell with `count` points (0 counts as 1), the newest `age` s old.
+        let variance = |count: u32, age: f64| {
+            let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
+            let sigma = (var_h.sqrt() / u.height_span_m).min(u.max_sigma);
+            (sigma * sigma) as f32
+        };
+        let var_unobserved = (u.max_sigma * u.max_sigma) as f32;
+        // The same at age 0, by count (most cells of a fresh scan).
+        let mut var_fresh = [0.0f32; 64];
+        for (k, v) in var_fresh.iter_mut().enumerate() {
+            *v = variance(k as u32, 0.0);
+        }
         for c in 0..n {
             let cell = &cells[c];
             let count = cell.count;
@@ -697,14 +709,17 @@ impl MapBuilder {
                 let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
                 risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
             }
-            let sigma = if observed {
-                let age = if has { cell.min_age as f64 } else { 0.0 };
-                let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
-                (var_h.sqrt() / u.height_span_m).min(u.max_sigma)
+            variance_l[c] = if !observed {
+                var_unobserved
+            } else if !has {
+                // No points: count 1 and age 0.
+                var_fresh[1]
+            } else if cell.min_age == 0.0 && (count as usize) < var_fresh.len() {
+                // Age ±0 adds exactly 0 (drift·age squared): the value of `count` alone.
+                var_fresh[count as usize]
             } else {
-                u.max_sigma
+                variance(count, cell.min_age as f64)
             };
-            variance_l[c] = (sigma * sigma) as f32;
         }
     }
 }
