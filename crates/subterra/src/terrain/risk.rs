@@ -169,6 +169,8 @@ pub(crate) struct MapBuilder {
     height: Vec<f32>,
     patch_tmp: Vec<f32>,
     patch_max: Vec<f32>,
+    patch_f64: Vec<f64>,
+    tilt_worst: Vec<f64>,
     integral: Vec<[f64; 10]>,
     /// Cell-centre x relative to the newest sensor, by column [m].
     xs: Vec<f64>,
@@ -201,6 +203,8 @@ impl MapBuilder {
             height: Vec::new(),
             patch_tmp: Vec::new(),
             patch_max: Vec::new(),
+            patch_f64: Vec::new(),
+            tilt_worst: Vec::new(),
             integral: Vec::new(),
             xs: Vec::new(),
             touched: Vec::new(),
@@ -232,6 +236,9 @@ impl MapBuilder {
         let (x_lo, y_lo) = (g.origin_cell.0 as f64, g.origin_cell.1 as f64);
         let (x_hi, y_hi) = ((g.origin_cell.0 + nx) as f64, (g.origin_cell.1 + ny) as f64);
         let small = [x_lo, x_hi, y_lo, y_hi].iter().all(|b| b.abs() < FLOOR_SMALL_LIMIT);
+        // A local slice: its pointer and length stay in registers (the pushes to `touched`
+        // could otherwise alias `self.scratch`).
+        let scratch = &mut self.scratch[..n];
         for (p, &h) in points.iter().zip(heights) {
             // The same formula as GridGeometry::cell_of, so every scan agrees on the cells.
             let qx = (p[0] as f64 + origin_world.x) / res;
@@ -249,7 +256,7 @@ impl MapBuilder {
                 (ix, iy)
             };
             let c = (iy * nx + ix) as usize;
-            let cell = &mut self.scratch[c];
+            let cell = &mut scratch[c];
             if cell.count == 0 {
                 touched.push(c as u32);
             }
@@ -258,12 +265,14 @@ impl MapBuilder {
         // The non-empty cells in the order they were first hit (each global cell once, so
         // the order does not change any sum the map makes of them).
         out.clear();
-        out.extend(touched.iter().map(|&c| {
+        out.reserve(touched.len());
+        let scratch = &mut self.scratch[..n];
+        for &c in touched.iter() {
             let c = c as usize;
-            let cell = std::mem::replace(&mut self.scratch[c], CellAccumulator::EMPTY);
+            let cell = std::mem::replace(&mut scratch[c], CellAccumulator::EMPTY);
             let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);
-            BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: cell }
-        }));
+            out.push(BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: cell });
+        }
     }
 
     pub fn build(
@@ -502,22 +511,23 @@ impl MapBuilder {
                 let h = mid[ix];
                 out[ix] = if h.is_finite() { block(ix, iy, h) } else { f32::NAN };
             }
-            for ix in 1..nx - 1 {
-                let h = mid[ix];
-                if !h.is_finite() {
-                    out[ix] = f32::NAN;
-                    continue;
-                }
+            // Branch-free over the inner cells, so that the loop vectorises: every candidate
+            // `|v - h|` is +0 or positive (abs), NaN ones never win, so the largest does
+            // whatever the order, the same as the block order above; the cell itself (0) is
+            // left out, and a cell without ground gives NaN.
+            let m = nx - 2;
+            let (a0, a1, a2) = (&above[..m], &above[1..m + 1], &above[2..m + 2]);
+            let (m0, m1, m2) = (&mid[..m], &mid[1..m + 1], &mid[2..m + 2]);
+            let (b0, b1, b2) = (&below[..m], &below[1..m + 1], &below[2..m + 2]);
+            let out_inner = &mut out[1..m + 1];
+            for i in 0..m {
+                let h = m1[i];
                 let mut worst = 0.0f32;
-                for r in [above, mid, below] {
-                    for &v in &r[ix - 1..ix + 2] {
-                        let d = (v - h).abs();
-                        if d > worst {
-                            worst = d;
-                        }
-                    }
+                for v in [a0[i], a1[i], a2[i], m0[i], m2[i], b0[i], b1[i], b2[i]] {
+                    let d = (v - h).abs();
+                    worst = if d > worst { d } else { worst };
                 }
-                out[ix] = worst;
+                out_inner[i] = if h.is_finite() { worst } else { f32::NAN };
             }
         }
     }
@@ -565,29 +575,52 @@ impl MapBuilder {
         // their corners are flat offsets from the cell, no bounds to test.
         let reach_x = self.stencils.iter().flat_map(|s| s.offsets).map(|(dx, _)| dx.unsigned_abs() as usize).max().unwrap_or(0);
         let reach_y = self.stencils.iter().flat_map(|s| s.offsets).map(|(_, dy)| dy.unsigned_abs() as usize).max().unwrap_or(0);
-        let flat: Vec<[isize; 4]> = self.stencils.iter().map(|s| s.offsets.map(|(dx, dy)| dy as isize * nx as isize + dx as isize)).collect();
+        // The patch maxima as f64 (NaN stays NaN), converted once instead of per corner.
+        self.patch_f64.clear();
+        self.patch_f64.extend(self.patch_max.iter().map(|&v| v as f64));
+        let patch = &self.patch_f64[..n];
+        let height = &self.height[..n];
+        let (slope, out) = (&slope[..n], &mut out[..n]);
+        // Per heading, its corner offsets in the flat layer and the two settling poses of
+        // each diagonal, hoisted out of the cell loop.
+        let headings: Vec<HeadingKernel> = self.stencils.iter().map(|s| HeadingKernel::new(s, nx)).collect();
+        // The inner cells of a row: their worst tan² so far.
+        let worst = &mut self.tilt_worst;
+        let (x0, x1) = (reach_x.min(nx), nx.saturating_sub(reach_x).max(reach_x.min(nx)));
         for iy in 0..ny {
+            let row = iy * nx;
             let inner_y = iy >= reach_y && iy + reach_y < ny;
             for ix in 0..nx {
-                let c = iy * nx + ix;
-                if !self.height[c].is_finite() {
+                let c = row + ix;
+                if !height[c].is_finite() {
                     out[c] = f32::NAN;
-                    continue;
-                }
-                let inner = inner_y && ix >= reach_x && ix + reach_x < nx;
-                let mut worst_tan2 = -1.0f64;
-                for (stencil, offsets) in self.stencils.iter().zip(&flat) {
-                    let corners = if inner {
-                        let v = offsets.map(|o| self.patch_max[(c as isize + o) as usize]);
-                        v.iter().all(|h| h.is_finite()).then(|| v.map(f64::from))
-                    } else {
-                        corner_heights(&self.patch_max, nx, ny, ix, iy, &stencil.offsets)
-                    };
-                    if let Some(h) = corners {
-                        worst_tan2 = worst_tan2.max(settle_tan2(&stencil.triangles, &h));
+                } else if !(inner_y && ix >= x0 && ix < x1) {
+                    // Near the edge: corners may be off the map.
+                    let mut worst_tan2 = -1.0f64;
+                    for stencil in &self.stencils {
+                        if let Some(h) = corner_heights(&self.patch_max, nx, ny, ix, iy, &stencil.offsets) {
+                            worst_tan2 = worst_tan2.max(settle_tan2(&stencil.triangles, &h));
+                        }
                     }
+                    out[c] = if worst_tan2 >= 0.0 { worst_tan2.sqrt().atan() as f32 } else { slope[c] };
                 }
-                out[c] = if worst_tan2 >= 0.0 { worst_tan2.sqrt().atan() as f32 } else { slope[c] };
+            }
+            if !inner_y || x0 >= x1 {
+                continue;
+            }
+            // Heading by heading over the row's inner cells: each cell still folds its
+            // headings in order, with the same values.
+            worst.clear();
+            worst.resize(x1 - x0, -1.0);
+            let has = &height[row + x0..row + x1];
+            for k in &headings {
+                k.settle_row(patch, row + x0, has, worst);
+            }
+            for (i, &w) in worst.iter().enumerate() {
+                let c = row + x0 + i;
+                if has[i].is_finite() {
+                    out[c] = if w >= 0.0 { w.sqrt().atan() as f32 } else { slope[c] };
+                }
             }
         }
     }
@@ -638,6 +671,18 @@ impl MapBuilder {
             &mut risk_l[..n],
             &mut variance_l[..n],
         );
+        // σ² of an observed cell with `count` points (0 counts as 1), the newest `age` s old.
+        let variance = |count: u32, age: f64| {
+            let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
+            let sigma = (var_h.sqrt() / u.height_span_m).min(u.max_sigma);
+            (sigma * sigma) as f32
+        };
+        let var_unobserved = (u.max_sigma * u.max_sigma) as f32;
+        // The same at age 0, by count (most cells of a fresh scan).
+        let mut var_fresh = [0.0f32; 64];
+        for (k, v) in var_fresh.iter_mut().enumerate() {
+            *v = variance(k as u32, 0.0);
+        }
         for c in 0..n {
             let cell = &cells[c];
             let count = cell.count;
@@ -650,25 +695,135 @@ impl MapBuilder {
             let rough = r.roughness_m.eval(residual[c] as f64);
             let unknown = if observed { 0.0 } else { r.unknown };
             let m = mission_l[c] as f64;
-            // Same order as Layer::RISKS.
-            collision_l[c] = collision as f32;
-            step_l[c] = step as f32;
-            negative_l[c] = negative as f32;
-            tilt_l[c] = tilt as f32;
-            rough_l[c] = rough as f32;
-            unknown_l[c] = unknown as f32;
-            mission_l[c] = m as f32;
-            let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
-            risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
-            let sigma = if observed {
-                let age = if has { cell.min_age as f64 } else { 0.0 };
-                let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
-                (var_h.sqrt() / u.height_span_m).min(u.max_sigma)
+            // The risk layers start all zeros (the mission layer holds its own value): a cell
+            // with every risk 0 (ramps give +0, never -0) keeps them, and its combined risk
+            // is 1 - 1 = 0.
+            if collision != 0.0 || step != 0.0 || negative != 0.0 || tilt != 0.0 || rough != 0.0 || unknown != 0.0 || m != 0.0 {
+                // Same order as Layer::RISKS.
+                collision_l[c] = collision as f32;
+                step_l[c] = step as f32;
+                negative_l[c] = negative as f32;
+                tilt_l[c] = tilt as f32;
+                rough_l[c] = rough as f32;
+                unknown_l[c] = unknown as f32;
+                let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
+                risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
+            }
+            variance_l[c] = if !observed {
+                var_unobserved
+            } else if !has {
+                // No points: count 1 and age 0.
+                var_fresh[1]
+            } else if cell.min_age == 0.0 && (count as usize) < var_fresh.len() {
+                // Age ±0 adds exactly 0 (drift·age squared): the value of `count` alone.
+                var_fresh[count as usize]
             } else {
-                u.max_sigma
+                variance(count, cell.min_age as f64)
             };
-            variance_l[c] = (sigma * sigma) as f32;
         }
+    }
+}
+
+/// One heading's settling, for cells whose four corners are inside the map: the corners'
+/// flat offsets and the `A⁻¹` of the triangles [`settle_tan2`] uses.
+struct HeadingKernel {
+    offsets: [isize; 4],
+    /// Triangles lifting corners 1, 2 (the body on FL-RR), then 0, 3 (on FR-RL).
+    tri: [Option<[[f64; 2]; 2]>; 4],
+}
+
+impl HeadingKernel {
+    fn new(s: &HeadingStencil, nx: usize) -> Self {
+        let t = |o: usize| s.triangles[o].map(|t| t.inv);
+        Self { offsets: s.offsets.map(|(dx, dy)| dy as isize * nx as isize + dx as isize), tri: [t(1), t(2), t(0), t(3)] }
+    }
+
+    /// For the cells `c = start..start + worst.len()` of one row whose four corners are inside
+    /// the map: `worst[i] = max(worst[i], settle_tan2(corners))` where `has[i]` (the cell has
+    /// ground) and all four corners have ground, as the per-cell loop does (`worst` starts
+    /// at -1 and never holds NaN).
+    #[inline(never)]
+    fn settle_row(&self, patch: &[f64], start: usize, has: &[f32], worst: &mut [f64]) {
+        let len = worst.len();
+        let corner = |o: isize| &patch[(start as isize + o) as usize..][..len];
+        let (s0, s1, s2, s3) = (corner(self.offsets[0]), corner(self.offsets[1]), corner(self.offsets[2]), corner(self.offsets[3]));
+        let has = &has[..len];
+        if let [Some(t0), Some(t1), Some(t2), Some(t3)] = self.tri {
+            for i in 0..len {
+                if !has[i].is_finite() {
+                    continue;
+                }
+                let h = [s0[i], s1[i], s2[i], s3[i]];
+                if let Some(tan2) = settle_pair(&h, &t0, &t1, &t2, &t3) {
+                    if tan2 > worst[i] {
+                        worst[i] = tan2;
+                    }
+                }
+            }
+        } else {
+            for i in 0..len {
+                if !has[i].is_finite() {
+                    continue;
+                }
+                let h = [s0[i], s1[i], s2[i], s3[i]];
+                // Finite iff all four corners are (f32 values: the sum cannot overflow).
+                let d = h[0] + h[3] - h[1] - h[2];
+                if !d.is_finite() {
+                    continue;
+                }
+                let tan2 = if d >= 0.0 {
+                    let w = support_opt(&self.tri[0], h[0], h[2], h[3], -1.0);
+                    support_opt(&self.tri[1], h[0], h[1], h[3], w)
+                } else {
+                    let w = support_opt(&self.tri[2], h[1], h[2], h[3], -1.0);
+                    support_opt(&self.tri[3], h[0], h[1], h[2], w)
+                };
+                if tan2 > worst[i] {
+                    worst[i] = tan2;
+                }
+            }
+        }
+    }
+}
+
+/// [`settle_tan2`] with all four triangles present (`t0`, `t1`: lifting corners 1, 2; `t2`,
+/// `t3`: lifting 0, 3); `None` if a corner has no ground.
+#[inline(always)]
+fn settle_pair(h: &[f64; 4], t0: &[[f64; 2]; 2], t1: &[[f64; 2]; 2], t2: &[[f64; 2]; 2], t3: &[[f64; 2]; 2]) -> Option<f64> {
+    // Finite iff all four corners are (f32 values: the sum cannot overflow).
+    let d = h[0] + h[3] - h[1] - h[2];
+    if !d.is_finite() {
+        return None;
+    }
+    Some(if d >= 0.0 {
+        let w = support(t0, h[0], h[2], h[3], -1.0);
+        support(t1, h[0], h[1], h[3], w)
+    } else {
+        let w = support(t2, h[1], h[2], h[3], -1.0);
+        support(t3, h[0], h[1], h[2], w)
+    })
+}
+
+/// One settling pose of [`settle_tan2`]: the body on corners `i, j, k` (heights `hi, hj,
+/// hk`), `worst` folded in as there.
+#[inline(always)]
+fn support(inv: &[[f64; 2]; 2], hi: f64, hj: f64, hk: f64, worst: f64) -> f64 {
+    let (dj, dk) = (hj - hi, hk - hi);
+    let gx = inv[0][0] * dj + inv[0][1] * dk;
+    let gy = inv[1][0] * dj + inv[1][1] * dk;
+    let tan2 = gx * gx + gy * gy;
+    if tan2 > worst {
+        tan2
+    } else {
+        worst
+    }
+}
+
+#[inline(always)]
+fn support_opt(t: &Option<[[f64; 2]; 2]>, hi: f64, hj: f64, hk: f64, worst: f64) -> f64 {
+    match t {
+        Some(inv) => support(inv, hi, hj, hk, worst),
+        None => worst,
     }
 }
 
