@@ -589,23 +589,25 @@ impl MapBuilder {
         let (x0, x1) = (reach_x.min(nx), nx.saturating_sub(reach_x).max(reach_x.min(nx)));
         for iy in 0..ny {
             let row = iy * nx;
-            let inner_y = iy >= reach_y && iy + reach_y < ny;
-            for ix in 0..nx {
+            let inner = iy >= reach_y && iy + reach_y < ny && x0 < x1;
+            // Near the edge (corners may be off the map): cell by cell. The whole row, or
+            // the columns outside the inner span.
+            let (edge_a, edge_b) = if inner { (0..x0, x1..nx) } else { (0..nx, nx..nx) };
+            for ix in edge_a.chain(edge_b) {
                 let c = row + ix;
                 if !height[c].is_finite() {
                     out[c] = f32::NAN;
-                } else if !(inner_y && ix >= x0 && ix < x1) {
-                    // Near the edge: corners may be off the map.
-                    let mut worst_tan2 = -1.0f64;
-                    for stencil in &self.stencils {
-                        if let Some(h) = corner_heights(&self.patch_max, nx, ny, ix, iy, &stencil.offsets) {
-                            worst_tan2 = worst_tan2.max(settle_tan2(&stencil.triangles, &h));
-                        }
-                    }
-                    out[c] = if worst_tan2 >= 0.0 { worst_tan2.sqrt().atan() as f32 } else { slope[c] };
+                    continue;
                 }
+                let mut worst_tan2 = -1.0f64;
+                for stencil in &self.stencils {
+                    if let Some(h) = corner_heights(&self.patch_max, nx, ny, ix, iy, &stencil.offsets) {
+                        worst_tan2 = worst_tan2.max(settle_tan2(&stencil.triangles, &h));
+                    }
+                }
+                out[c] = if worst_tan2 >= 0.0 { worst_tan2.sqrt().atan() as f32 } else { slope[c] };
             }
-            if !inner_y || x0 >= x1 {
+            if !inner {
                 continue;
             }
             // Heading by heading over the row's inner cells: each cell still folds its
@@ -616,11 +618,15 @@ impl MapBuilder {
             for k in &headings {
                 k.settle_row(patch, row + x0, has, worst);
             }
+            let (out_inner, slope_inner) = (&mut out[row + x0..row + x1], &slope[row + x0..row + x1]);
             for (i, &w) in worst.iter().enumerate() {
-                let c = row + x0 + i;
-                if has[i].is_finite() {
-                    out[c] = if w >= 0.0 { w.sqrt().atan() as f32 } else { slope[c] };
-                }
+                out_inner[i] = if !has[i].is_finite() {
+                    f32::NAN
+                } else if w >= 0.0 {
+                    w.sqrt().atan() as f32
+                } else {
+                    slope_inner[i]
+                };
             }
         }
     }
