@@ -22,7 +22,7 @@ mapper, the planner, the MPC tracker and the recovery behaviours for a robot's o
 
 Path tracking (DESIGN §3): ``MpcTracker`` follows a reference path with a kinodynamic MPC
 (risk-limited speed, obstacle half-planes, a backup stop); ``solve`` returns an
-``MpcResult`` with the command ``(v, ω)`` to send. See ``docs/mpc.md``.
+``MpcResult`` with the command ``(v, ω)`` to send (the QP: ``plan/mpc.rs`` module docs).
 """
 
 from __future__ import annotations

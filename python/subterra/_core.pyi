@@ -409,7 +409,7 @@ class MpcResult:
         """The lethal polygons considered, each ``(K, 2)`` counter-clockwise [m] (for plotting)."""
 
 class MpcTracker:
-    """Kinodynamic MPC path tracker of a ground robot (DESIGN §3, docs/mpc.md).
+    """Kinodynamic MPC path tracker of a ground robot (DESIGN §3; the QP is written out in the module docs of crates/subterra/src/plan/mpc.rs).
 
     ``config``: None (the ``configs/mpc.toml`` defaults), a partial nested dict laid over them
     (``{"limits": {"max_speed_m_s": 0.5}}``), or a TOML path. Keeps its last plan to
