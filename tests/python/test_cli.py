@@ -123,6 +123,7 @@ def test_drive_cli_runs_a_recovery_world_and_refuses_bad_arguments(tmp_path, cap
     assert main(["drive", "--scenario", "dead-end", "--time-limit", "3", "--no-plots", "--no-rerun", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert printed.startswith("dead-end with the risk-aware planner, seed 0: failed: timeout after 3.0 s")
+    assert "recovery behaviours: none;" in printed
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["scenario"] == "dead-end" and metrics["start"] == [2.0, 5.0] and metrics["goal"] == [22.0, 5.0]
     assert (out / "trajectory.csv").read_text().count("\n") == metrics["steps"] + 1

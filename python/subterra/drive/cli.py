@@ -106,7 +106,7 @@ def _drive(args: argparse.Namespace) -> int:
     paths = result.save(out, plots=not args.no_plots)
     m = result.summary()
     outcome = "reached the goal" if m["success"] else f"failed: {m['failure']}"
-    behaviours = ", ".join(b for b in m["behaviours_used"] if b != "nominal") or "none"
+    behaviours = ", ".join(b for b in m["behaviours_used"] if b != "track") or "none"
     print(f"{result.scenario} with the {args.planner} planner, seed {args.seed}: {outcome} after {m['time_s']:.1f} s; "
           f"collisions {m['collisions']}, max tilt {m['max_tilt_deg']:.1f} deg, accumulated true risk "
           f"{m['accumulated_true_risk']:.3f}; recovery behaviours: {behaviours}; compute median {m['compute_ms_median']:.1f} ms/step")
