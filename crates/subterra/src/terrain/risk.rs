@@ -128,21 +128,21 @@ impl CellAccumulator {
     /// Adds a point at height `z` [m] whose height above its ground line is `h` [m].
     #[inline]
     fn add(&mut self, z: f32, h: f32, ground_threshold: f32, collision_lo: f32, collision_hi: f32) {
+        // Every field is written with a select instead of behind a branch: whether a point is
+        // ground, or the cell's lowest, depends on the data (real scans mix ground and
+        // obstacles point by point), so branches here are mispredicted often.
         self.count += 1;
         // `min_z`/`max_z` are never NaN (they start infinite and only take points' z), so these
         // are `min`/`max` without the NaN handling.
-        if z < self.min_z {
-            self.min_z = z;
-        }
-        if z > self.max_z {
-            self.max_z = z;
-        }
-        if h.abs() <= ground_threshold {
-            self.ground_n += 1;
-            self.ground_sum += z;
-        } else if h > collision_lo && h <= collision_hi {
-            self.collision_n += 1;
-        }
+        self.min_z = if z < self.min_z { z } else { self.min_z };
+        self.max_z = if z > self.max_z { z } else { self.max_z };
+        let ground = h.abs() <= ground_threshold;
+        let collision = !ground && h > collision_lo && h <= collision_hi;
+        self.ground_n += ground as u32;
+        // The sum is formed either way and kept only for ground: exactly `+= z` or nothing.
+        let ground_sum = self.ground_sum + z;
+        self.ground_sum = if ground { ground_sum } else { self.ground_sum };
+        self.collision_n += collision as u32;
     }
 
     const EMPTY: Self = Self { count: 0, ground_n: 0, collision_n: 0, ground_sum: 0.0, min_z: f32::INFINITY, max_z: f32::NEG_INFINITY, min_age: f32::INFINITY };
@@ -174,7 +174,8 @@ pub(crate) struct MapBuilder {
     integral: Vec<[f64; 10]>,
     /// Cell-centre x relative to the newest sensor, by column [m].
     xs: Vec<f64>,
-    /// Scratch cells [`bin_scan`](Self::bin_scan) has hit, in order of the first hit.
+    /// Scratch cells [`bin_scan`](Self::bin_scan) has hit, in order of the first hit (its
+    /// first entries; the rest is room to write one more without a test).
     touched: Vec<u32>,
 }
 
@@ -228,15 +229,22 @@ impl MapBuilder {
         let lo = self.robot.ground_clearance_m as f32;
         let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
         let dz = sensor_above_body_m as f32;
-        let touched = &mut self.touched;
-        touched.clear();
+        // Each point writes its cell to `touched[hits]` and counts it only if the cell was
+        // empty: no branch on "first hit", which real scans mispredict often. At most
+        // min(points, cells) distinct cells, plus the slot the last write may use.
+        let room = points.len().min(n) + 1;
+        if self.touched.len() < room {
+            self.touched.resize(room, 0);
+        }
+        let touched = &mut self.touched[..room];
+        let mut hits = 0;
         // The cells are [origin, origin + n) along each axis: floor(q) - origin is in [0, n)
         // iff q is in [origin, origin + n) (integer bounds), tested on q itself; then
         // floor_small gives floor(q) exactly. Points are finite (prefiltered), so q is too.
         let (x_lo, y_lo) = (g.origin_cell.0 as f64, g.origin_cell.1 as f64);
         let (x_hi, y_hi) = ((g.origin_cell.0 + nx) as f64, (g.origin_cell.1 + ny) as f64);
         let small = [x_lo, x_hi, y_lo, y_hi].iter().all(|b| b.abs() < FLOOR_SMALL_LIMIT);
-        // A local slice: its pointer and length stay in registers (the pushes to `touched`
+        // A local slice: its pointer and length stay in registers (the writes to `touched`
         // could otherwise alias `self.scratch`).
         let scratch = &mut self.scratch[..n];
         for (p, &h) in points.iter().zip(heights) {
@@ -257,14 +265,14 @@ impl MapBuilder {
             };
             let c = (iy * nx + ix) as usize;
             let cell = &mut scratch[c];
-            if cell.count == 0 {
-                touched.push(c as u32);
-            }
+            touched[hits] = c as u32;
+            hits += (cell.count == 0) as usize;
             cell.add(p[2] + dz, h, thr, lo, hi);
         }
         // The non-empty cells in the order they were first hit (each global cell once, so
         // the order does not change any sum the map makes of them).
         out.clear();
+        let touched = &touched[..hits];
         out.reserve(touched.len());
         let scratch = &mut self.scratch[..n];
         for &c in touched.iter() {
