@@ -763,16 +763,20 @@ impl HeadingKernel {
         let (s0, s1, s2, s3) = (corner(self.offsets[0]), corner(self.offsets[1]), corner(self.offsets[2]), corner(self.offsets[3]));
         let has = &has[..len];
         if let [Some(t0), Some(t1), Some(t2), Some(t3)] = self.tri {
+            // `t0`, `t1` lift corners 1, 2 (the body on FL-RR), `t2`, `t3` lift 0, 3 (on FR-RL).
+            // Both diagonals' poses are computed and the result selected, with no branch:
+            // which diagonal bears the body, and which cells have ground, vary cell by cell
+            // on real terrain, and those branches were mispredicted often. The selected
+            // values are the ones the branches would have computed.
             for i in 0..len {
-                if !has[i].is_finite() {
-                    continue;
-                }
                 let h = [s0[i], s1[i], s2[i], s3[i]];
-                if let Some(tan2) = settle_pair(&h, &t0, &t1, &t2, &t3) {
-                    if tan2 > worst[i] {
-                        worst[i] = tan2;
-                    }
-                }
+                // Finite iff all four corners are (f32 values: the sum cannot overflow).
+                let d = h[0] + h[3] - h[1] - h[2];
+                let on_main = support(&t1, h[0], h[1], h[3], support(&t0, h[0], h[2], h[3], -1.0));
+                let on_cross = support(&t3, h[0], h[1], h[2], support(&t2, h[1], h[2], h[3], -1.0));
+                let tan2 = if d >= 0.0 { on_main } else { on_cross };
+                let counts = has[i].is_finite() & d.is_finite() & (tan2 > worst[i]);
+                worst[i] = if counts { tan2 } else { worst[i] };
             }
         } else {
             for i in 0..len {
@@ -798,24 +802,6 @@ impl HeadingKernel {
             }
         }
     }
-}
-
-/// [`settle_tan2`] with all four triangles present (`t0`, `t1`: lifting corners 1, 2; `t2`,
-/// `t3`: lifting 0, 3); `None` if a corner has no ground.
-#[inline(always)]
-fn settle_pair(h: &[f64; 4], t0: &[[f64; 2]; 2], t1: &[[f64; 2]; 2], t2: &[[f64; 2]; 2], t3: &[[f64; 2]; 2]) -> Option<f64> {
-    // Finite iff all four corners are (f32 values: the sum cannot overflow).
-    let d = h[0] + h[3] - h[1] - h[2];
-    if !d.is_finite() {
-        return None;
-    }
-    Some(if d >= 0.0 {
-        let w = support(t0, h[0], h[2], h[3], -1.0);
-        support(t1, h[0], h[1], h[3], w)
-    } else {
-        let w = support(t2, h[1], h[2], h[3], -1.0);
-        support(t3, h[0], h[1], h[2], w)
-    })
 }
 
 /// One settling pose of [`settle_tan2`]: the body on corners `i, j, k` (heights `hi, hj,
