@@ -170,8 +170,13 @@ pub struct GroundSegmenter {
     point_bin: Vec<u32>,
     /// Per polar bin: the prototype (lowest point) and the steepest ray.
     acc: Vec<BinAccumulator>,
-    /// Per polar bin: its line and the radii it covers.
-    line: Vec<BinLine>,
+    /// Per polar bin: the index of its line in `bin_lines` (4 bytes a bin instead of a
+    /// 32-byte line: the table is written every scan and read at random per point and per
+    /// map cell, and this way it stays in cache).
+    bin_line: Vec<u32>,
+    /// The lines the bins use: each accepted line covering its bins and not covering, and
+    /// the flat line of each sector without lines.
+    bin_lines: Vec<BinLine>,
     /// Accepted lines of every sector, and each sector's range in it.
     lines: Vec<GroundLine>,
     sector_lines: Vec<(u32, u32)>,
@@ -193,7 +198,9 @@ impl GroundSegmenter {
             bins,
             point_bin: Vec::new(),
             acc: vec![BinAccumulator::EMPTY; polar],
-            line: vec![BinLine::NONE; polar],
+            // Before the first scan every bin has the line of `BinLine::NONE`.
+            bin_line: vec![0; polar],
+            bin_lines: vec![BinLine::NONE],
             lines: Vec::new(),
             sector_lines: vec![(0, 0); config.sectors as usize],
             sector_edges: (0..=config.sectors)
@@ -222,14 +229,14 @@ impl GroundSegmenter {
         self.bin_points(points);
         self.fit_lines();
         heights_out.clear();
-        let line = &self.line[..];
+        let (bin_line, lines) = (&self.bin_line[..], &self.bin_lines[..]);
         heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
             if sb == NO_BIN {
                 return f32::NAN;
             }
             let (x, y) = (p[0] as f64, p[1] as f64);
             let r = (x * x + y * y).sqrt();
-            let line = &line[sb as usize];
+            let line = &lines[bin_line[sb as usize] as usize];
             (p[2] as f64 - (line.m * r + line.b)) as f32
         }));
         Ok(())
@@ -289,8 +296,8 @@ impl GroundSegmenter {
         let k = ((r * self.inv_bin) as i64 as usize).min(self.bins - 1);
         let sb = s * self.bins + k;
         // Both tables have one entry per polar bin: one bounds check for the two.
-        let n = self.line.len().min(self.acc.len());
-        let (line, acc) = (&self.line[..n][sb], &self.acc[..n][sb]);
+        let n = self.bin_line.len().min(self.acc.len());
+        let (line, acc) = (&self.bin_lines[self.bin_line[..n][sb] as usize], &self.acc[..n][sb]);
         let ground_z = line.m * r + line.b;
         // `min` of the two where the prototype's z is never NaN (+inf when empty): the ray
         // bound is taken only when lower (a NaN ray bound, inf·0, leaves the prototype's z).
@@ -372,6 +379,7 @@ impl GroundSegmenter {
         let c = self.config;
         let bins = self.bins;
         self.lines.clear();
+        self.bin_lines.clear();
         // The segment: its prototypes' (r, z, bin) and running sums.
         let mut seg: Vec<(f64, f64, u32)> = Vec::with_capacity(bins);
         for s in 0..c.sectors as usize {
@@ -440,31 +448,38 @@ impl GroundSegmenter {
         let bins = self.bins;
         let (a, b) = self.sector_lines[s];
         let lines = &self.lines[a as usize..b as usize];
-        let row = &mut self.line[s * bins..(s + 1) * bins];
-        let uncovered = |line: &GroundLine| BinLine { m: line.m, b: line.b, cover_lo: f64::INFINITY, cover_hi: f64::NEG_INFINITY };
-        let (Some(first), Some(last)) = (lines.first(), lines.last()) else {
-            row.fill(BinLine { b: -self.sensor_height_m, ..BinLine::NONE });
+        let row = &mut self.bin_line[s * bins..(s + 1) * bins];
+        // Line j of the sector is `bin_lines[base + 2j]` covering its bins, `base + 2j + 1` not.
+        let base = self.bin_lines.len() as u32;
+        if lines.is_empty() {
+            self.bin_lines.push(BinLine { b: -self.sensor_height_m, ..BinLine::NONE });
+            row.fill(base);
             return;
-        };
+        }
+        for line in lines {
+            self.bin_lines.push(BinLine { m: line.m, b: line.b, cover_lo: line.first_r_m, cover_hi: line.last_r_m });
+            self.bin_lines.push(BinLine { m: line.m, b: line.b, ..BinLine::NONE });
+        }
+        let covered = |j: usize| base + 2 * j as u32;
+        let uncovered = |j: usize| base + 2 * j as u32 + 1;
         // Bins below `next` are assigned.
-        let mut next = (first.first_bin as usize).min(bins);
-        row[..next].fill(uncovered(first));
+        let mut next = (lines[0].first_bin as usize).min(bins);
+        row[..next].fill(uncovered(0));
         for (j, line) in lines.iter().enumerate() {
             let (lo, hi) = (line.first_bin as usize, (line.last_bin as usize + 1).min(bins));
             if j > 0 && next < lo {
                 // The gap after the previous line: bin k goes to it iff k - prev.last <= lo - k.
-                let prev = &lines[j - 1];
-                let split = (prev.last_bin as usize + lo) / 2 + 1;
-                row[next..split].fill(uncovered(prev));
-                row[split..lo].fill(uncovered(line));
+                let split = (lines[j - 1].last_bin as usize + lo) / 2 + 1;
+                row[next..split].fill(uncovered(j - 1));
+                row[split..lo].fill(uncovered(j));
                 next = lo;
             }
             if next < hi {
-                row[next..hi].fill(BinLine { m: line.m, b: line.b, cover_lo: line.first_r_m, cover_hi: line.last_r_m });
+                row[next..hi].fill(covered(j));
                 next = hi;
             }
         }
-        row[next..].fill(uncovered(last));
+        row[next..].fill(uncovered(lines.len() - 1));
     }
 }
 
@@ -727,11 +742,12 @@ mod tests {
                 at = last + [0, 1, 2, 3, 8, 15][next(6)];
             }
             seg.lines = lines.clone();
+            seg.bin_lines.clear();
             seg.sector_lines[0] = (0, lines.len() as u32);
             seg.assign_lines(0);
             let want = assign_by_bin(&lines, bins, 0.6);
             for (k, b) in want.iter().enumerate() {
-                let a = &seg.line[k];
+                let a = &seg.bin_lines[seg.bin_line[k] as usize];
                 let bits = |l: &BinLine| [l.m.to_bits(), l.b.to_bits(), l.cover_lo.to_bits(), l.cover_hi.to_bits()];
                 assert_eq!(bits(a), bits(b), "trial {trial}, bin {k}, lines {lines:?}");
             }
