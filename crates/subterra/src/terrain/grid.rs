@@ -6,6 +6,8 @@
 //! whose lower corner is `origin_cell = (floor(x_body/res) - nx/2, floor(y_body/res) - ny/2)`.
 //! Layers are row-major `(ny, nx)` arrays: layer`[iy·nx + ix]` is [`CellIndex`] `{ix, iy}`.
 
+use std::sync::Arc;
+
 use glam::DVec2;
 
 use super::config::MapConfig;
@@ -197,8 +199,11 @@ impl Layer {
 #[derive(Debug, Clone, PartialEq)]
 pub struct RiskMap {
     geometry: GridGeometry,
-    /// `Layer::ALL.len()` arrays of `geometry.cells()` values, in `Layer::ALL` order.
-    data: Vec<f32>,
+    /// `Layer::ALL.len()` arrays of `geometry.cells()` values, in `Layer::ALL` order. Shared
+    /// with the builder that made the map: once every copy of the map is dropped, the
+    /// builder writes its next map into the same storage (no allocation and zero fill of
+    /// megabytes per update). Nothing outside this crate mutates a map.
+    data: Arc<Vec<f32>>,
     /// Time of the newest scan in the map [s].
     pub stamp_s: f64,
     /// Scans fused into the map.
@@ -210,7 +215,23 @@ pub struct RiskMap {
 impl RiskMap {
     /// A map with every layer zero.
     pub(crate) fn zeros(geometry: GridGeometry, stamp_s: f64) -> Self {
-        Self { geometry, data: vec![0.0; Layer::ALL.len() * geometry.cells()], stamp_s, scans: 0, points: 0 }
+        Self { geometry, data: Arc::new(vec![0.0; Layer::ALL.len() * geometry.cells()]), stamp_s, scans: 0, points: 0 }
+    }
+
+    /// A map in `storage` (a previous map's, see [`storage`](Self::storage)) if no copy of
+    /// that map is alive and it has the size, its layers then holding stale values that the
+    /// caller must overwrite; else [`zeros`](Self::zeros).
+    pub(crate) fn reusing(storage: Option<Arc<Vec<f32>>>, geometry: GridGeometry, stamp_s: f64) -> Self {
+        let len = Layer::ALL.len() * geometry.cells();
+        match storage.and_then(|data| Arc::try_unwrap(data).ok()).filter(|data| data.len() == len) {
+            Some(data) => Self { geometry, data: Arc::new(data), stamp_s, scans: 0, points: 0 },
+            None => Self::zeros(geometry, stamp_s),
+        }
+    }
+
+    /// A handle on the map's storage, for [`reusing`](Self::reusing) once the map is dropped.
+    pub(crate) fn storage(&self) -> Arc<Vec<f32>> {
+        Arc::clone(&self.data)
     }
 
     /// Where the cells are.
@@ -227,13 +248,13 @@ impl RiskMap {
     /// A layer, mutable.
     pub(crate) fn get_mut(&mut self, layer: Layer) -> &mut [f32] {
         let n = self.geometry.cells();
-        &mut self.data[layer as usize * n..(layer as usize + 1) * n]
+        &mut Arc::make_mut(&mut self.data)[layer as usize * n..(layer as usize + 1) * n]
     }
 
     /// Every layer, mutable, in `Layer::ALL` order.
     pub(crate) fn layers_mut(&mut self) -> Vec<&mut [f32]> {
         let n = self.geometry.cells();
-        self.data.chunks_mut(n).collect()
+        Arc::make_mut(&mut self.data).chunks_mut(n).collect()
     }
 
     /// A layer by name (see [`Layer::name`]), row-major `(ny, nx)`.

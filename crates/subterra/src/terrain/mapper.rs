@@ -254,4 +254,70 @@ mod tests {
         assert_eq!((out.stats.prefilter.non_finite, out.stats.prefilter.kept), (3, 0));
         assert!(out.coarse.get(super::super::grid::Layer::Risk).iter().all(|r| (0.0..=1.0).contains(r)));
     }
+
+    /// Every layer's bits (NaN-safe equality).
+    fn bits(map: &RiskMap) -> Vec<u32> {
+        super::super::grid::Layer::ALL.iter().flat_map(|&l| map.get(l).iter().map(|v| v.to_bits())).collect()
+    }
+
+    /// Flat ground 0.6 m below the sensor in rings, with a pole at `pole` and a pit beside it.
+    fn rings_with_pole(pole: (f32, f32)) -> Vec<f32> {
+        let mut flat = Vec::new();
+        for ring in 0..40 {
+            let r = 1.0 + ring as f32 * 0.2;
+            for a in 0..720 {
+                let t = (a as f32 * 0.5).to_radians();
+                let (x, y) = (r * t.cos(), r * t.sin());
+                let pit = (x - pole.0 - 1.0).hypot(y - pole.1) < 0.5;
+                if !pit {
+                    flat.extend_from_slice(&[x, y, -0.6]);
+                }
+            }
+        }
+        for i in 0..30 {
+            flat.extend_from_slice(&[pole.0, pole.1, -0.6 + 0.05 * i as f32]);
+        }
+        flat
+    }
+
+    #[test]
+    fn a_map_in_recycled_storage_equals_a_fresh_one() {
+        let id = Isometry3::IDENTITY;
+        let mount = Isometry3 { translation: glam::DVec3::new(0.0, 0.0, 0.6), ..id };
+        let (a, b) = (rings_with_pole((3.0, 0.5)), rings_with_pole((-2.0, 1.5)));
+        let mut fresh = TerrainMapper::new(RobotConfig::default(), TerrainConfig::default()).unwrap();
+        let want = fresh.update(&b, 0.0, &id, &mount, 1.0).unwrap();
+        let mut m = TerrainMapper::new(RobotConfig::default(), TerrainConfig::default()).unwrap();
+        let mission = [MissionItem { position_world: glam::DVec2::new(1.0, -1.0), radius_m: 0.5 }];
+        m.set_mission_items(&mission).unwrap();
+        // The caller keeps the first maps: the next ones get new storage, these stay as they were.
+        let kept = m.update(&a, 0.0, &id, &mount, 1.0).unwrap();
+        let kept_bits = bits(&kept.coarse);
+        m.reset();
+        m.set_mission_items(&[]).unwrap();
+        let second = m.update(&b, 0.0, &id, &mount, 1.0).unwrap();
+        assert_ne!(kept.coarse.storage().as_ptr(), second.coarse.storage().as_ptr());
+        assert_eq!(bits(&kept.coarse), kept_bits);
+        assert_ne!(bits(&kept.coarse), bits(&second.coarse));
+        // Dropped maps: the next maps are written over their layers (mission circle, pole
+        // and pit of the other scan) and equal the fresh mapper's.
+        drop(second);
+        m.reset();
+        m.set_mission_items(&mission).unwrap();
+        let first = m.update(&a, 0.0, &id, &mount, 1.0).unwrap();
+        let storage = (first.coarse.storage().as_ptr(), first.fine.as_ref().map(|f| f.storage().as_ptr()));
+        drop(first);
+        m.reset();
+        m.set_mission_items(&[]).unwrap();
+        let got = m.update(&b, 0.0, &id, &mount, 1.0).unwrap();
+        assert_eq!((got.coarse.storage().as_ptr(), got.fine.as_ref().map(|f| f.storage().as_ptr())), storage);
+        assert_eq!(bits(&got.coarse), bits(&want.coarse));
+        assert_eq!(bits(got.fine.as_ref().unwrap()), bits(want.fine.as_ref().unwrap()));
+        drop(got);
+        m.reset();
+        m.set_mission_items(&mission).unwrap();
+        let again = m.update(&a, 0.0, &id, &mount, 1.0).unwrap();
+        assert_eq!(again.coarse.storage().as_ptr(), storage.0);
+        assert_eq!(bits(&again.coarse), kept_bits);
+    }
 }

@@ -39,6 +39,8 @@
 //! - `risk_variance` = σ², `σ = min(sqrt(σ_range²/max(n, 1) + (drift·age)²) / height_span,
 //!   max_sigma)` for observed cells (n = `count`, age = `age` or 0), `max_sigma` otherwise.
 
+use std::sync::Arc;
+
 use glam::{DVec2, DVec3, Vec3};
 
 use super::config::{LayerConfig, MapConfig, RiskConfig, RobotConfig, UncertaintyConfig};
@@ -160,7 +162,11 @@ pub(crate) struct MapBuilder {
     plane_half: usize,
     patch_half: usize,
     stencils: Vec<HeadingStencil>,
+    /// The map's cells, kept all-empty between calls of [`build`](Self::build).
     cells: Vec<CellAccumulator>,
+    /// The storage of the previous map, for the next one (see [`RiskMap::reusing`]): every
+    /// pass writes each of its layers completely.
+    recycled: Option<Arc<Vec<f32>>>,
     /// Dense scratch of [`bin_scan`](Self::bin_scan), kept all-empty between calls.
     scratch: Vec<CellAccumulator>,
     /// Extent of that scratch around a scan: the map plus the farthest the robot can drive
@@ -199,6 +205,7 @@ impl MapBuilder {
             patch_half: odd_half(layers.wheel_patch_m),
             stencils,
             cells: Vec::new(),
+            recycled: None,
             scratch: Vec::new(),
             scratch_map,
             height: Vec::new(),
@@ -293,11 +300,13 @@ impl MapBuilder {
         missions: &[MissionItem],
     ) -> RiskMap {
         let geometry = GridGeometry::centred_on(&self.map, body_world.x, body_world.y);
-        let mut map = RiskMap::zeros(geometry, stamp_s);
+        let mut map = RiskMap::reusing(self.recycled.take(), geometry, stamp_s);
         map.scans = sources.len() + binned.len();
         let n = geometry.cells();
-        self.cells.clear();
-        self.cells.resize(n, CellAccumulator::EMPTY);
+        if self.cells.len() != n {
+            self.cells.clear();
+            self.cells.resize(n, CellAccumulator::EMPTY);
+        }
         // Map corner relative to the body, level frame.
         let corner = geometry.origin_m() - body_world.truncate();
         map.points = self.bin_points(&geometry, corner, sources) + self.merge_binned(&geometry, binned);
@@ -306,6 +315,7 @@ impl MapBuilder {
         self.steps(&geometry, &mut map);
         self.tilt(&geometry, &mut map);
         self.risks(&geometry, body_world, missions, &mut map);
+        self.recycled = Some(map.storage());
         map
     }
 
@@ -369,41 +379,37 @@ impl MapBuilder {
     fn ground_heights(&mut self, g: &GridGeometry, corner: DVec2, polar: Option<&NewestPolar<'_>>, map: &mut RiskMap) {
         let n = g.cells();
         let res = g.resolution_m;
-        self.height.clear();
         self.height.resize(n, f32::NAN);
-        // The map starts all zeros: unobserved, no depth.
         let Ok([.., negative_depth, _tilt, observed, _age, _collision, _step, _negative, _tilt_risk, _rough, _unknown, _mission, _risk, _variance]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
             unreachable!("a RiskMap holds Layer::ALL.len() layers")
         };
-        let depth = negative_depth;
-        for (c, cell) in self.cells.iter().enumerate() {
-            if cell.ground_n > 0 {
-                self.height[c] = cell.ground_sum / cell.ground_n as f32;
-            }
-            if cell.count > 0 {
-                observed[c] = 1.0;
-            }
+        let (depth, observed, height) = (&mut negative_depth[..n], &mut observed[..n], &mut self.height[..n]);
+        // Every cell: its own points' ground and observation, no depth (the polar queries
+        // below add to that). Selects, not branches: real scans mix empty, ground and
+        // obstacle cells unpredictably.
+        for (c, cell) in self.cells[..n].iter().enumerate() {
+            let mean = cell.ground_sum / cell.ground_n as f32;
+            height[c] = if cell.ground_n > 0 { mean } else { f32::NAN };
+            observed[c] = if cell.count > 0 { 1.0 } else { 0.0 };
+            depth[c] = 0.0;
         }
         if let Some(polar) = polar {
             let s = polar.sensor_level;
             // Cell centres relative to the sensor: x by column, y by row.
             self.xs.clear();
             self.xs.extend((0..g.nx).map(|ix| corner.x + (ix as f64 + 0.5) * res - s.x));
-            let (cells, height) = (&self.cells, &mut self.height);
+            let cells = &self.cells[..n];
             for iy in 0..g.ny {
                 let y = corner.y + (iy as f64 + 0.5) * res - s.y;
                 let row = iy * g.nx;
                 polar.segmenter.query_row(&self.xs, y, |ix, bin| {
                     let c = row + ix;
-                    if bin.covered {
-                        observed[c] = 1.0;
-                        if cells[c].ground_n == 0 {
-                            height[c] = (bin.ground_z + s.z) as f32;
-                        }
-                    }
-                    if bin.floor_bound_z.is_finite() {
-                        depth[c] = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
-                    }
+                    // Selects again: coverage and evidence vary cell by cell.
+                    observed[c] = if bin.covered { 1.0 } else { observed[c] };
+                    let line_height = (bin.ground_z + s.z) as f32;
+                    height[c] = if bin.covered && cells[c].ground_n == 0 { line_height } else { height[c] };
+                    let below = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
+                    depth[c] = if bin.floor_bound_z.is_finite() { below } else { depth[c] };
                 });
             }
         }
@@ -652,11 +658,11 @@ impl MapBuilder {
         else {
             unreachable!("a RiskMap holds Layer::ALL.len() layers")
         };
-        // The map starts all zeros: the circles are stamped straight into the layer.
+        mission_l.fill(0.0);
         for item in missions {
             stamp_mission(g, item, r.mission_margin_m, mission_l);
         }
-        let cells = &self.cells[..n];
+        let cells = &mut self.cells[..n];
         let height = &self.height[..n];
         // Re-sliced to `n` so that the loops index without bounds checks.
         let (count_l, ground_count, ground_height, min_height, max_height, age_l) =
@@ -698,7 +704,8 @@ impl MapBuilder {
             *v = variance(k as u32, 0.0);
         }
         for c in 0..n {
-            let cell = &cells[c];
+            // The last reader of the cell: it is left empty for the next map.
+            let cell = &std::mem::replace(&mut cells[c], CellAccumulator::EMPTY);
             let count = cell.count;
             let has = count > 0;
             let observed = observed_l[c] > 0.0;
@@ -709,11 +716,9 @@ impl MapBuilder {
             let rough = r.roughness_m.eval(residual[c] as f64);
             let unknown = if observed { 0.0 } else { r.unknown };
             let m = mission_l[c] as f64;
-            // The risk layers start all zeros (the mission layer holds its own value): a cell
-            // with every risk 0 (ramps give +0, never -0) keeps them, and its combined risk
-            // is 1 - 1 = 0.
+            // Same order as Layer::RISKS. A cell with every risk 0 (ramps give +0, never -0)
+            // gets +0 in each, and combined risk 1 - 1 = +0.
             if collision != 0.0 || step != 0.0 || negative != 0.0 || tilt != 0.0 || rough != 0.0 || unknown != 0.0 || m != 0.0 {
-                // Same order as Layer::RISKS.
                 collision_l[c] = collision as f32;
                 step_l[c] = step as f32;
                 negative_l[c] = negative as f32;
@@ -722,6 +727,10 @@ impl MapBuilder {
                 unknown_l[c] = unknown as f32;
                 let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
                 risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
+            } else {
+                for layer in [&mut collision_l[c], &mut step_l[c], &mut negative_l[c], &mut tilt_l[c], &mut rough_l[c], &mut unknown_l[c], &mut risk_l[c]] {
+                    *layer = 0.0;
+                }
             }
             variance_l[c] = if !observed {
                 var_unobserved
