@@ -673,7 +673,10 @@ impl MapBuilder {
             count_l[c] = count as f32;
             ground_count[c] = cell.ground_n as f32;
             ground_height[c] = height[c] + z0;
-            let has = count > 0;
+            // Whether the cell has points, as a float comparison (an empty cell's bounds are
+            // +inf and -inf, a non-empty one's finite): selects on it compile without a
+            // branch, which real scans, mixing empty and non-empty cells, mispredicted.
+            let has = cell.min_z <= cell.max_z;
             min_height[c] = if has { cell.min_z + z0 } else { f32::NAN };
             max_height[c] = if has { cell.max_z + z0 } else { f32::NAN };
             age_l[c] = if has { cell.min_age } else { f32::NAN };
@@ -707,7 +710,7 @@ impl MapBuilder {
             // The last reader of the cell: it is left empty for the next map.
             let cell = &std::mem::replace(&mut cells[c], CellAccumulator::EMPTY);
             let count = cell.count;
-            let has = count > 0;
+            let has = cell.min_z <= cell.max_z;
             let observed = observed_l[c] > 0.0;
             let collision = r.collision_points.eval(cell.collision_n as f64);
             let step = r.step_m.eval(step_height[c] as f64);
@@ -732,17 +735,15 @@ impl MapBuilder {
                     *layer = 0.0;
                 }
             }
-            variance_l[c] = if !observed {
-                var_unobserved
-            } else if !has {
-                // No points: count 1 and age 0.
-                var_fresh[1]
-            } else if cell.min_age == 0.0 && (count as usize) < var_fresh.len() {
+            // No points: count 0 (the same as 1) and age 0. Selects again, as `has` above.
+            let age = if has { cell.min_age } else { 0.0 };
+            let var = if age == 0.0 && (count as usize) < var_fresh.len() {
                 // Age ±0 adds exactly 0 (drift·age squared): the value of `count` alone.
                 var_fresh[count as usize]
             } else {
-                variance(count, cell.min_age as f64)
+                variance(count, age as f64)
             };
+            variance_l[c] = if observed { var } else { var_unobserved };
         }
     }
 }
