@@ -170,6 +170,9 @@ pub struct GroundSegmenter {
     point_bin: Vec<u32>,
     /// Per polar bin: the prototype (lowest point) and the steepest ray.
     acc: Vec<BinAccumulator>,
+    /// Per polar bin while binning: the smallest [`proto_key`] of its points (`u64::MAX`:
+    /// empty).
+    proto_key: Vec<u64>,
     /// Per polar bin: the index of its line in `bin_lines` (4 bytes a bin instead of a
     /// 32-byte line: the table is written every scan and read at random per point and per
     /// map cell, and this way it stays in cache).
@@ -198,6 +201,7 @@ impl GroundSegmenter {
             bins,
             point_bin: Vec::new(),
             acc: vec![BinAccumulator::EMPTY; polar],
+            proto_key: vec![u64::MAX; polar],
             // Before the first scan every bin has the line of `BinLine::NONE`.
             bin_line: vec![0; polar],
             bin_lines: vec![BinLine::NONE],
@@ -224,6 +228,9 @@ impl GroundSegmenter {
     pub fn segment(&mut self, points: &[[f32; 3]], sensor_height_m: f64, heights_out: &mut Vec<f32>) -> Result<()> {
         if !sensor_height_m.is_finite() {
             return Err(Error::input("sensor_height_m", format!("must be finite, got {sensor_height_m}")));
+        }
+        if u32::try_from(points.len()).is_err() {
+            return Err(Error::input("points", format!("has {} points; at most {}", points.len(), u32::MAX)));
         }
         self.sensor_height_m = sensor_height_m;
         self.bin_points(points);
@@ -312,17 +319,14 @@ impl GroundSegmenter {
         let sectors = c.sectors as usize;
         let sector_scale = c.sectors as f64 / std::f64::consts::TAU;
         let (max_r, bin_m) = (c.max_range_m, c.bin_m);
-        self.acc.fill(BinAccumulator::EMPTY);
         // Sized first and filled by a plain loop, so that everything the loop reads stays in
         // registers.
         self.point_bin.clear();
         self.point_bin.resize(points.len(), NO_BIN);
         let edges = &self.sector_edges[..];
         // Two passes: first each point's bin, then the prototypes. Interleaved, each point's
-        // read-modify-write of its bin waits on the long sqrt-divide chain that finds the bin,
-        // and a mispredicted "lower?" test (frequent on real scans) throws away the work of
-        // the points behind it; apart, the first pass is pure arithmetic and the second has
-        // its addresses at hand.
+        // read-modify-write of its bin waits on the long sqrt-divide chain that finds the bin;
+        // apart, the first pass is pure arithmetic and the second has its addresses at hand.
         // The previous point's sector: scans come ring by ring or column by column, so the
         // next point is usually in it or beside it.
         let mut last = usize::MAX;
@@ -341,29 +345,36 @@ impl GroundSegmenter {
             let k = ((r / bin_m) as i64 as usize).min(bins - 1);
             *bin = (s * bins + k) as u32;
         }
-        let acc = &mut self.acc[..];
-        for (&sb, p) in self.point_bin.iter().zip(points) {
+        // Each bin's lowest point as the smallest key: an integer `min`, without the branch
+        // that a "lower?" test compiles to (whether a point is its bin's lowest so far depends
+        // on the data, and real scans mispredicted it often).
+        let keys = &mut self.proto_key[..];
+        keys.fill(u64::MAX);
+        for (i, (&sb, p)) in self.point_bin.iter().zip(points).enumerate() {
             if sb == NO_BIN {
                 continue;
             }
-            // The same r as above. Selects, not a branch: whether a point is its bin's lowest
-            // so far depends on the data.
-            let (x, y) = (p[0] as f64, p[1] as f64);
-            let r = (x * x + y * y).sqrt();
-            let acc = &mut acc[sb as usize];
-            let lower = p[2] < acc.proto_z;
-            acc.proto_z = if lower { p[2] } else { acc.proto_z };
-            acc.proto_r = if lower { r } else { acc.proto_r };
+            let key = &mut keys[sb as usize];
+            *key = (*key).min(proto_key(p[2], i));
         }
-        // Per bin: the steepest ray to any point of a farther bin of the sector.
+        // Per bin: its prototype, and the steepest ray to any point of a farther bin of the
+        // sector.
         for s in 0..sectors {
             let row = &mut self.acc[s * bins..(s + 1) * bins];
             let mut farther = f32::INFINITY;
-            for bin in row.iter_mut().rev() {
-                bin.ray_slope = farther;
-                // An empty bin's own slope would be +inf: it leaves `farther` as it is.
-                if bin.proto_z.is_finite() && bin.proto_r > 0.0 {
-                    farther = farther.min((bin.proto_z as f64 / bin.proto_r) as f32);
+            for (bin, &key) in row.iter_mut().zip(&self.proto_key[s * bins..(s + 1) * bins]).rev() {
+                *bin = BinAccumulator { ray_slope: farther, ..BinAccumulator::EMPTY };
+                if key == u64::MAX {
+                    // An empty bin's own slope would be +inf: it leaves `farther` as it is.
+                    continue;
+                }
+                // The same r as in the first pass.
+                let p = points[key as u32 as usize];
+                let (x, y) = (p[0] as f64, p[1] as f64);
+                let r = (x * x + y * y).sqrt();
+                (bin.proto_r, bin.proto_z) = (r, p[2]);
+                if r > 0.0 {
+                    farther = farther.min((p[2] as f64 / r) as f32);
                 }
             }
         }
@@ -534,6 +545,17 @@ fn sector_beside(edges: &[(f64, f64)], near: usize, x: f64, y: f64) -> Option<us
     }
 }
 
+/// The key of point `index` (below 2^32) with height `z` (finite) among the points of a
+/// bin: the smallest key is the lowest point, the first in input order on a tie (`-0` and
+/// `+0` tie, as they compare equal).
+#[inline]
+fn proto_key(z: f32, index: usize) -> u64 {
+    // + 0.0 turns -0 into +0; then the bits, flipped to sort as the values do.
+    let bits = (z + 0.0).to_bits();
+    let ordered = bits ^ (((bits as i32) >> 31) as u32 | 0x8000_0000);
+    (ordered as u64) << 32 | index as u64
+}
+
 /// `close(seg)` of the module doc.
 fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut f64, lines: &mut Vec<GroundLine>) {
     if seg.len() < c.min_line_points as usize {
@@ -615,6 +637,19 @@ mod tests {
         let labels = segment_ground(&flat, &GroundConfig::default(), 0.6).unwrap();
         assert!(labels[..n_ground].iter().all(|&g| g));
         assert!(labels[n_ground..].iter().all(|&g| !g), "{:?}", &labels[n_ground..]);
+    }
+
+    #[test]
+    fn proto_keys_sort_as_lowest_then_first() {
+        let zs = [-3.5f32, -1e-30, -0.0, 0.0, 1e-30, 0.25, 7.0, f32::MAX, f32::MIN];
+        for (i, &a) in zs.iter().enumerate() {
+            for (j, &b) in zs.iter().enumerate() {
+                // Point 5 with z = a against point 9 with z = b: 5 wins iff a <= b.
+                assert_eq!(proto_key(a, 5) < proto_key(b, 9), a <= b, "{a} {b}");
+                assert_eq!(proto_key(a, i) == proto_key(b, j), a == b && i == j, "{a} {b}");
+            }
+        }
+        assert_eq!(proto_key(-2.0, 7) as u32, 7);
     }
 
     #[test]
