@@ -82,14 +82,18 @@
 //!    `w_s1·(σv_k + σo_k) + w_s2·(σv_k² + σo_k²)` with `σv_k` the excess of `v_k` over the
 //!    widened bounds recomputed along the rollout and `σo_k = max(0, margin - min over all
 //!    polygons of the exact distance)`. Steps `α = 1, ½, ¼, ...` (`line_search_steps` tries)
-//!    until `φ(ū + αδu) <= φ(ū) + 10⁻⁴·α·Δm` (`Δm < 0` the QP's predicted change) and
-//!    neither the largest speed excess nor the largest margin intrusion has grown by more
-//!    than 10⁻⁴ (a filter: a step that carries a predicted state into cells riskier than the
-//!    nominal saw, or closer to an obstacle than the rows promised, is refused whatever it
-//!    gains elsewhere, so a plan that starts safe stays safe); the first acceptable step
-//!    updates `ū`. The loop re-linearises (step
-//!    1 with the new `ū`) up to `sqp_iterations` times and stops early when the accepted
-//!    step is below `step_tolerance` in every input or no step is acceptable.
+//!    until `φ(ū + αδu) <= φ(ū) + 10⁻⁴·α·Δm` (`Δm < 0` the QP's predicted change) and the
+//!    violation `max(largest σv_k [m/s], largest σo_k [m])` has not grown by more than 10⁻⁴
+//!    (a filter: a step that carries a predicted state into cells riskier than the nominal
+//!    saw, or closer to an obstacle than the rows promised, is refused whatever it gains in
+//!    tracking, so a plan that starts within its limits stays within them; one violation may
+//!    shrink at the price of a smaller other); the first acceptable step updates `ū`. The
+//!    loop re-linearises (step 1 with the new `ū`) up to `sqp_iterations` QPs in all, and
+//!    stops early when the accepted step is below `step_tolerance` in every input or the QP
+//!    predicts no decrease. When no step is acceptable, the next QP starts from the same
+//!    nominal with each stage's speed bounds tightened to those along the refused full
+//!    step's rollout too (the step had carried states into cells riskier than the nominal
+//!    saw); when that one is refused as well, the loop stops.
 //! 6. **Check and backup.** On the final exact rollout, `c_k` = the smallest signed distance
 //!    from the footprint to any polygon. The plan is unsafe when some `c_k <
 //!    min(margin, c_0) - clearance_tolerance_m`: it would bring the robot closer to a lethal
@@ -132,8 +136,8 @@ const STAGE_VARS: usize = 7;
 /// The braking envelope of the speed bounds is widened by this [m/s], so that braking at
 /// exactly `a_max` is inside the feasible set rather than on its edge.
 const ENVELOPE_SLACK_M_S: f64 = 1e-3;
-/// A line-search step may not raise the largest speed-limit excess [m/s] or the largest
-/// intrusion into an obstacle margin [m] by more than this.
+/// A line-search step may not raise `max(largest speed-limit excess [m/s], largest intrusion
+/// into an obstacle margin [m])` by more than this.
 const FILTER_M: f64 = 1e-4;
 /// Right-hand side of an unused obstacle row, `-σo <= this` [m]: never binding.
 const UNUSED_ROW_RHS_M: f64 = 1e3;
@@ -358,8 +362,12 @@ impl MpcTracker {
         let mut status = MpcStatus::Solved;
         let mut sqp_iterations = 0;
         let mut qp_iterations = 0;
+        // Whether the QP is to be solved again from the same nominal with tightened bounds.
+        let mut tightened = false;
         for _ in 0..c.solver.sqp_iterations {
-            linearise(&c, ws, state, s0, desired, risk);
+            if !tightened {
+                linearise(&c, ws, state, s0, desired, risk);
+            }
             build_qp(&c, ws, previous_input);
             let (outcome, iterations) = self.solver.solve(&ws.qp, &mut ws.z);
             qp_iterations += iterations;
@@ -376,8 +384,13 @@ impl MpcTracker {
                 QpOutcome::Solved => {}
             }
             sqp_iterations += 1;
-            if !line_search(&c, ws, state, risk, previous_input) {
-                break;
+            match line_search(&c, ws, state, risk, previous_input) {
+                Step::Accepted { go_on: true } => tightened = false,
+                Step::Refused if !tightened => {
+                    tighten_speed_bounds(&c, ws, state, risk);
+                    tightened = true;
+                }
+                _ => break,
             }
         }
 
@@ -879,6 +892,13 @@ struct Merit {
     obstacle_intrusion_m: f64,
 }
 
+impl Merit {
+    /// The filter's measure: `max(speed excess [m/s], margin intrusion [m])`.
+    fn violation(&self) -> f64 {
+        self.speed_excess_m_s.max(self.obstacle_intrusion_m)
+    }
+}
+
 /// Cost of a trajectory with the current targets, slacks at their smallest for the
 /// trajectory's own speed bounds and clearances (module notes, step 5).
 fn merit(
@@ -917,9 +937,39 @@ fn merit(
     Merit { cost, speed_excess_m_s: speed, obstacle_intrusion_m: obstacle }
 }
 
+/// What the line search did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Step {
+    /// A step was taken; `go_on`: it was not below `step_tolerance`.
+    Accepted { go_on: bool },
+    /// Every trial step was refused.
+    Refused,
+    /// The QP predicts no decrease: the nominal is optimal for it.
+    Converged,
+}
+
+/// After a refused line search: each stage's speed bounds also hold along the full QP
+/// step's rollout (module notes, step 5), for a second QP from the same nominal.
+fn tighten_speed_bounds(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: Option<&RiskGrid<'_>>) {
+    ws.trial_u.clear();
+    for (k, u) in ws.u.iter().enumerate() {
+        ws.trial_u.push(UnicycleInput {
+            accel_m_s2: (u.accel_m_s2 + ws.z[iu(k, 0)]).clamp(-c.limits.max_accel_m_s2, c.limits.max_accel_m_s2),
+            yaw_rate_rad_s: (u.yaw_rate_rad_s + ws.z[iu(k, 1)]).clamp(-c.limits.max_yaw_rate_rad_s, c.limits.max_yaw_rate_rad_s),
+        });
+    }
+    rollout(state, &ws.trial_u, c.dt_s, &mut ws.trial_x);
+    for k in 1..=c.horizon {
+        let (hi, lo) = reachable_bounds(c, state.speed_m_s, k, speed_bounds(c, &ws.trial_x, k, risk));
+        let t = &mut ws.targets[k - 1];
+        t.speed_hi = t.speed_hi.min(hi);
+        t.speed_lo = t.speed_lo.max(lo);
+    }
+}
+
 /// Step 5 of the module notes. Updates `ws.u` (and `ws.x` to its rollout) when a step is
-/// accepted; returns whether the iterations should go on.
-fn line_search(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: Option<&RiskGrid<'_>>, previous_input: Option<UnicycleInput>) -> bool {
+/// accepted.
+fn line_search(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: Option<&RiskGrid<'_>>, previous_input: Option<UnicycleInput>) -> Step {
     let n = c.horizon;
     // Model change from δ = 0 (slacks at their smallest) to the QP's solution.
     let z = &ws.z;
@@ -949,7 +999,7 @@ fn line_search(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: O
     }
     let predicted = model - model_at_zero;
     if predicted > -MIN_PREDICTED_DECREASE {
-        return false;
+        return Step::Converged;
     }
     let merit0 = merit(c, &ws.targets, &ws.polygons, risk, &ws.x, &ws.u, previous_input);
     let mut alpha = 1.0;
@@ -968,16 +1018,15 @@ fn line_search(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: O
         rollout(state, &ws.trial_u, c.dt_s, &mut ws.trial_x);
         let trial = merit(c, &ws.targets, &ws.polygons, risk, &ws.trial_x, &ws.trial_u, previous_input);
         let decreases = trial.cost <= merit0.cost + ARMIJO * alpha * predicted;
-        let no_worse = trial.speed_excess_m_s <= merit0.speed_excess_m_s + FILTER_M
-            && trial.obstacle_intrusion_m <= merit0.obstacle_intrusion_m + FILTER_M;
+        let no_worse = trial.violation() <= merit0.violation() + FILTER_M;
         if decreases && no_worse {
             std::mem::swap(&mut ws.u, &mut ws.trial_u);
             std::mem::swap(&mut ws.x, &mut ws.trial_x);
-            return largest_step > c.solver.step_tolerance;
+            return Step::Accepted { go_on: largest_step > c.solver.step_tolerance };
         }
         alpha *= 0.5;
     }
-    false
+    Step::Refused
 }
 
 #[cfg(test)]

@@ -142,9 +142,9 @@ pub struct MpcObstacles {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MpcSolver {
-    /// Most QPs (re-linearisations) per solve. DESIGN §3: 1-3; subterra: 2 (the next solve
-    /// goes on from this one's plan; on the benchmark run a third QP moves the first input by
-    /// at most about 0.1 m/s² or rad/s and costs a quarter more time).
+    /// Most QPs (re-linearisations) per solve. DESIGN §3: 1-3; subterra: 2 (each solve goes
+    /// on from the previous plan, so the iterations continue across solves; docs/mpc.md has
+    /// what a third QP changes on the benchmark run, and costs).
     pub sqp_iterations: u32,
     /// Most trial step lengths `1, ½, ¼, ...` of the backtracking line search. subterra: 4.
     pub line_search_steps: u32,
