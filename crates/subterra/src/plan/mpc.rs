@@ -129,6 +129,8 @@ use reference::Reference;
 
 /// Spacing of the path samples whose sideways offsets are worked out [m].
 const PATH_SAMPLE_M: f64 = 0.1;
+/// A state's speed beyond this is a broken estimate, not a robot [m/s].
+const MAX_STATE_SPEED_M_S: f64 = 100.0;
 /// [`free_offsets`] steps this far past the end of a blocked interval [m] (rounding).
 const PUSH_TOLERANCE_M: f64 = 1e-6;
 /// QP variables per stage: `[a_k, ω_k, x, y, θ, v (of state k+1), σo_{k+1}]`.
@@ -323,6 +325,9 @@ impl MpcTracker {
         let c = self.config;
         if !state.is_finite() {
             return Err(Error::input("state", format!("must be 4 finite numbers [x, y, θ, v], got {:?}", state.to_array())));
+        }
+        if state.speed_m_s.abs() > MAX_STATE_SPEED_M_S {
+            return Err(Error::input("state", format!("speed {} m/s is beyond any ground robot (|v| <= {MAX_STATE_SPEED_M_S} m/s)", state.speed_m_s)));
         }
         let desired = desired_speed_m_s.unwrap_or(c.tracking.desired_speed_m_s);
         if !(desired.is_finite() && desired >= 0.0 && desired <= c.limits.max_speed_m_s) {
