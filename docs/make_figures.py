@@ -1,5 +1,5 @@
-"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py [terrain]`
-(with `terrain`, only the terrain figures)."""
+"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py [terrain|replay|plan]`
+(with `terrain`, `replay` or `plan`, only those figures)."""
 
 from __future__ import annotations
 
@@ -49,11 +49,96 @@ def terrain_figures() -> None:
     run.rmdir()
 
 
+def replay_figures() -> None:
+    """docs/replay.md: `subterra replay` on the real OS1-64 MCAP and on RealSense frames in a ROS 2 bag."""
+    import shutil
+    import tempfile
+
+    from subterra.io import list_depth_files, read_depth, read_intrinsics, ros
+    from subterra.io.recordings import write_bag
+    from subterra.replay import replay
+
+    data = Path(__file__).resolve().parents[2] / "shared" / "data"
+    if not data.is_dir():
+        print("../shared/data is absent: skipping the replay figures")
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        replay(data / "mcap-ouster-os1-64" / "test.mcap", Path(tmp) / "os1", cloud_topic="/os1_cloud_node/points",
+               sensor_height=0.8, progress=False)
+        shutil.copy(Path(tmp) / "os1" / "overview.png", FIGURES / "replay-os1-64.png")
+        folder = data / "realsense-d435-room"
+        intr = read_intrinsics(folder / "cam_params_realsense.json")
+        items = []
+        for i, f in enumerate(list_depth_files(folder / "depth")):
+            s = 1_700_000_000_000_000_000 + i * 33_333_333
+            items.append(("/camera/depth/camera_info", s, ros.camera_info_message(intr, stamp_ns=s, frame_id="camera_depth_optical_frame")))
+            items.append(("/camera/depth/image_rect_raw", s + 1,
+                          ros.image_message(read_depth(f).data, stamp_ns=s, frame_id="camera_depth_optical_frame")))
+        bag = write_bag(Path(tmp) / "realsense", items)
+        replay(bag, Path(tmp) / "rs", depth_topic="/camera/depth/image_rect_raw", info_topic="/camera/depth/camera_info",
+               progress=False, rerun=False)
+        shutil.copy(Path(tmp) / "rs" / "perception.png", FIGURES / "replay-realsense.png")
+def plan_figures() -> None:
+    """docs/planning.md: risk-aware A* on the simulated mine's coarse map and on a benchmark grid."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from subterra.bench.plan import random_risk_grid
+    from subterra.sim import Lidar, World
+    from subterra.sim.render import pose_matrix, start_pose
+    from subterra.terrain import translation
+
+    world = World.scenario("mine", 0)
+    position, yaw, _ = start_pose(world)
+    ground = world.ground_height(position[0], position[1]) or 0.0
+    world_from_body = pose_matrix(np.array([position[0], position[1], ground]), yaw)
+    body_from_sensor = translation(z=0.7)
+    points, _ = Lidar("os1_64").scan(world, world_from_body @ body_from_sensor)
+    risk_map = subterra.TerrainMapper().update(points, world_from_body=world_from_body, body_from_sensor=body_from_sensor)
+    planner = subterra.RiskAStar()
+    start = (float(position[0]), float(position[1]))
+    colours = {"found": "tab:blue", "budget_exceeded": "tab:orange"}
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2))
+    ax = axes[0]
+    ax.imshow(risk_map.to_image(), origin="lower", extent=risk_map.extent)
+    for a in np.radians(np.arange(0, 360, 45)):
+        goal = (start[0] + 8.0 * np.cos(yaw + a), start[1] + 8.0 * np.sin(yaw + a))
+        result = planner.plan(risk_map, start, goal)
+        if result.path_world.size:
+            ax.plot(*result.path_world.T, color=colours[result.status], lw=1.6)
+        ax.plot(*goal, marker="x" if result.status == "goal_blocked" else "o", color="k", ms=5)
+        if result.carrot is not None:
+            ax.plot(*result.carrot, marker="D", color="w", mec="k", ms=4)
+    ax.plot(*start, marker="+", color="k", ms=12, mew=2)
+    ax.set_title("mine (seed 0), one OS1-64 scan: paths to 8 goals 8 m away\n"
+                 "blue found, orange over the risk budget 0.5, x goal blocked, diamond carrot (1 m)", fontsize=9)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    n = 200
+    risk = random_risk_grid(n, 0)
+    ax = axes[1]
+    image = ax.imshow(risk, origin="lower", extent=(0, n * 0.1, 0, n * 0.1), cmap="magma_r", vmin=0, vmax=1)
+    result = subterra.RiskAStar(r_total=1.0).plan_cells(risk, (0, 0), (n - 1, n - 1), resolution=0.1)
+    ax.plot(*result.path_world.T, color="tab:cyan", lw=1.8)
+    ax.set_title(f"benchmark grid 200x200 (seed 0): cost {result.cost:.3f}, {result.length_m:.1f} m,\n"
+                 f"accumulated risk {result.accumulated_risk:.3f}, {result.expanded} cells expanded", fontsize=9)
+    ax.set_xlabel("x [m]")
+    fig.colorbar(image, ax=ax, fraction=0.046, label="risk per metre")
+    fig.tight_layout()
+    fig.savefig(FIGURES / "plan-astar.png", dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
     FIGURES.mkdir(exist_ok=True)
-    terrain_figures()
-    if sys.argv[1:] == ["terrain"]:
+    only = {"terrain": terrain_figures, "replay": replay_figures, "plan": plan_figures}
+    if sys.argv[1:2] and sys.argv[1] in only:
+        only[sys.argv[1]]()
         return
+    for make in only.values():
+        make()
     camera = subterra.PinholeCamera.d435()
     depth, truth = approaching_box_frames(camera, frames=40, seed=0)
     _, records = run_perception(((str(n), d, None) for n, d in enumerate(depth)), camera, progress=False)

@@ -16,9 +16,13 @@ z forward), metres, seconds, radians. Every error is a :class:`subterra.errors.S
 Terrain risk for ground robots (DESIGN §2, :mod:`subterra.terrain`): ``TerrainMapper``
 turns lidar scans into a multi-layer ``RiskMap``; ``segment_ground`` labels ground points.
 
+Planning (DESIGN §3, ``docs/planning.md``): ``RiskAStar`` finds the least-risk path on a
+``RiskMap`` or any risk array and returns a ``PlanResult``; ``Navigator`` wires the terrain
+mapper, the planner, the MPC tracker and the recovery behaviours for a robot's own loop.
+
 Path tracking (DESIGN §3): ``MpcTracker`` follows a reference path with a kinodynamic MPC
 (risk-limited speed, obstacle half-planes, a backup stop); ``solve`` returns an
-``MpcResult`` with the command ``(v, ω)`` to send. See ``docs/mpc.md``.
+``MpcResult`` with the command ``(v, ω)`` to send (the QP: ``plan/mpc.rs`` module docs).
 """
 
 from __future__ import annotations
@@ -34,9 +38,13 @@ from subterra._core import (
     MostProbableVoxel,
     MpcResult,
     MpcTracker,
+    Navigator,
+    NavigatorOutput,
     PerceptionConfig,
     PerceptionOutput,
     PinholeCamera,
+    PlanResult,
+    RiskAStar,
     RiskMap,
     RobotConfig,
     TerrainConfig,
@@ -53,9 +61,13 @@ __all__ = [
     "MostProbableVoxel",
     "MpcResult",
     "MpcTracker",
+    "Navigator",
+    "NavigatorOutput",
     "PerceptionConfig",
     "PerceptionOutput",
     "PinholeCamera",
+    "PlanResult",
+    "RiskAStar",
     "RiskMap",
     "RobotConfig",
     "TerrainConfig",

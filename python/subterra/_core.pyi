@@ -253,6 +253,112 @@ def segment_ground(
     points: npt.ArrayLike, *, sensor_height: float, config: TerrainConfig | dict[str, Any] | None = None
 ) -> npt.NDArray[np.bool_]: ...
 
+class RiskAStar:
+    """Risk-aware A* on an 8-connected grid (DESIGN §3; docs/planning.md).
+
+    Cell cost ``c = lam - ln(1 - r)`` [1/m] (NaN risk -> ``unknown_risk``); a move between
+    neighbours ``d`` metres apart costs ``d * (c(a) + c(b)) / 2``; cells with ``r >= r_inst``
+    are untraversable; without ``allow_corner_cutting`` a diagonal move needs both cells at its
+    corner traversable. The least-cost path is returned; if its accumulated risk
+    ``1 - exp(-sum d * (rho(a) + rho(b)) / 2)`` (``rho = -ln(1 - r)``) exceeds ``r_total`` the
+    status is ``"budget_exceeded"``. Defaults: ``lam=0.1``, ``r_inst=0.8``, ``r_total=0.5``,
+    ``carrot_m=1.0``, ``unknown_risk=0.15``, ``allow_corner_cutting=False``
+    (``configs/astar.toml``). ``cost_model="additive"`` is the conventional baseline:
+    ``c = 1 + additive_weight * r`` (default 2.0, Nav2 Smac's ``cost_penalty``), cells with
+    ``r >= r_inst`` blocked, no budget (always ``"found"`` when reachable). Bad values raise
+    :class:`subterra.errors.ConfigError`.
+    """
+
+    def __init__(
+        self,
+        *,
+        lam: float = 0.1,
+        r_inst: float = 0.8,
+        r_total: float = 0.5,
+        carrot_m: float = 1.0,
+        unknown_risk: float = 0.15,
+        allow_corner_cutting: bool = False,
+        cost_model: Literal["risk", "additive"] = "risk",
+        additive_weight: float = 2.0,
+    ) -> None: ...
+    def plan(
+        self,
+        risk: RiskMap | npt.ArrayLike,
+        start: Sequence[float] | npt.ArrayLike,
+        goal: Sequence[float] | npt.ArrayLike,
+        *,
+        resolution: float | None = None,
+        origin: Sequence[float] | None = None,
+    ) -> PlanResult:
+        """Plans from the world position ``start`` (x, y) [m] to ``goal``.
+
+        ``risk`` is a :class:`RiskMap` (its ``risk`` layer and geometry) or a 2-D float array
+        ``(ny, nx)`` of per-metre risks (row iy along world y; converted to float32; NaN =
+        unknown) with ``resolution`` [m/cell] (required) and ``origin`` (x, y) of cell (0, 0)'s
+        lower-left corner [m] (default (0, 0)). Bad input raises
+        :class:`subterra.errors.InputError` naming the argument. Releases the GIL.
+        """
+    def plan_cells(
+        self,
+        risk: RiskMap | npt.ArrayLike,
+        start_cell: Sequence[int],
+        goal_cell: Sequence[int],
+        *,
+        resolution: float | None = None,
+        origin: Sequence[float] | None = None,
+    ) -> PlanResult:
+        """Like :meth:`plan` with the start and goal as cells ``(ix, iy)`` (``risk[iy, ix]``)."""
+    @property
+    def lam(self) -> float: ...
+    @property
+    def r_inst(self) -> float: ...
+    @property
+    def r_total(self) -> float: ...
+    @property
+    def carrot_m(self) -> float: ...
+    @property
+    def unknown_risk(self) -> float: ...
+    @property
+    def allow_corner_cutting(self) -> bool: ...
+
+class PlanResult:
+    """The outcome of :meth:`RiskAStar.plan`. Path fields are None / empty without a path."""
+
+    @property
+    def status(self) -> Literal["found", "start_blocked", "goal_blocked", "no_path", "budget_exceeded"]:
+        """``found``; ``start_blocked`` / ``goal_blocked`` (that cell has ``r >= r_inst``);
+        ``no_path`` (no traversable path joins them); ``budget_exceeded`` (the least-cost path's
+        accumulated risk exceeds ``r_total``; the path fields hold that rejected path)."""
+    @property
+    def found(self) -> bool: ...
+    @property
+    def path_world(self) -> npt.NDArray[np.float64]:
+        """Cell centres of the path, start first, (N, 2) [m]; (0, 2) without a path."""
+    @property
+    def path_cells(self) -> npt.NDArray[np.int64]:
+        """Cells ``(ix, iy)`` of the path, (N, 2); index a risk array as ``risk[iy, ix]``."""
+    @property
+    def accumulated_risk(self) -> float | None: ...
+    @property
+    def risk_integral(self) -> float | None: ...
+    @property
+    def length_m(self) -> float | None: ...
+    @property
+    def cost(self) -> float | None: ...
+    @property
+    def expanded(self) -> int: ...
+    @property
+    def carrot(self) -> tuple[float, float] | None:
+        """The point ``carrot_m`` of path length ahead of the start along the path [m]; the
+        goal's centre if the path is shorter; None unless ``found``."""
+    @property
+    def start_cell(self) -> tuple[int, int]: ...
+    @property
+    def goal_cell(self) -> tuple[int, int]: ...
+    @property
+    def time_s(self) -> float:
+        """Seconds the core spent searching and tracing the path."""
+
 class MpcResult:
     """What one ``MpcTracker.solve`` gives (slacks, clearance and limits describe ``predicted``)."""
 
@@ -303,7 +409,7 @@ class MpcResult:
         """The lethal polygons considered, each ``(K, 2)`` counter-clockwise [m] (for plotting)."""
 
 class MpcTracker:
-    """Kinodynamic MPC path tracker of a ground robot (DESIGN §3, docs/mpc.md).
+    """Kinodynamic MPC path tracker of a ground robot (DESIGN §3; the QP is written out in the module docs of crates/subterra/src/plan/mpc.rs).
 
     ``config``: None (the ``configs/mpc.toml`` defaults), a partial nested dict laid over them
     (``{"limits": {"max_speed_m_s": 0.5}}``), or a TOML path. Keeps its last plan to

@@ -52,11 +52,12 @@ def _parser() -> argparse.ArgumentParser:
     per.add_argument("--out", default="runs/perceive", help="output folder (default runs/perceive)")
 
     bench = sub.add_parser("bench", help="benchmarks against the NumPy reference")
-    bench.add_argument("what", choices=["perception", "sim", "terrain"])
+    bench.add_argument("what", choices=["perception", "plan", "replay", "sim", "terrain"])
     bench.add_argument("--frames", type=int, default=300)
     bench.add_argument("--reference-frames", type=int, default=30)
-    bench.add_argument("--repeats", type=int, default=20, help="terrain: timed map updates (default 20)")
+    bench.add_argument("--repeats", type=int, default=20, help="terrain: timed map updates; plan: timed plans per case (default 20)")
     bench.add_argument("--mode", choices=["particle", "histogram"], default="particle")
+    bench.add_argument("--messages", type=int, default=20, help="replay: clouds and images per recording (default 20)")
     bench.add_argument("--seed", type=int, default=0)
     bench.add_argument("--out", help="write the JSON report here too")
 
@@ -100,6 +101,10 @@ def _parser() -> argparse.ArgumentParser:
 
     register_terrain(sub)
 
+    from subterra.replay import register_cli as register_replay
+
+    register_replay(sub)
+
     demo = sub.add_parser("demo", help="the main job: simulated flights, the cable test and a small batch, with a report")
     demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
     demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")
@@ -131,6 +136,14 @@ def _bench(args: argparse.Namespace) -> int:
         from subterra.bench.sim import bench_sim
 
         report = bench_sim(seed=args.seed)
+    elif args.what == "replay":
+        from subterra.bench.replay import bench_replay
+
+        report = bench_replay(messages=args.messages, seed=args.seed)
+    elif args.what == "plan":
+        from subterra.bench.plan import bench_plan
+
+        report = bench_plan(repeats=args.repeats, seed=args.seed)
     elif args.what == "terrain":
         from subterra.bench.terrain import bench_terrain
 

@@ -72,3 +72,4 @@ def test_cli_examples_run(tmp_path):
     assert (tmp_path / "fly-cd" / "metrics.json").is_file() and (tmp_path / "fly-cd" / "depth-trace.png").is_file()
     assert (tmp_path / "cable" / "cable-test.json").is_file()
     assert (tmp_path / "terrain" / "summary.json").is_file() and (tmp_path / "terrain" / "risk.png").is_file()
+    assert (tmp_path / "replay-os1" / "replay.mcap").is_file() and (tmp_path / "replay-os1" / "overview.png").is_file()

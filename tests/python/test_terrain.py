@@ -478,3 +478,18 @@ def test_ouster_scans_fuse_without_smearing(ouster):
     assert recall >= 0.9
     assert precision >= 0.9
     assert precision > precision_smeared
+
+
+def test_sensor_height_indoors_is_the_lowest_dense_layer():
+    # Regression (OS1-64 lab recording): a room whose walls fill every z bin above a sparse
+    # floor put the histogram mode on a wall, 0.37 m *above* the sensor.
+    rng = np.random.default_rng(4)
+    angle = rng.uniform(0, 2 * np.pi, 40_000)
+    walls = np.c_[6 * np.cos(angle), 6 * np.sin(angle), rng.uniform(-0.3, 2.0, angle.size)]
+    walls[: angle.size // 4, 2] = rng.normal(0.35, 0.02, angle.size // 4)  # a dense shelf at +0.35 m
+    r = rng.uniform(3.0, 5.9, 1_500)
+    phi = rng.uniform(0, 2 * np.pi, r.size)
+    floor = np.c_[r * np.cos(phi), r * np.sin(phi), rng.normal(-0.8, 0.01, r.size)]
+    stray = np.c_[rng.uniform(3, 5, (3, 2)), [-1.6, -1.7, -1.9]]  # a few low outliers do not count
+    points = np.vstack([walls, floor, stray]).astype(np.float32)
+    assert estimate_sensor_height(points) == pytest.approx(0.8, abs=0.03)

@@ -4,6 +4,8 @@
 
 mod convert;
 mod errors;
+mod plan_astar;
+mod plan_nav;
 mod plan_mpc;
 mod sim;
 mod terrain;
@@ -565,6 +567,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(preset_names, m)?)?;
     sim::register(m)?;
     terrain::register(m)?;
+    plan_astar::register(m)?;
+    plan_nav::register(m)?;
     plan_mpc::register(m)?;
     Ok(())
 }

@@ -8,31 +8,13 @@ use glam::DVec2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
-use serde_json::Value;
 use subterra::plan::mpc::{ConvexPolygon, MpcConfig, MpcOutput, MpcTracker, RiskGrid, UnicycleState};
 
 use crate::convert::type_name;
 use crate::errors::{config_error, input_error, raise, IntoPyResult};
-use crate::terrain::PyRiskMap;
+use crate::terrain::{merged, PyRiskMap};
 
 // ---------------------------------------------------------------- config
-
-/// Overlays `patch` on `base`: objects merge key by key (recursively), anything else replaces.
-fn merge(base: &mut Value, patch: Value) {
-    match (base, patch) {
-        (Value::Object(b), Value::Object(p)) => {
-            for (k, v) in p {
-                match b.get_mut(&k) {
-                    Some(slot) => merge(slot, v),
-                    None => {
-                        b.insert(k, v);
-                    }
-                }
-            }
-        }
-        (slot, v) => *slot = v,
-    }
-}
 
 /// A `ConfigError` naming the first non-finite number in the nested dict `d` (JSON has no
 /// NaN, so the parser alone could only say where in the text it stopped).
@@ -55,14 +37,7 @@ fn check_finite(py: Python<'_>, prefix: &str, d: &Bound<'_, PyAny>) -> PyResult<
 /// keys are a `ConfigError` naming them.
 fn config_from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<MpcConfig> {
     check_finite(py, "", d)?;
-    let text: String = py
-        .import("json")?
-        .call_method1("dumps", (d,))
-        .map_err(|e| config_error(py, format!("argument `config` cannot be serialised to JSON: {e}")))?
-        .extract()?;
-    let patch: Value = serde_json::from_str(&text).map_err(|e| config_error(py, format!("argument `config` could not be parsed: {e}")))?;
-    let mut base = serde_json::to_value(MpcConfig::default()).map_err(|e| config_error(py, e.to_string()))?;
-    merge(&mut base, patch);
+    let base = merged(py, "config", serde_json::to_value(MpcConfig::default()), d)?;
     let config: MpcConfig =
         serde_json::from_value(base).map_err(|e| config_error(py, format!("argument `config`: config could not be parsed: {e}")))?;
     config.validate().py_err(py)?;

@@ -56,7 +56,7 @@ fn merge(base: &mut Value, patch: Value) {
 
 /// `base` (a config as JSON) with the (partial, nested) dict `d` laid over it; the caller
 /// deserialises the result, so unknown keys are a `ConfigError` naming them.
-fn merged(py: Python<'_>, argument: &str, base: serde_json::Result<Value>, d: &Bound<'_, PyAny>) -> PyResult<Value> {
+pub(crate) fn merged(py: Python<'_>, argument: &str, base: serde_json::Result<Value>, d: &Bound<'_, PyAny>) -> PyResult<Value> {
     let mut base = base.map_err(|e| config_error(py, e.to_string()))?;
     let patch = to_json_value(py, argument, d)?;
     if !patch.is_object() {
@@ -66,12 +66,12 @@ fn merged(py: Python<'_>, argument: &str, base: serde_json::Result<Value>, d: &B
     Ok(base)
 }
 
-fn parse_error(py: Python<'_>, argument: &str, e: serde_json::Error) -> PyErr {
+pub(crate) fn parse_error(py: Python<'_>, argument: &str, e: serde_json::Error) -> PyErr {
     config_error(py, format!("argument `{argument}`: config could not be parsed: {e}"))
 }
 
 /// A config as a Python dict (through JSON).
-fn to_py_dict<'py>(py: Python<'py>, json: serde_json::Result<String>) -> PyResult<Bound<'py, PyAny>> {
+pub(crate) fn to_py_dict<'py>(py: Python<'py>, json: serde_json::Result<String>) -> PyResult<Bound<'py, PyAny>> {
     let text = json.map_err(|e| config_error(py, e.to_string()))?;
     py.import("json")?.call_method1("loads", (text,))
 }
@@ -97,6 +97,13 @@ fn read_config_file(py: Python<'_>, path: &str) -> PyResult<TerrainConfig> {
 #[derive(Clone, PartialEq)]
 pub struct PyRobotConfig {
     inner: RobotConfig,
+}
+
+impl PyRobotConfig {
+    /// A Python config around a core one.
+    pub(crate) fn from_core(inner: RobotConfig) -> Self {
+        Self { inner }
+    }
 }
 
 #[pymethods]
@@ -192,7 +199,7 @@ impl PyTerrainConfig {
     }
 }
 
-fn resolve_robot(py: Python<'_>, robot: Option<&Bound<'_, PyAny>>) -> PyResult<RobotConfig> {
+pub(crate) fn resolve_robot(py: Python<'_>, robot: Option<&Bound<'_, PyAny>>) -> PyResult<RobotConfig> {
     let Some(robot) = robot else { return Ok(RobotConfig::husky()) };
     if let Ok(r) = robot.cast::<PyRobotConfig>() {
         return Ok(r.get().inner);
@@ -203,7 +210,7 @@ fn resolve_robot(py: Python<'_>, robot: Option<&Bound<'_, PyAny>>) -> PyResult<R
     Err(config_error(py, format!("argument `robot` must be None, a dict or a RobotConfig, got {}", type_name(robot))))
 }
 
-fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<TerrainConfig> {
+pub(crate) fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<TerrainConfig> {
     let Some(config) = config else { return Ok(TerrainConfig::default()) };
     if let Ok(c) = config.cast::<PyTerrainConfig>() {
         return Ok(c.get().inner);
@@ -222,7 +229,7 @@ fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult
 /// Calls `f` with the row-major coordinates of an `(N, 3)` numeric array (N >= 1). `float32`
 /// C-ordered arrays are borrowed; other numeric dtypes are converted and non-contiguous
 /// arrays copied.
-fn with_points<T>(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, f: impl FnOnce(&[f32]) -> T) -> PyResult<T> {
+pub(crate) fn with_points<T>(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, f: impl FnOnce(&[f32]) -> T) -> PyResult<T> {
     let converted;
     let array = match value.cast::<PyArray2<f32>>() {
         Ok(a) => a.clone(),
@@ -278,6 +285,16 @@ pub struct PyRiskMap {
 }
 
 impl PyRiskMap {
+    /// The core map (the planner bindings read its `risk` layer in place).
+    /// A Python map around a core map.
+    pub(crate) fn from_core(inner: RiskMap, kind: &'static str, stats: TerrainStats, timings: TerrainTimings) -> Self {
+        Self { inner, kind, stats, timings }
+    }
+
+    pub(crate) fn map(&self) -> &RiskMap {
+        &self.inner
+    }
+
     fn dims(&self) -> [usize; 2] {
         let g = self.inner.geometry();
         [g.ny, g.nx]

@@ -6,7 +6,7 @@
 //!   (Ahmad, Sunberg, Humbert, ACC 2021), and [`apf`], the potential fields it weights.
 //! - [`terrain`]: multi-layer terrain risk maps from lidar scans for a ground robot
 //!   (DESIGN §2).
-//! - [`plan`]: tracking a path on a risk map with a kinodynamic MPC (DESIGN §3).
+//! - [`plan`]: planning and control for the ground robot (DESIGN §3).
 //! - [`camera`], [`frames`], [`config`]: the shared vocabulary.
 //!
 //! No I/O, no printing, no global state: every stage takes arrays and returns values,

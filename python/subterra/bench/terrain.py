@@ -3,7 +3,8 @@
 In one process and on one scan: a 100k-point scan -> the full risk map (coarse 200x200
 with all layers, plus the fine map), a fused window of ``scans`` scans, Rust's
 ``segment_ground`` alone, and the NumPy reference (:mod:`subterra.bench.reference.terrain`)
-of the same segmentation and of the basic coarse layers, with the speed-up ratios.
+of the same segmentation and of the whole coarse map of that scan (all 21 layers), with
+the speed-up ratios and how closely the reference's map agrees with Rust's.
 
 The scan is the real Ouster OS1-128 scan from ``../shared/data/ouster-os1-128-outdoor``
 when present (cropped or repeated to ``points``), else a seeded synthetic OS1-128-like
@@ -133,8 +134,11 @@ def bench_terrain(
     * ``fused_window``: ``scans`` scans at 10 Hz along a straight drive, all fused
       (confidence 1); the time of the last update.
     * ``segment_ground``: Rust's segmentation alone, and the NumPy reference's.
-    * ``numpy_reference``: the reference segmentation and the reference coarse layers
-      (count, min/max/ground height, collision) of the same scan; speed-ups against Rust.
+    * ``numpy_reference``: the reference segmentation and the reference coarse map (all
+      21 layers, from the scan; ``coarse_map_covers`` lists them) of the same scan;
+      speed-ups against Rust's whole update and against its coarse path (prefilter +
+      segmentation + coarse map stages); how many layers are bit-identical to Rust's and,
+      for the others, in how many cells and by how much they differ.
     """
     os.environ.setdefault("RAYON_NUM_THREADS", "1")
     import subterra
@@ -199,31 +203,48 @@ def bench_terrain(
         if i:
             seg_wall.append(time.perf_counter() - t0)
 
-    # 4. The NumPy reference of the same work.
+    # 4. The NumPy reference of the same work: the segmentation, and the whole coarse map.
     ref: dict[str, Any] | None = None
     if reference_repeats:
         cfg = reference.default_config()
-        ref_seg, ref_layers = [], []
+        ref_seg, ref_map = [], []
         for _ in range(reference_repeats):
             t0 = time.perf_counter()
             ref_labels = reference.segment_ground(level, sensor_height=sensor_height, config=cfg)
             ref_seg.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
-            layers = reference.coarse_layers(scan, sensor_height=sensor_height, config=cfg)
-            ref_layers.append(time.perf_counter() - t0)
+            coarse = reference.coarse_map(scan, sensor_height=sensor_height, config=cfg)
+            ref_map.append(time.perf_counter() - t0)
         agree = float((ref_labels == labels).mean())
-        collision_agree = float((layers["collision"] == risk_map.layer("collision")).mean())
-        seg_s, lay_s = _summary(ref_seg), _summary(ref_layers)
+        collision_agree = float((coarse.layer("collision") == risk_map.layer("collision")).mean())
+        differing: dict[str, dict[str, Any]] = {}
+        for name in reference.LAYER_NAMES:
+            a, b = risk_map.layer(name), coarse.layer(name)
+            same = (a == b) | (np.isnan(a) & np.isnan(b))
+            if not same.all():
+                both = np.isfinite(a) & np.isfinite(b)
+                diff = np.abs(a[both].astype(np.float64) - b[both])
+                differing[name] = {
+                    "cells": int((~same).sum()),
+                    "nan_mismatch_cells": int((np.isnan(a) != np.isnan(b)).sum()),
+                    "max_abs_diff": float(diff.max()) if diff.size else 0.0,
+                }
+        seg_s, map_s = _summary(ref_seg), _summary(ref_map)
+        coarse_path_ms = sum(float(np.median(stages[k]) * 1e3) for k in ("prefilter_s", "segment_s", "coarse_s"))
         ref = {
             "runs": reference_repeats,
             "segment_ground": seg_s,
-            "coarse_layers": lay_s,
-            "coarse_layers_covers": ["count", "ground_count", "min_height", "max_height", "ground_height (ground cells)", "collision"],
+            "coarse_map": map_s,
+            "coarse_map_covers": list(reference.LAYER_NAMES) + ["cvar (RiskMap.cvar)"],
             "label_agreement": agree,
             "collision_layer_agreement": collision_agree,
+            "bit_identical_layers": len(reference.LAYER_NAMES) - len(differing),
+            "differing_layers": differing,
             "speedup_segment_ground_median": seg_s["median_ms"] / _summary(seg_wall)["median_ms"],
-            # The reference's layers include its own segmentation: compare with the whole Rust update.
-            "speedup_full_update_vs_reference_layers_median": lay_s["median_ms"] / _summary(wall)["median_ms"],
+            # The reference's map includes its own prefilter and segmentation: compare with the
+            # whole Rust update (which also makes the fine map) and with its coarse path alone.
+            "speedup_full_update_vs_reference_map_median": map_s["median_ms"] / _summary(wall)["median_ms"],
+            "speedup_coarse_path_vs_reference_map_median": map_s["median_ms"] / coarse_path_ms,
         }
 
     return {

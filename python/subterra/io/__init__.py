@@ -17,7 +17,15 @@
   and the times for TUM), and :func:`read_poses` (the poses alone); every pose is
   checked to be rigid.
 
-This package needs only NumPy, Pillow and PyYAML, not the compiled core. Every error is
+* :mod:`subterra.io.recordings`: :func:`open_recording` (ROS 1 ``.bag``, ROS 2 bags with
+  sqlite3 or MCAP storage, plain MCAP with ROS 1 or ROS 2 encoding) returning a
+  :class:`Recording` (topics, messages in log-time order); :class:`McapWriter` (ROS 2
+  MCAP) and :func:`write_bag`.
+* :mod:`subterra.io.ros`: ROS messages <-> NumPy: ``Image``, ``CameraInfo``,
+  ``PointCloud2`` (any layout), ``Odometry``, ``tf`` (:class:`TransformBuffer`).
+
+This package needs NumPy, Pillow and PyYAML (and ``rosbags`` / ``mcap`` for recordings,
+imported when used), not the compiled core. Every error is
 a :class:`subterra.errors.SubterraError`; a bad file raises
 :class:`subterra.errors.FileFormatError` whose message ends with the path.
 """
@@ -47,6 +55,18 @@ from .intrinsics import (
     intrinsics_from_dict,
     read_intrinsics,
 )
+from .recordings import McapWriter, RecordedMessage, Recording, TopicInfo, open_recording, write_bag
+from .ros import (
+    CloudMessage,
+    OdometrySample,
+    TransformBuffer,
+    decode_camera_info,
+    decode_depth_image,
+    decode_image,
+    decode_odometry,
+    decode_pointcloud2,
+    decode_transforms,
+)
 from .poses import (
     DEFAULT_ROTATION_TOLERANCE,
     POSE_FORMATS,
@@ -64,8 +84,23 @@ __all__ = [
     "INTRINSICS_EXTENSIONS",
     "KNOWN_CAMERAS",
     "POSE_FORMATS",
+    "CloudMessage",
     "DepthImage",
     "Intrinsics",
+    "McapWriter",
+    "OdometrySample",
+    "RecordedMessage",
+    "Recording",
+    "TopicInfo",
+    "TransformBuffer",
+    "decode_camera_info",
+    "decode_depth_image",
+    "decode_image",
+    "decode_odometry",
+    "decode_pointcloud2",
+    "decode_transforms",
+    "open_recording",
+    "write_bag",
     "PointCloud",
     "Trajectory",
     "intrinsics_from_dict",

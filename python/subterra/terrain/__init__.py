@@ -59,6 +59,10 @@ DEFAULT_CONFIG_PATH = Path(__file__).resolve().parents[3] / "configs" / "terrain
 #: :func:`estimate_sensor_height`: past the robot's own shadow, before the returns thin out.
 SENSOR_HEIGHT_RING_M = (3.0, 15.0)
 #: Height-histogram bin of :func:`estimate_sensor_height` [m].
+#: A bin is part of a dense layer with at least this fraction of the fullest bin's points.
+SENSOR_HEIGHT_DENSE_FRACTION = 0.05
+#: ... and at least this many points.
+SENSOR_HEIGHT_MIN_POINTS = 10
 SENSOR_HEIGHT_BIN_M = 0.05
 
 
@@ -82,10 +86,14 @@ def translation(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> np.ndarray:
 def estimate_sensor_height(points: np.ndarray, *, ring_m: tuple[float, float] = SENSOR_HEIGHT_RING_M) -> float:
     """Height of a roughly level sensor above the ground around it [m].
 
-    The mode of the points' z in ``ring_m`` (horizontal range, sensor-centred) over
-    :data:`SENSOR_HEIGHT_BIN_M` bins, refined to the mean z within one bin of it; returns
-    ``-z``. Good on a level robot on open ground (most returns of the ring are ground);
-    give the mounting height instead when it is known.
+    The points' z in ``ring_m`` (horizontal range, sensor-centred) are binned in
+    :data:`SENSOR_HEIGHT_BIN_M` bins. The ground is the fullest bin (on open ground most
+    returns of the ring are ground), refined to the mean z within one bin of it; returns
+    ``-z``. If that puts the sensor at or below the ground (indoors, where walls and
+    furniture fill the bins above the floor), the ground is instead the **lowest dense
+    layer**: the lowest bin holding at least :data:`SENSOR_HEIGHT_DENSE_FRACTION` of the
+    fullest bin's count and at least :data:`SENSOR_HEIGHT_MIN_POINTS` points. Give the
+    mounting height instead when it is known.
 
     Raises :class:`~subterra.errors.InputError` if no point lies in the ring.
     """
@@ -99,9 +107,17 @@ def estimate_sensor_height(points: np.ndarray, *, ring_m: tuple[float, float] = 
         raise InputError(f"argument `points` has no finite point {ring_m[0]}-{ring_m[1]} m from the sensor to find the ground in")
     lo = np.floor(z.min() / SENSOR_HEIGHT_BIN_M) * SENSOR_HEIGHT_BIN_M
     counts, edges = np.histogram(z, bins=np.arange(lo, z.max() + 2 * SENSOR_HEIGHT_BIN_M, SENSOR_HEIGHT_BIN_M))
-    mode = 0.5 * (edges[np.argmax(counts)] + edges[np.argmax(counts) + 1])
-    near = z[np.abs(z - mode) <= SENSOR_HEIGHT_BIN_M]
-    return float(-near.mean())
+
+    def refined(k: int) -> float:
+        centre = 0.5 * (edges[k] + edges[k + 1])
+        return float(-z[np.abs(z - centre) <= SENSOR_HEIGHT_BIN_M].mean())
+
+    height = refined(int(np.argmax(counts)))
+    if height <= 0.0:
+        dense = np.flatnonzero(counts >= max(SENSOR_HEIGHT_DENSE_FRACTION * counts.max(), SENSOR_HEIGHT_MIN_POINTS))
+        if dense.size:
+            height = refined(int(dense[0]))
+    return height
 
 
 def lethal_cells(risk_map: RiskMap) -> dict[str, int]:

@@ -370,6 +370,50 @@ class RerunRecorder:
             rec.log("perception/p_free", rr.Scalars(p_free))
 
 
+    def log_drive_step(
+        self,
+        time_s: float,
+        *,
+        position: np.ndarray | None = None,
+        command: tuple[float, float] | np.ndarray | None = None,
+        path: np.ndarray | None = None,
+        risk_map: Any = None,
+        z_m: float = 0.05,
+    ) -> None:
+        """Logs one step of a ground-robot drive at sim time ``time_s`` [s]: ``position``
+        (3,) [m, world], ``command`` ``(v, ω)`` [m/s, rad/s], the planned ``path`` (N, 2)
+        [m, world] drawn ``z_m`` above the ground plane, and a ``subterra.RiskMap`` as a
+        coloured point grid of its observed cells (costly: log it every few steps)."""
+        self._check_open()
+        t = _finite_float(time_s, "time_s")
+        rr, rec = self._rr, self._rec
+        if position is not None:
+            position = _vector(position, 3, "position")
+        if command is not None:
+            command = _vector(command, 2, "command")
+        if path is not None:
+            path = np.asarray(path, dtype=np.float64).reshape(-1, 2)
+        rec.set_time(TIMELINE, duration=t)
+        if position is not None:
+            rec.log("world/robot", rr.Points3D([position], radii=ROBOT_RADIUS_M, colors=[(30, 120, 220)]))
+            self._positions.append(position)
+        if command is not None:
+            rec.log("robot/command/v", rr.Scalars(float(command[0])))
+            rec.log("robot/command/yaw_rate", rr.Scalars(float(command[1])))
+        if path is not None and len(path) >= 2:
+            rec.log("world/plan", rr.LineStrips3D([np.c_[path, np.full(len(path), z_m)]], radii=PATH_LINE_RADIUS_M, colors=[(250, 160, 0)]))
+        if risk_map is not None:
+            risk = risk_map.layer("risk")
+            seen = risk_map.layer("observed") > 0
+            iy, ix = np.nonzero(seen)
+            ground = risk_map.layer("ground_height")[iy, ix]
+            z = np.where(np.isfinite(ground), ground, 0.0) + z_m
+            pts = np.c_[risk_map.x_centres[ix], risk_map.y_centres[iy], z]
+            r = np.clip(risk[iy, ix], 0.0, 1.0)
+            colours = np.c_[220 * r, 200 * (1 - r), np.zeros_like(r)].astype(np.uint8)
+            rec.log("world/risk", rr.Points3D(pts, radii=0.45 * risk_map.resolution, colors=colours))
+
+
 # -------------------------------------------------------------------- helpers
 
 

@@ -1,11 +1,23 @@
-//! Planning and control for a ground robot (DESIGN §3).
+//! Planning and control for the ground robot (DESIGN §3): a risk map in, a command out.
 //!
-//! In: a risk grid (a [`RiskMap`](crate::terrain::RiskMap) layer or any row-major `(ny, nx)`
-//! risk array), the robot's state and a reference path. Out: commands.
-//!
-//! [`mpc`] tracks a reference path with a kinodynamic MPC: risk-limited speed, obstacle
-//! half-planes from the lethal cells, a backup stop when no safe plan exists.
+//! - [`astar`]: the risk-aware A* ([`RiskAStar`]). In: a risk grid (the terrain
+//!   [`RiskMap`](crate::terrain::RiskMap)'s `risk` layer, or any row-major `(ny, nx)` array
+//!   of per-metre risks), a start and a goal. Out: the least-cost path with its accumulated
+//!   risk, length and carrot point, or the reason there is none.
+//! - [`mpc`]: tracks a reference path with a kinodynamic MPC ([`MpcTracker`]): risk-limited
+//!   speed, obstacle half-planes from the lethal cells, a backup stop when no safe plan
+//!   exists.
+//! - [`navigator`]: all of it wired for a robot's control loop ([`Navigator`]): terrain
+//!   mapper, planner, tracker and recovery, one step per tick.
+//! - [`recovery`]: adaptive thresholds and recovery behaviours, a state machine that
+//!   decides what to do when no path exists or the robot stops making progress.
 
+pub mod astar;
 pub mod mpc;
+pub mod navigator;
+pub mod recovery;
 
-pub use mpc::{ConvexPolygon, MpcCommand, MpcConfig, MpcOutput, MpcStatus, MpcTracker, RiskGrid, UnicycleInput, UnicycleState};
+pub use astar::{CostModel, PlanOutcome, PlanStatus, PlannedPath, RiskAStar, RiskAStarConfig, RiskGrid};
+pub use mpc::{ConvexPolygon, MpcCommand, MpcConfig, MpcOutput, MpcStatus, MpcTracker, UnicycleInput, UnicycleState};
+pub use navigator::{Navigator, NavigatorConfig, NavigatorInput, NavigatorOutput, NavigatorSettings};
+pub use recovery::{Behaviour, Directive, PlanFeedback, RecoveryConfig, RecoveryInput, RecoveryMachine, Target, Transition};

@@ -64,31 +64,9 @@ impl Prefilter {
     /// (cleared first).
     pub fn apply(&self, points_sensor: &[[f32; 3]], body_from_sensor: &Isometry3, out_body: &mut Vec<[f32; 3]>) -> PrefilterStats {
         let c = &self.config;
-        let mut stats = PrefilterStats { input: points_sensor.len(), ..Default::default() };
         out_body.clear();
         out_body.reserve(points_sensor.len());
-        let rotation: Mat3 = body_from_sensor.rotation.as_mat3();
-        let translation = body_from_sensor.translation.as_vec3();
-        let (min_sq, max_sq) = ((c.min_range_m * c.min_range_m) as f32, (c.max_range_m * c.max_range_m) as f32);
-        let (lo, hi) = (self.box_min, self.box_max);
-        for p in points_sensor {
-            let v = Vec3::from_array(*p);
-            if !v.is_finite() {
-                stats.non_finite += 1;
-                continue;
-            }
-            let r_sq = v.length_squared();
-            if r_sq < min_sq || r_sq > max_sq {
-                stats.out_of_range += 1;
-                continue;
-            }
-            let b = rotation * v + translation;
-            if b.cmpge(lo).all() && b.cmple(hi).all() {
-                stats.self_hits += 1;
-                continue;
-            }
-            out_body.push(b.to_array());
-        }
+        let mut stats = self.point_rules(points_sensor, body_from_sensor, |b| out_body.push(b.to_array()));
         if c.voxel_m > 0.0 {
             let before = out_body.len();
             voxel_downsample(out_body, c.voxel_m as f32);
@@ -100,6 +78,40 @@ impl Prefilter {
             stats.outliers = before - out_body.len();
         }
         stats.kept = out_body.len();
+        stats
+    }
+
+    /// The per-point rules (non-finite, range, self box): `keep(b)` for each kept point in
+    /// the body frame, in input order.
+    #[inline(always)]
+    fn point_rules(&self, points_sensor: &[[f32; 3]], body_from_sensor: &Isometry3, mut keep: impl FnMut(Vec3)) -> PrefilterStats {
+        let c = &self.config;
+        let mut stats = PrefilterStats { input: points_sensor.len(), ..Default::default() };
+        let rotation: Mat3 = body_from_sensor.rotation.as_mat3();
+        let translation = body_from_sensor.translation.as_vec3();
+        let (min_sq, max_sq) = ((c.min_range_m * c.min_range_m) as f32, (c.max_range_m * c.max_range_m) as f32);
+        let (lo, hi) = (self.box_min, self.box_max);
+        for p in points_sensor {
+            let v = Vec3::from_array(*p);
+            let r_sq = v.length_squared();
+            // In range implies finite (a NaN or infinite coordinate makes `r_sq` NaN or
+            // infinite, and `max_sq` is finite: max_range_m <= 1000 m): one test for the
+            // common case, the two rules in order otherwise.
+            if !(r_sq >= min_sq && r_sq <= max_sq) {
+                if !v.is_finite() {
+                    stats.non_finite += 1;
+                } else {
+                    stats.out_of_range += 1;
+                }
+                continue;
+            }
+            let b = rotation * v + translation;
+            if b.cmpge(lo).all() && b.cmple(hi).all() {
+                stats.self_hits += 1;
+                continue;
+            }
+            keep(b);
+        }
         stats
     }
 }

@@ -111,6 +111,10 @@ impl Ramp {
     /// `clamp((x - safe)/(lethal - safe), 0, 1)`; NaN gives 0.
     #[inline]
     pub fn eval(&self, x: f64) -> f64 {
+        // At or below `safe` (or NaN) the quotient is <= 0 (or NaN): no division needed.
+        if !(x > self.safe) {
+            return 0.0;
+        }
         let r = (x - self.safe) / (self.lethal - self.safe);
         if r > 0.0 {
             r.min(1.0)

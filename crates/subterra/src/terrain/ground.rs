@@ -222,19 +222,16 @@ impl GroundSegmenter {
         self.bin_points(points);
         self.fit_lines();
         heights_out.clear();
-        heights_out.reserve(points.len());
-        for (i, p) in points.iter().enumerate() {
-            let sb = self.point_bin[i];
+        let line = &self.line[..];
+        heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
             if sb == NO_BIN {
-                heights_out.push(f32::NAN);
-                continue;
+                return f32::NAN;
             }
-            let sb = sb as usize;
             let (x, y) = (p[0] as f64, p[1] as f64);
             let r = (x * x + y * y).sqrt();
-            let line = &self.line[sb];
-            heights_out.push((p[2] as f64 - (line.m * r + line.b)) as f32);
-        }
+            let line = &line[sb as usize];
+            (p[2] as f64 - (line.m * r + line.b)) as f32
+        }));
         Ok(())
     }
 
@@ -262,13 +259,44 @@ impl GroundSegmenter {
             return None;
         }
         let sectors = self.config.sectors as usize;
-        let s = (((fast_atan2(y, x) + std::f64::consts::PI) * (sectors as f64 / std::f64::consts::TAU)) as usize).min(sectors - 1);
-        let k = ((r * self.inv_bin) as usize).min(self.bins - 1);
+        // In [0, S]: `as i64` truncates as `as usize` would.
+        let s = (((fast_atan2(y, x) + std::f64::consts::PI) * (sectors as f64 / std::f64::consts::TAU)) as i64 as usize).min(sectors - 1);
+        Some(self.polar_bin(s, r))
+    }
+
+    /// [`query`](Self::query) at the positions `(xs[i], y)`, in order: `f(i, bin)` for each
+    /// one inside the polar range, with exactly the bin `query` gives.
+    #[inline]
+    pub(crate) fn query_row(&self, xs: &[f64], y: f64, mut f: impl FnMut(usize, PolarBin)) {
+        let sectors = self.config.sectors as usize;
+        let scale = sectors as f64 / std::f64::consts::TAU;
+        let max_r = self.config.max_range_m;
+        for (i, &x) in xs.iter().enumerate() {
+            let r = (x * x + y * y).sqrt();
+            if !(r < max_r) {
+                continue;
+            }
+            // In [0, S]: `as i64` truncates as `as usize` would.
+            let s = (((fast_atan2(y, x) + std::f64::consts::PI) * scale) as i64 as usize).min(sectors - 1);
+            f(i, self.polar_bin(s, r));
+        }
+    }
+
+    /// What polar bin `(s, bin of r)` knows at radius `r`.
+    #[inline]
+    fn polar_bin(&self, s: usize, r: f64) -> PolarBin {
+        // r < max_range_m, so r / bin_m is in [0, bins]: `as i64` truncates as `as usize` would.
+        let k = ((r * self.inv_bin) as i64 as usize).min(self.bins - 1);
         let sb = s * self.bins + k;
-        let (line, acc) = (&self.line[sb], &self.acc[sb]);
+        // Both tables have one entry per polar bin: one bounds check for the two.
+        let n = self.line.len().min(self.acc.len());
+        let (line, acc) = (&self.line[..n][sb], &self.acc[..n][sb]);
         let ground_z = line.m * r + line.b;
-        let floor_bound_z = (acc.proto_z as f64).min(acc.ray_slope as f64 * r);
-        Some(PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z })
+        // `min` of the two where the prototype's z is never NaN (+inf when empty): the ray
+        // bound is taken only when lower (a NaN ray bound, inf·0, leaves the prototype's z).
+        let (proto_z, ray_z) = (acc.proto_z as f64, acc.ray_slope as f64 * r);
+        let floor_bound_z = if ray_z < proto_z { ray_z } else { proto_z };
+        PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z }
     }
 
     fn bin_points(&mut self, points: &[[f32; 3]]) {
@@ -276,59 +304,55 @@ impl GroundSegmenter {
         let bins = self.bins;
         let sectors = c.sectors as usize;
         let sector_scale = c.sectors as f64 / std::f64::consts::TAU;
-        let max_r = c.max_range_m;
+        let (max_r, bin_m) = (c.max_range_m, c.bin_m);
         self.acc.fill(BinAccumulator::EMPTY);
+        // Sized first and filled by a plain loop, so that everything the loop reads stays in
+        // registers.
         self.point_bin.clear();
-        self.point_bin.reserve(points.len());
-        for p in points {
+        self.point_bin.resize(points.len(), NO_BIN);
+        let (acc, edges) = (&mut self.acc[..], &self.sector_edges[..]);
+        // The previous point's sector: scans come ring by ring or column by column, so the
+        // next point is usually in it or beside it.
+        let mut last = usize::MAX;
+        for (bin, p) in self.point_bin.iter_mut().zip(points) {
             let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
             let r = (x * x + y * y).sqrt();
             if !(r < max_r) || !z.is_finite() {
-                self.point_bin.push(NO_BIN);
                 continue;
             }
-            let s = self.sector_of(x, y, sector_scale);
-            let k = ((r / c.bin_m) as usize).min(bins - 1);
+            let s = match sector_beside(edges, last, x, y) {
+                Some(s) => s,
+                None => sector_of(edges, x, y, sector_scale),
+            };
+            last = s;
+            // r / bin_m is in [0, bins]: `as i64` truncates as `as usize` would.
+            let k = ((r / bin_m) as i64 as usize).min(bins - 1);
             let sb = s * bins + k;
-            self.point_bin.push(sb as u32);
-            let acc = &mut self.acc[sb];
+            let acc = &mut acc[sb];
             if p[2] < acc.proto_z {
                 acc.proto_z = p[2];
                 acc.proto_r = r;
             }
+            *bin = sb as u32;
         }
         // Per bin: the steepest ray to any point of a farther bin of the sector.
         for s in 0..sectors {
             let row = &mut self.acc[s * bins..(s + 1) * bins];
             let mut farther = f32::INFINITY;
             for bin in row.iter_mut().rev() {
-                let own = if bin.proto_z.is_finite() && bin.proto_r > 0.0 { (bin.proto_z as f64 / bin.proto_r) as f32 } else { f32::INFINITY };
                 bin.ray_slope = farther;
-                farther = farther.min(own);
+                // An empty bin's own slope would be +inf: it leaves `farther` as it is.
+                if bin.proto_z.is_finite() && bin.proto_r > 0.0 {
+                    farther = farther.min((bin.proto_z as f64 / bin.proto_r) as f32);
+                }
             }
         }
     }
 
-    /// `min(floor((atan2(y, x) + π) / (2π/S)), S - 1)`: a fast `atan2` gives the sector to
-    /// within one, and two cross products with the boundary vectors settle it (they agree with
-    /// libm's `atan2` except within ~1e-15 rad of a boundary).
-    #[inline]
+    /// `min(floor((atan2(y, x) + π) / (2π/S)), S - 1)`: see [`sector_of`].
+    #[cfg(test)]
     fn sector_of(&self, x: f64, y: f64, sector_scale: f64) -> usize {
-        let sectors = self.sector_edges.len() - 1;
-        if sectors < 8 {
-            return (((y.atan2(x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
-        }
-        let s = (((fast_atan2(y, x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
-        let (lx, ly) = self.sector_edges[s];
-        if lx * y - ly * x < 0.0 {
-            return s.saturating_sub(1);
-        }
-        let (ux, uy) = self.sector_edges[s + 1];
-        if ux * y - uy * x >= 0.0 && s + 1 < sectors {
-            s + 1
-        } else {
-            s
-        }
+        sector_of(&self.sector_edges, x, y, sector_scale)
     }
 
     fn fit_lines(&mut self) {
@@ -342,13 +366,11 @@ impl GroundSegmenter {
             let mut g = -self.sensor_height_m;
             seg.clear();
             let mut sums = LineSums::default();
-            for k in 0..bins {
-                let sb = s * bins + k;
-                let z = self.acc[sb].proto_z as f64;
-                if !z.is_finite() {
+            for (k, acc) in self.acc[s * bins..(s + 1) * bins].iter().enumerate() {
+                if !acc.proto_z.is_finite() {
                     continue;
                 }
-                let r = self.acc[sb].proto_r;
+                let (r, z) = (acc.proto_r, acc.proto_z as f64);
                 loop {
                     let Some(&(qr, qz, _)) = seg.last() else {
                         seg.push((r, z, k as u32));
@@ -398,43 +420,89 @@ impl GroundSegmenter {
         }
     }
 
-    /// Step 4: the line of each bin of sector `s`.
+    /// Step 4: the line of each bin of sector `s`, range by range: before the first line,
+    /// each line's own bins (a bin shared with the previous line stays with that one), the
+    /// gaps between lines (the nearer line, the earlier on a tie), after the last line.
     fn assign_lines(&mut self, s: usize) {
         let bins = self.bins;
         let (a, b) = self.sector_lines[s];
         let lines = &self.lines[a as usize..b as usize];
-        let row = s * bins..(s + 1) * bins;
-        if lines.is_empty() {
-            self.line[row].fill(BinLine { b: -self.sensor_height_m, ..BinLine::NONE });
+        let row = &mut self.line[s * bins..(s + 1) * bins];
+        let uncovered = |line: &GroundLine| BinLine { m: line.m, b: line.b, cover_lo: f64::INFINITY, cover_hi: f64::NEG_INFINITY };
+        let (Some(first), Some(last)) = (lines.first(), lines.last()) else {
+            row.fill(BinLine { b: -self.sensor_height_m, ..BinLine::NONE });
             return;
-        }
-        let mut j = 0; // the first line whose last bin is >= k
-        for k in 0..bins {
-            while j + 1 < lines.len() && (lines[j].last_bin as usize) < k {
-                j += 1;
-            }
-            let line = &lines[j];
-            let (first, last) = (line.first_bin as usize, line.last_bin as usize);
-            let (chosen, covered) = if k >= first && k <= last {
-                (line, true)
-            } else if k > last {
-                // Beyond the last line.
-                (line, false)
-            } else if j == 0 {
-                // Before the first line.
-                (line, false)
-            } else {
-                // In the gap between lines j-1 and j: the nearer, the earlier on a tie.
+        };
+        // Bins below `next` are assigned.
+        let mut next = (first.first_bin as usize).min(bins);
+        row[..next].fill(uncovered(first));
+        for (j, line) in lines.iter().enumerate() {
+            let (lo, hi) = (line.first_bin as usize, (line.last_bin as usize + 1).min(bins));
+            if j > 0 && next < lo {
+                // The gap after the previous line: bin k goes to it iff k - prev.last <= lo - k.
                 let prev = &lines[j - 1];
-                if k - prev.last_bin as usize <= first - k {
-                    (prev, false)
-                } else {
-                    (line, false)
-                }
-            };
-            let (cover_lo, cover_hi) = if covered { (chosen.first_r_m, chosen.last_r_m) } else { (f64::INFINITY, f64::NEG_INFINITY) };
-            self.line[s * bins + k] = BinLine { m: chosen.m, b: chosen.b, cover_lo, cover_hi };
+                let split = (prev.last_bin as usize + lo) / 2 + 1;
+                row[next..split].fill(uncovered(prev));
+                row[split..lo].fill(uncovered(line));
+                next = lo;
+            }
+            if next < hi {
+                row[next..hi].fill(BinLine { m: line.m, b: line.b, cover_lo: line.first_r_m, cover_hi: line.last_r_m });
+                next = hi;
+            }
         }
+        row[next..].fill(uncovered(last));
+    }
+}
+
+/// `min(floor((atan2(y, x) + π) / (2π/S)), S - 1)` with `edges` the `S + 1` unit vectors of
+/// the sector boundaries: a fast `atan2` gives the sector to within one, and two cross
+/// products with the boundary vectors settle it (they agree with libm's `atan2` except within
+/// ~1e-15 rad of a boundary).
+#[inline]
+fn sector_of(edges: &[(f64, f64)], x: f64, y: f64, sector_scale: f64) -> usize {
+    let sectors = edges.len() - 1;
+    if sectors < 8 {
+        return (((y.atan2(x) + std::f64::consts::PI) * sector_scale) as usize).min(sectors - 1);
+    }
+    // In [0, S]: `as i64` truncates as `as usize` would.
+    let s = (((fast_atan2(y, x) + std::f64::consts::PI) * sector_scale) as i64 as usize).min(sectors - 1);
+    let (lx, ly) = edges[s];
+    if lx * y - ly * x < 0.0 {
+        return s.saturating_sub(1);
+    }
+    let (ux, uy) = edges[s + 1];
+    if ux * y - uy * x >= 0.0 && s + 1 < sectors {
+        s + 1
+    } else {
+        s
+    }
+}
+
+/// [`sector_of`] without the `atan2` where it is sector `near` or one beside it, else `None`.
+///
+/// With `c_e` = (cross product of boundary `e` with the point `>= 0`), computed exactly as
+/// `sector_of` does, a sector `h <= S - 2` with `c_h` and not `c_(h+1)` holds the point up to
+/// rounding (a sector spans less than π/2), so the fast `atan2` (error < 1.2e-5 rad, below
+/// a sector's width for every valid `S`) lands in `h - 1`, `h` or `h + 1`, and from each of
+/// those `sector_of`'s two tests end in `h`.
+#[inline]
+fn sector_beside(edges: &[(f64, f64)], near: usize, x: f64, y: f64) -> Option<usize> {
+    let sectors = edges.len() - 1;
+    if sectors < 8 || near >= sectors - 1 {
+        return None;
+    }
+    let at_or_above = |e: usize| {
+        let (ex, ey) = edges[e];
+        ex * y - ey * x >= 0.0
+    };
+    let (lo, hi) = (at_or_above(near), at_or_above(near + 1));
+    if lo && !hi {
+        Some(near)
+    } else if hi {
+        (near + 2 < sectors && !at_or_above(near + 2)).then_some(near + 1)
+    } else {
+        (near >= 1 && at_or_above(near - 1)).then(|| near - 1)
     }
 }
 
@@ -548,6 +616,112 @@ mod tests {
             let r = 0.5 + (i % 97) as f64 * 0.3;
             let (x, y) = (r * a.cos(), r * a.sin());
             assert_eq!(seg.sector_of(x, y, scale), exact(x, y), "angle {a}");
+        }
+    }
+
+    #[test]
+    fn sector_beside_agrees_with_sector_of() {
+        let mut state = 777u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for sectors in [8u32, 9, 360, 720, 100_000] {
+            let config = GroundConfig { sectors, max_range_m: 10.0, bin_m: 5.0, ..GroundConfig::default() };
+            let seg = GroundSegmenter::new(config).unwrap();
+            let scale = sectors as f64 / std::f64::consts::TAU;
+            let edges = &seg.sector_edges;
+            let mut found = 0;
+            for i in 0..100_000 {
+                let a = next() * std::f64::consts::TAU - std::f64::consts::PI;
+                // Every 3rd point sits within 1e-12 rad of a sector boundary; some on the axes.
+                let a = match i % 3 {
+                    0 => -std::f64::consts::PI + ((a + std::f64::consts::PI) * scale).round() / scale + 1e-12 * (next() - 0.5),
+                    1 if i % 300 == 1 => (i % 8) as f64 * std::f64::consts::FRAC_PI_4 - std::f64::consts::PI,
+                    _ => a,
+                };
+                let r = 0.5 + 9.0 * next();
+                let (x, y) = (r * a.cos(), r * a.sin());
+                let exact = sector_of(edges, x, y, scale);
+                for near in [exact.wrapping_sub(2), exact.wrapping_sub(1), exact, exact + 1, exact + 2, 0, sectors as usize - 1, usize::MAX] {
+                    if let Some(s) = sector_beside(edges, near, x, y) {
+                        assert_eq!(s, exact, "sectors {sectors}, angle {a}, near {near}");
+                        found += 1;
+                    }
+                }
+            }
+            assert!(found > 200_000, "{found}");
+        }
+    }
+
+    #[test]
+    fn query_row_is_query() {
+        let mut flat = flat_ring_cloud(0.6);
+        flat.extend_from_slice(&[3.0, 0.1, -0.2, -2.0, 4.0, -1.4, 0.0, -5.0, -0.9]);
+        let points = as_points("points", &flat).unwrap();
+        let mut seg = GroundSegmenter::new(GroundConfig::default()).unwrap();
+        let mut heights = Vec::new();
+        seg.segment(points, 0.6, &mut heights).unwrap();
+        let xs: Vec<f64> = (0..500).map(|i| -45.0 + i as f64 * 0.18 + 0.001).collect();
+        for j in 0..300 {
+            let y = -45.0 + j as f64 * 0.3;
+            let mut got = Vec::new();
+            seg.query_row(&xs, y, |i, bin| got.push((i, bin)));
+            let want: Vec<_> = xs.iter().enumerate().filter_map(|(i, &x)| seg.query(x, y).map(|bin| (i, bin))).collect();
+            assert_eq!(got, want);
+        }
+    }
+
+    /// Step 4 bin by bin, as the module doc states it.
+    fn assign_by_bin(lines: &[GroundLine], bins: usize, h: f64) -> Vec<BinLine> {
+        (0..bins)
+            .map(|k| {
+                if lines.is_empty() {
+                    return BinLine { b: -h, ..BinLine::NONE };
+                }
+                if let Some(line) = lines.iter().find(|l| l.first_bin as usize <= k && k <= l.last_bin as usize) {
+                    return BinLine { m: line.m, b: line.b, cover_lo: line.first_r_m, cover_hi: line.last_r_m };
+                }
+                let dist = |l: &GroundLine| if k < l.first_bin as usize { l.first_bin as usize - k } else { k - l.last_bin as usize };
+                let nearest = lines.iter().min_by_key(|l| dist(l)).unwrap();
+                BinLine { m: nearest.m, b: nearest.b, ..BinLine::NONE }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn bin_lines_by_range_match_bin_by_bin() {
+        let config = GroundConfig { sectors: 1, ..GroundConfig::default() };
+        let mut seg = GroundSegmenter::new(config).unwrap();
+        let bins = seg.bins;
+        seg.sensor_height_m = 0.6;
+        let mut state = 99u64;
+        let mut next = |n: usize| {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 33) % n as u64) as usize
+        };
+        for trial in 0..3000 {
+            // Lines in bin order, each starting at or after the previous one's last bin and
+            // spanning two bins or more (min_line_points >= 2 prototypes, one per bin).
+            let mut lines = Vec::new();
+            let mut at = if trial % 3 == 0 { 0 } else { next(12) };
+            while at + 1 < bins && lines.len() < 1 + trial % 7 {
+                let first = at;
+                let last = (first + [1, 2, 5, 30][next(4)]).min(bins - 1);
+                let m = lines.len() as f64 * 0.01 + trial as f64 * 1e-4;
+                lines.push(GroundLine { m, b: -0.5 - m, first_bin: first as u32, last_bin: last as u32, first_r_m: first as f64 * 0.2 + 0.05, last_r_m: last as f64 * 0.2 + 0.1 });
+                // Shared break bin, adjacent, or a gap (odd and even widths).
+                at = last + [0, 1, 2, 3, 8, 15][next(6)];
+            }
+            seg.lines = lines.clone();
+            seg.sector_lines[0] = (0, lines.len() as u32);
+            seg.assign_lines(0);
+            let want = assign_by_bin(&lines, bins, 0.6);
+            for (k, b) in want.iter().enumerate() {
+                let a = &seg.line[k];
+                let bits = |l: &BinLine| [l.m.to_bits(), l.b.to_bits(), l.cover_lo.to_bits(), l.cover_hi.to_bits()];
+                assert_eq!(bits(a), bits(b), "trial {trial}, bin {k}, lines {lines:?}");
+            }
         }
     }
 

@@ -129,8 +129,14 @@ impl CellAccumulator {
     #[inline]
     fn add(&mut self, z: f32, h: f32, ground_threshold: f32, collision_lo: f32, collision_hi: f32) {
         self.count += 1;
-        self.min_z = self.min_z.min(z);
-        self.max_z = self.max_z.max(z);
+        // `min_z`/`max_z` are never NaN (they start infinite and only take points' z), so these
+        // are `min`/`max` without the NaN handling.
+        if z < self.min_z {
+            self.min_z = z;
+        }
+        if z > self.max_z {
+            self.max_z = z;
+        }
         if h.abs() <= ground_threshold {
             self.ground_n += 1;
             self.ground_sum += z;
@@ -163,7 +169,13 @@ pub(crate) struct MapBuilder {
     height: Vec<f32>,
     patch_tmp: Vec<f32>,
     patch_max: Vec<f32>,
+    patch_f64: Vec<f64>,
+    tilt_worst: Vec<f64>,
     integral: Vec<[f64; 10]>,
+    /// Cell-centre x relative to the newest sensor, by column [m].
+    xs: Vec<f64>,
+    /// Scratch cells [`bin_scan`](Self::bin_scan) has hit, in order of the first hit.
+    touched: Vec<u32>,
 }
 
 impl MapBuilder {
@@ -191,7 +203,11 @@ impl MapBuilder {
             height: Vec::new(),
             patch_tmp: Vec::new(),
             patch_max: Vec::new(),
+            patch_f64: Vec::new(),
+            tilt_worst: Vec::new(),
             integral: Vec::new(),
+            xs: Vec::new(),
+            touched: Vec::new(),
         }
     }
 
@@ -212,23 +228,50 @@ impl MapBuilder {
         let lo = self.robot.ground_clearance_m as f32;
         let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
         let dz = sensor_above_body_m as f32;
+        let touched = &mut self.touched;
+        touched.clear();
+        // The cells are [origin, origin + n) along each axis: floor(q) - origin is in [0, n)
+        // iff q is in [origin, origin + n) (integer bounds), tested on q itself; then
+        // floor_small gives floor(q) exactly. Points are finite (prefiltered), so q is too.
+        let (x_lo, y_lo) = (g.origin_cell.0 as f64, g.origin_cell.1 as f64);
+        let (x_hi, y_hi) = ((g.origin_cell.0 + nx) as f64, (g.origin_cell.1 + ny) as f64);
+        let small = [x_lo, x_hi, y_lo, y_hi].iter().all(|b| b.abs() < FLOOR_SMALL_LIMIT);
+        // A local slice: its pointer and length stay in registers (the pushes to `touched`
+        // could otherwise alias `self.scratch`).
+        let scratch = &mut self.scratch[..n];
         for (p, &h) in points.iter().zip(heights) {
             // The same formula as GridGeometry::cell_of, so every scan agrees on the cells.
-            let ix = floor_i64((p[0] as f64 + origin_world.x) / res) - g.origin_cell.0;
-            let iy = floor_i64((p[1] as f64 + origin_world.y) / res) - g.origin_cell.1;
-            if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
-                continue;
+            let qx = (p[0] as f64 + origin_world.x) / res;
+            let qy = (p[1] as f64 + origin_world.y) / res;
+            let (ix, iy) = if small {
+                if !(qx >= x_lo && qx < x_hi && qy >= y_lo && qy < y_hi) {
+                    continue;
+                }
+                (floor_small(qx) - g.origin_cell.0, floor_small(qy) - g.origin_cell.1)
+            } else {
+                let (ix, iy) = (floor_i64(qx) - g.origin_cell.0, floor_i64(qy) - g.origin_cell.1);
+                if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
+                    continue;
+                }
+                (ix, iy)
+            };
+            let c = (iy * nx + ix) as usize;
+            let cell = &mut scratch[c];
+            if cell.count == 0 {
+                touched.push(c as u32);
             }
-            let cell = &mut self.scratch[(iy * nx + ix) as usize];
             cell.add(p[2] + dz, h, thr, lo, hi);
         }
+        // The non-empty cells in the order they were first hit (each global cell once, so
+        // the order does not change any sum the map makes of them).
         out.clear();
-        for (c, cell) in self.scratch.iter_mut().enumerate() {
-            if cell.count > 0 {
-                let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);
-                out.push(BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: *cell });
-                *cell = CellAccumulator::EMPTY;
-            }
+        out.reserve(touched.len());
+        let scratch = &mut self.scratch[..n];
+        for &c in touched.iter() {
+            let c = c as usize;
+            let cell = std::mem::replace(&mut scratch[c], CellAccumulator::EMPTY);
+            let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);
+            out.push(BinnedCell { gx: g.origin_cell.0 + ix, gy: g.origin_cell.1 + iy, acc: cell });
         }
     }
 
@@ -335,22 +378,25 @@ impl MapBuilder {
         }
         if let Some(polar) = polar {
             let s = polar.sensor_level;
+            // Cell centres relative to the sensor: x by column, y by row.
+            self.xs.clear();
+            self.xs.extend((0..g.nx).map(|ix| corner.x + (ix as f64 + 0.5) * res - s.x));
+            let (cells, height) = (&self.cells, &mut self.height);
             for iy in 0..g.ny {
                 let y = corner.y + (iy as f64 + 0.5) * res - s.y;
-                for ix in 0..g.nx {
-                    let x = corner.x + (ix as f64 + 0.5) * res - s.x;
-                    let Some(bin) = polar.segmenter.query(x, y) else { continue };
-                    let c = iy * g.nx + ix;
+                let row = iy * g.nx;
+                polar.segmenter.query_row(&self.xs, y, |ix, bin| {
+                    let c = row + ix;
                     if bin.covered {
                         observed[c] = 1.0;
-                        if self.cells[c].ground_n == 0 {
-                            self.height[c] = (bin.ground_z + s.z) as f32;
+                        if cells[c].ground_n == 0 {
+                            height[c] = (bin.ground_z + s.z) as f32;
                         }
                     }
                     if bin.floor_bound_z.is_finite() {
                         depth[c] = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
                     }
-                }
+                });
             }
         }
     }
@@ -361,42 +407,57 @@ impl MapBuilder {
         let (nx, ny) = (g.nx, g.ny);
         let res = g.resolution_m;
         let w = nx + 1;
-        self.integral.clear();
-        self.integral.resize(w * (ny + 1), [0.0; 10]);
-        for iy in 0..ny {
-            let mut row = [0.0f64; 10];
-            for ix in 0..nx {
-                let z = self.height[iy * nx + ix];
-                if z.is_finite() {
-                    let (x, y, z) = (ix as f64 * res, iy as f64 * res, z as f64);
-                    let m = [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z];
-                    for k in 0..10 {
-                        row[k] += m[k];
-                    }
-                }
-                let above = self.integral[iy * w + ix + 1];
-                let cell = &mut self.integral[(iy + 1) * w + ix + 1];
-                for k in 0..10 {
-                    cell[k] = above[k] + row[k];
-                }
-            }
-        }
         let hw = self.plane_half;
+        // The summed-area table, row r (0..=ny, row 0 all zeros) in slot r % slots: map row
+        // iy reads rows iy - hw and iy + hw + 1 (clipped), so 2·hw + 2 slots hold every row
+        // still needed.
+        let slots = (2 * hw + 2).min(ny + 1);
+        self.integral.clear();
+        self.integral.resize(slots * w, [0.0; 10]);
         let min_cells = self.layers.plane_min_cells as f64;
         let Ok([_count, _ground_count, _ground_height, _min, _max, slope, residual, ..]) = <[&mut [f32]; 21]>::try_from(map.layers_mut()) else {
             unreachable!("a RiskMap holds Layer::ALL.len() layers")
         };
         slope.fill(f32::NAN);
         residual.fill(f32::NAN);
+        let height = &self.height[..nx * ny];
+        let mut built = 0;
         for iy in 0..ny {
             let (y0, y1) = (iy.saturating_sub(hw), (iy + hw + 1).min(ny));
-            for ix in 0..nx {
-                let c = iy * nx + ix;
-                if !self.height[c].is_finite() {
+            while built < y1 {
+                // Row built + 1 = row built + the running sums along map row `built`.
+                let (a, b) = (built % slots, (built + 1) % slots);
+                let (above, cur) = if a < b {
+                    let (lo, hi) = self.integral.split_at_mut(b * w);
+                    (&lo[a * w..(a + 1) * w], &mut hi[..w])
+                } else {
+                    let (lo, hi) = self.integral.split_at_mut(a * w);
+                    (&hi[..w], &mut lo[b * w..(b + 1) * w])
+                };
+                let mut row = [0.0f64; 10];
+                let y = built as f64 * res;
+                for (ix, (&z, (cell, above))) in height[built * nx..(built + 1) * nx].iter().zip(cur[1..].iter_mut().zip(&above[1..])).enumerate() {
+                    if z.is_finite() {
+                        let (x, z) = (ix as f64 * res, z as f64);
+                        let m = [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z];
+                        for k in 0..10 {
+                            row[k] += m[k];
+                        }
+                    }
+                    for k in 0..10 {
+                        cell[k] = above[k] + row[k];
+                    }
+                }
+                built += 1;
+            }
+            let (top, bottom) = (&self.integral[(y0 % slots) * w..][..w], &self.integral[(y1 % slots) * w..][..w]);
+            let hrow = &height[iy * nx..(iy + 1) * nx];
+            for (ix, h) in hrow.iter().enumerate() {
+                if !h.is_finite() {
                     continue;
                 }
                 let (x0, x1) = (ix.saturating_sub(hw), (ix + hw + 1).min(nx));
-                let (a, b, cc, d) = (&self.integral[y1 * w + x1], &self.integral[y0 * w + x1], &self.integral[y1 * w + x0], &self.integral[y0 * w + x0]);
+                let (a, b, cc, d) = (&bottom[x1], &top[x1], &bottom[x0], &top[x0]);
                 let mut s = [0.0f64; 10];
                 for k in 0..10 {
                     s[k] = a[k] - b[k] - cc[k] + d[k];
@@ -406,6 +467,7 @@ impl MapBuilder {
                     continue;
                 }
                 if let Some((grad, rms)) = fit_plane(&s, ix as f64 * res, iy as f64 * res) {
+                    let c = iy * nx + ix;
                     slope[c] = grad.atan() as f32;
                     residual[c] = rms as f32;
                 }
@@ -417,24 +479,55 @@ impl MapBuilder {
     fn steps(&mut self, g: &GridGeometry, map: &mut RiskMap) {
         let (nx, ny) = (g.nx, g.ny);
         let out = map.get_mut(Layer::StepHeight);
-        for iy in 0..ny {
-            for ix in 0..nx {
-                let c = iy * nx + ix;
-                let h = self.height[c];
-                if !h.is_finite() {
-                    out[c] = f32::NAN;
-                    continue;
-                }
-                let mut worst = 0.0f32;
-                for jy in iy.saturating_sub(1)..(iy + 2).min(ny) {
-                    for jx in ix.saturating_sub(1)..(ix + 2).min(nx) {
-                        let d = (self.height[jy * nx + jx] - h).abs();
-                        if d > worst {
-                            worst = d;
-                        }
+        let height = &self.height[..nx * ny];
+        // max |H(n) - H(c)| over the 3x3 block clipped to the map, visited in the same
+        // row-major order everywhere (the cell itself adds 0; NaN neighbours never compare
+        // greater).
+        let block = |ix: usize, iy: usize, h: f32| {
+            let mut worst = 0.0f32;
+            for jy in iy.saturating_sub(1)..(iy + 2).min(ny) {
+                for jx in ix.saturating_sub(1)..(ix + 2).min(nx) {
+                    let d = (height[jy * nx + jx] - h).abs();
+                    if d > worst {
+                        worst = d;
                     }
                 }
-                out[c] = worst;
+            }
+            worst
+        };
+        for iy in 0..ny {
+            let row = iy * nx;
+            if iy == 0 || iy + 1 == ny || nx < 3 {
+                for ix in 0..nx {
+                    let h = height[row + ix];
+                    out[row + ix] = if h.is_finite() { block(ix, iy, h) } else { f32::NAN };
+                }
+                continue;
+            }
+            // Inner row: the three rows as slices, no clipping between the edge columns.
+            let (above, mid, below) = (&height[row - nx..row], &height[row..row + nx], &height[row + nx..row + 2 * nx]);
+            let out = &mut out[row..row + nx];
+            for ix in [0, nx - 1] {
+                let h = mid[ix];
+                out[ix] = if h.is_finite() { block(ix, iy, h) } else { f32::NAN };
+            }
+            // Branch-free over the inner cells, so that the loop vectorises: every candidate
+            // `|v - h|` is +0 or positive (abs), NaN ones never win, so the largest does
+            // whatever the order, the same as the block order above; the cell itself (0) is
+            // left out, and a cell without ground gives NaN.
+            let m = nx - 2;
+            let (a0, a1, a2) = (&above[..m], &above[1..m + 1], &above[2..m + 2]);
+            let (m0, m1, m2) = (&mid[..m], &mid[1..m + 1], &mid[2..m + 2]);
+            let (b0, b1, b2) = (&below[..m], &below[1..m + 1], &below[2..m + 2]);
+            let out_inner = &mut out[1..m + 1];
+            for i in 0..m {
+                let h = m1[i];
+                let mut worst = 0.0f32;
+                for v in [a0[i], a1[i], a2[i], m0[i], m2[i], b0[i], b1[i], b2[i]] {
+                    let d = (v - h).abs();
+                    worst = if d > worst { d } else { worst };
+                }
+                out_inner[i] = if h.is_finite() { worst } else { f32::NAN };
             }
         }
     }
@@ -482,29 +575,58 @@ impl MapBuilder {
         // their corners are flat offsets from the cell, no bounds to test.
         let reach_x = self.stencils.iter().flat_map(|s| s.offsets).map(|(dx, _)| dx.unsigned_abs() as usize).max().unwrap_or(0);
         let reach_y = self.stencils.iter().flat_map(|s| s.offsets).map(|(_, dy)| dy.unsigned_abs() as usize).max().unwrap_or(0);
-        let flat: Vec<[isize; 4]> = self.stencils.iter().map(|s| s.offsets.map(|(dx, dy)| dy as isize * nx as isize + dx as isize)).collect();
+        // The patch maxima as f64 (NaN stays NaN), converted once instead of per corner.
+        self.patch_f64.clear();
+        self.patch_f64.extend(self.patch_max.iter().map(|&v| v as f64));
+        let patch = &self.patch_f64[..n];
+        let height = &self.height[..n];
+        let (slope, out) = (&slope[..n], &mut out[..n]);
+        // Per heading, its corner offsets in the flat layer and the two settling poses of
+        // each diagonal, hoisted out of the cell loop.
+        let headings: Vec<HeadingKernel> = self.stencils.iter().map(|s| HeadingKernel::new(s, nx)).collect();
+        // The inner cells of a row: their worst tan² so far.
+        let worst = &mut self.tilt_worst;
+        let (x0, x1) = (reach_x.min(nx), nx.saturating_sub(reach_x).max(reach_x.min(nx)));
         for iy in 0..ny {
-            let inner_y = iy >= reach_y && iy + reach_y < ny;
-            for ix in 0..nx {
-                let c = iy * nx + ix;
-                if !self.height[c].is_finite() {
+            let row = iy * nx;
+            let inner = iy >= reach_y && iy + reach_y < ny && x0 < x1;
+            // Near the edge (corners may be off the map): cell by cell. The whole row, or
+            // the columns outside the inner span.
+            let (edge_a, edge_b) = if inner { (0..x0, x1..nx) } else { (0..nx, nx..nx) };
+            for ix in edge_a.chain(edge_b) {
+                let c = row + ix;
+                if !height[c].is_finite() {
                     out[c] = f32::NAN;
                     continue;
                 }
-                let inner = inner_y && ix >= reach_x && ix + reach_x < nx;
                 let mut worst_tan2 = -1.0f64;
-                for (stencil, offsets) in self.stencils.iter().zip(&flat) {
-                    let corners = if inner {
-                        let v = offsets.map(|o| self.patch_max[(c as isize + o) as usize]);
-                        v.iter().all(|h| h.is_finite()).then(|| v.map(f64::from))
-                    } else {
-                        corner_heights(&self.patch_max, nx, ny, ix, iy, &stencil.offsets)
-                    };
-                    if let Some(h) = corners {
+                for stencil in &self.stencils {
+                    if let Some(h) = corner_heights(&self.patch_max, nx, ny, ix, iy, &stencil.offsets) {
                         worst_tan2 = worst_tan2.max(settle_tan2(&stencil.triangles, &h));
                     }
                 }
                 out[c] = if worst_tan2 >= 0.0 { worst_tan2.sqrt().atan() as f32 } else { slope[c] };
+            }
+            if !inner {
+                continue;
+            }
+            // Heading by heading over the row's inner cells: each cell still folds its
+            // headings in order, with the same values.
+            worst.clear();
+            worst.resize(x1 - x0, -1.0);
+            let has = &height[row + x0..row + x1];
+            for k in &headings {
+                k.settle_row(patch, row + x0, has, worst);
+            }
+            let (out_inner, slope_inner) = (&mut out[row + x0..row + x1], &slope[row + x0..row + x1]);
+            for (i, &w) in worst.iter().enumerate() {
+                out_inner[i] = if !has[i].is_finite() {
+                    f32::NAN
+                } else if w >= 0.0 {
+                    w.sqrt().atan() as f32
+                } else {
+                    slope_inner[i]
+                };
             }
         }
     }
@@ -516,20 +638,23 @@ impl MapBuilder {
         let tilt_ramp = self.robot.tilt_ramp_rad();
         let u = self.uncertainty;
         let z0 = body_world.z as f32;
-        let mut mission = vec![0.0f32; n];
-        for item in missions {
-            stamp_mission(g, item, r.mission_margin_m, &mut mission);
-        }
         // One slice per layer, in `Layer::ALL` order, each exactly `n` long.
         let Ok([count_l, ground_count, ground_height, min_height, max_height, _slope, residual, step_height, negative_depth, tilt_angle, observed_l, age_l, collision_l, step_l, negative_l, tilt_l, rough_l, unknown_l, mission_l, risk_l, variance_l]) =
             <[&mut [f32]; 21]>::try_from(map.layers_mut())
         else {
             unreachable!("a RiskMap holds Layer::ALL.len() layers")
         };
+        // The map starts all zeros: the circles are stamped straight into the layer.
+        for item in missions {
+            stamp_mission(g, item, r.mission_margin_m, mission_l);
+        }
         let cells = &self.cells[..n];
         let height = &self.height[..n];
+        // Re-sliced to `n` so that the loops index without bounds checks.
+        let (count_l, ground_count, ground_height, min_height, max_height, age_l) =
+            (&mut count_l[..n], &mut ground_count[..n], &mut ground_height[..n], &mut min_height[..n], &mut max_height[..n], &mut age_l[..n]);
         for c in 0..n {
-            let cell = cells[c];
+            let cell = &cells[c];
             let count = cell.count;
             count_l[c] = count as f32;
             ground_count[c] = cell.ground_n as f32;
@@ -538,6 +663,36 @@ impl MapBuilder {
             min_height[c] = if has { cell.min_z + z0 } else { f32::NAN };
             max_height[c] = if has { cell.max_z + z0 } else { f32::NAN };
             age_l[c] = if has { cell.min_age } else { f32::NAN };
+        }
+        let (residual, step_height, negative_depth, tilt_angle, observed_l) =
+            (&residual[..n], &step_height[..n], &negative_depth[..n], &tilt_angle[..n], &observed_l[..n]);
+        let (collision_l, step_l, negative_l, tilt_l, rough_l, unknown_l, mission_l, risk_l, variance_l) = (
+            &mut collision_l[..n],
+            &mut step_l[..n],
+            &mut negative_l[..n],
+            &mut tilt_l[..n],
+            &mut rough_l[..n],
+            &mut unknown_l[..n],
+            &mut mission_l[..n],
+            &mut risk_l[..n],
+            &mut variance_l[..n],
+        );
+        // σ² of an observed cell with `count` points (0 counts as 1), the newest `age` s old.
+        let variance = |count: u32, age: f64| {
+            let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
+            let sigma = (var_h.sqrt() / u.height_span_m).min(u.max_sigma);
+            (sigma * sigma) as f32
+        };
+        let var_unobserved = (u.max_sigma * u.max_sigma) as f32;
+        // The same at age 0, by count (most cells of a fresh scan).
+        let mut var_fresh = [0.0f32; 64];
+        for (k, v) in var_fresh.iter_mut().enumerate() {
+            *v = variance(k as u32, 0.0);
+        }
+        for c in 0..n {
+            let cell = &cells[c];
+            let count = cell.count;
+            let has = count > 0;
             let observed = observed_l[c] > 0.0;
             let collision = r.collision_points.eval(cell.collision_n as f64);
             let step = r.step_m.eval(step_height[c] as f64);
@@ -545,27 +700,151 @@ impl MapBuilder {
             let tilt = tilt_ramp.eval(tilt_angle[c] as f64);
             let rough = r.roughness_m.eval(residual[c] as f64);
             let unknown = if observed { 0.0 } else { r.unknown };
-            let m = mission[c] as f64;
-            // Same order as Layer::RISKS.
-            collision_l[c] = collision as f32;
-            step_l[c] = step as f32;
-            negative_l[c] = negative as f32;
-            tilt_l[c] = tilt as f32;
-            rough_l[c] = rough as f32;
-            unknown_l[c] = unknown as f32;
-            mission_l[c] = m as f32;
-            let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
-            risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
-            let sigma = if observed {
-                let age = if has { cell.min_age as f64 } else { 0.0 };
-                let var_h = u.range_sigma_m * u.range_sigma_m / (count.max(1) as f64) + (u.drift_m_per_s * age).powi(2);
-                (var_h.sqrt() / u.height_span_m).min(u.max_sigma)
+            let m = mission_l[c] as f64;
+            // The risk layers start all zeros (the mission layer holds its own value): a cell
+            // with every risk 0 (ramps give +0, never -0) keeps them, and its combined risk
+            // is 1 - 1 = 0.
+            if collision != 0.0 || step != 0.0 || negative != 0.0 || tilt != 0.0 || rough != 0.0 || unknown != 0.0 || m != 0.0 {
+                // Same order as Layer::RISKS.
+                collision_l[c] = collision as f32;
+                step_l[c] = step as f32;
+                negative_l[c] = negative as f32;
+                tilt_l[c] = tilt as f32;
+                rough_l[c] = rough as f32;
+                unknown_l[c] = unknown as f32;
+                let keep = 1.0 * (1.0 - collision) * (1.0 - step) * (1.0 - negative) * (1.0 - tilt) * (1.0 - rough) * (1.0 - unknown) * (1.0 - m);
+                risk_l[c] = (1.0 - keep).clamp(0.0, 1.0) as f32;
+            }
+            variance_l[c] = if !observed {
+                var_unobserved
+            } else if !has {
+                // No points: count 1 and age 0.
+                var_fresh[1]
+            } else if cell.min_age == 0.0 && (count as usize) < var_fresh.len() {
+                // Age ±0 adds exactly 0 (drift·age squared): the value of `count` alone.
+                var_fresh[count as usize]
             } else {
-                u.max_sigma
+                variance(count, cell.min_age as f64)
             };
-            variance_l[c] = (sigma * sigma) as f32;
         }
     }
+}
+
+/// One heading's settling, for cells whose four corners are inside the map: the corners'
+/// flat offsets and the `A⁻¹` of the triangles [`settle_tan2`] uses.
+struct HeadingKernel {
+    offsets: [isize; 4],
+    /// Triangles lifting corners 1, 2 (the body on FL-RR), then 0, 3 (on FR-RL).
+    tri: [Option<[[f64; 2]; 2]>; 4],
+}
+
+impl HeadingKernel {
+    fn new(s: &HeadingStencil, nx: usize) -> Self {
+        let t = |o: usize| s.triangles[o].map(|t| t.inv);
+        Self { offsets: s.offsets.map(|(dx, dy)| dy as isize * nx as isize + dx as isize), tri: [t(1), t(2), t(0), t(3)] }
+    }
+
+    /// For the cells `c = start..start + worst.len()` of one row whose four corners are inside
+    /// the map: `worst[i] = max(worst[i], settle_tan2(corners))` where `has[i]` (the cell has
+    /// ground) and all four corners have ground, as the per-cell loop does (`worst` starts
+    /// at -1 and never holds NaN).
+    #[inline(never)]
+    fn settle_row(&self, patch: &[f64], start: usize, has: &[f32], worst: &mut [f64]) {
+        let len = worst.len();
+        let corner = |o: isize| &patch[(start as isize + o) as usize..][..len];
+        let (s0, s1, s2, s3) = (corner(self.offsets[0]), corner(self.offsets[1]), corner(self.offsets[2]), corner(self.offsets[3]));
+        let has = &has[..len];
+        if let [Some(t0), Some(t1), Some(t2), Some(t3)] = self.tri {
+            for i in 0..len {
+                if !has[i].is_finite() {
+                    continue;
+                }
+                let h = [s0[i], s1[i], s2[i], s3[i]];
+                if let Some(tan2) = settle_pair(&h, &t0, &t1, &t2, &t3) {
+                    if tan2 > worst[i] {
+                        worst[i] = tan2;
+                    }
+                }
+            }
+        } else {
+            for i in 0..len {
+                if !has[i].is_finite() {
+                    continue;
+                }
+                let h = [s0[i], s1[i], s2[i], s3[i]];
+                // Finite iff all four corners are (f32 values: the sum cannot overflow).
+                let d = h[0] + h[3] - h[1] - h[2];
+                if !d.is_finite() {
+                    continue;
+                }
+                let tan2 = if d >= 0.0 {
+                    let w = support_opt(&self.tri[0], h[0], h[2], h[3], -1.0);
+                    support_opt(&self.tri[1], h[0], h[1], h[3], w)
+                } else {
+                    let w = support_opt(&self.tri[2], h[1], h[2], h[3], -1.0);
+                    support_opt(&self.tri[3], h[0], h[1], h[2], w)
+                };
+                if tan2 > worst[i] {
+                    worst[i] = tan2;
+                }
+            }
+        }
+    }
+}
+
+/// [`settle_tan2`] with all four triangles present (`t0`, `t1`: lifting corners 1, 2; `t2`,
+/// `t3`: lifting 0, 3); `None` if a corner has no ground.
+#[inline(always)]
+fn settle_pair(h: &[f64; 4], t0: &[[f64; 2]; 2], t1: &[[f64; 2]; 2], t2: &[[f64; 2]; 2], t3: &[[f64; 2]; 2]) -> Option<f64> {
+    // Finite iff all four corners are (f32 values: the sum cannot overflow).
+    let d = h[0] + h[3] - h[1] - h[2];
+    if !d.is_finite() {
+        return None;
+    }
+    Some(if d >= 0.0 {
+        let w = support(t0, h[0], h[2], h[3], -1.0);
+        support(t1, h[0], h[1], h[3], w)
+    } else {
+        let w = support(t2, h[1], h[2], h[3], -1.0);
+        support(t3, h[0], h[1], h[2], w)
+    })
+}
+
+/// One settling pose of [`settle_tan2`]: the body on corners `i, j, k` (heights `hi, hj,
+/// hk`), `worst` folded in as there.
+#[inline(always)]
+fn support(inv: &[[f64; 2]; 2], hi: f64, hj: f64, hk: f64, worst: f64) -> f64 {
+    let (dj, dk) = (hj - hi, hk - hi);
+    let gx = inv[0][0] * dj + inv[0][1] * dk;
+    let gy = inv[1][0] * dj + inv[1][1] * dk;
+    let tan2 = gx * gx + gy * gy;
+    if tan2 > worst {
+        tan2
+    } else {
+        worst
+    }
+}
+
+#[inline(always)]
+fn support_opt(t: &Option<[[f64; 2]; 2]>, hi: f64, hj: f64, hk: f64, worst: f64) -> f64 {
+    match t {
+        Some(inv) => support(inv, hi, hj, hk, worst),
+        None => worst,
+    }
+}
+
+/// Inputs of [`floor_small`] stay below this in magnitude.
+const FLOOR_SMALL_LIMIT: f64 = (1u64 << 50) as f64;
+
+/// `floor(x)` for `|x| < 2^50`, exactly, without a libm call or saturation code: adding
+/// 1.5·2^52 rounds x to the nearest integer, held in the low mantissa bits; one comparison
+/// turns the rounding into a floor.
+#[inline]
+fn floor_small(x: f64) -> i64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5·2^52
+    let t = x + MAGIC;
+    let rounded = (t.to_bits() as i64) - (MAGIC.to_bits() as i64);
+    rounded - ((t - MAGIC) > x) as i64
 }
 
 /// `floor(x)` as an integer without a libm call (x86-64 without SSE4.1 has no inline
@@ -628,20 +907,39 @@ fn heading_stencil(robot: &RobotConfig, res: f64, yaw: f64) -> HeadingStencil {
 /// `d = h_FL + h_RR - h_FR - h_RL >= 0` on FL-RR and either FR or RL (lifting RL or FR),
 /// else on FR-RL and either FL or RR. Both poses of the pair are stable (it rocks).
 fn settle_tan2(triangles: &[Option<Triangle>; 4], h: &[f64; 4]) -> f64 {
-    let d = h[0] + h[3] - h[1] - h[2];
-    let lifted = if d >= 0.0 { [1, 2] } else { [0, 3] };
-    let mut worst = -1.0f64;
-    for t in lifted.iter().filter_map(|&o| triangles[o].as_ref()) {
-        let (dj, dk) = (h[t.j] - h[t.i], h[t.k] - h[t.i]);
+    // The corners bearing the body when corner `o` is lifted are the other three in order
+    // (see heading_stencil): spelled out per lifted corner so the indices are constants.
+    #[inline(always)]
+    fn support(t: &Option<Triangle>, h: &[f64; 4], i: usize, j: usize, k: usize, worst: f64) -> f64 {
+        let Some(t) = t else { return worst };
+        debug_assert!((t.i, t.j, t.k) == (i, j, k));
+        let (dj, dk) = (h[j] - h[i], h[k] - h[i]);
         let gx = t.inv[0][0] * dj + t.inv[0][1] * dk;
         let gy = t.inv[1][0] * dj + t.inv[1][1] * dk;
-        worst = worst.max(gx * gx + gy * gy);
+        // Both finite and >= 0 (never -0), `worst` >= -1: the same as `worst.max(..)`.
+        let tan2 = gx * gx + gy * gy;
+        if tan2 > worst {
+            tan2
+        } else {
+            worst
+        }
     }
-    worst
+    let d = h[0] + h[3] - h[1] - h[2];
+    if d >= 0.0 {
+        // Lift RL (1) or FR (2): the body rests on FL-RR.
+        let worst = support(&triangles[1], h, 0, 2, 3, -1.0);
+        support(&triangles[2], h, 0, 1, 3, worst)
+    } else {
+        let worst = support(&triangles[0], h, 1, 2, 3, -1.0);
+        support(&triangles[3], h, 0, 1, 2, worst)
+    }
 }
 
 /// Least-squares plane through window sums `s = [n, Σx, Σy, Σz, Σxx, Σxy, Σyy, Σxz, Σyz, Σzz]`,
 /// centred at `(xc, yc)`; returns `(|∇z|, rms residual)`.
+/// Below this eigenvalue ratio of the cells' spread, a window's cells count as collinear.
+const COLLINEAR_RATIO: f64 = 1e-6;
+
 fn fit_plane(s: &[f64; 10], xc: f64, yc: f64) -> Option<(f64, f64)> {
     let [n, sx, sy, sz, sxx, sxy, syy, sxz, syz, szz] = *s;
     let x = sx - n * xc;
@@ -653,8 +951,14 @@ fn fit_plane(s: &[f64; 10], xc: f64, yc: f64) -> Option<(f64, f64)> {
     let yz = syz - yc * sz;
     // Normal equations [xx xy x; xy yy y; x y n] [a b c] = [xz yz sz], by Cramer's rule.
     let det = xx * (yy * n - y * y) - xy * (xy * n - y * x) + x * (xy * y - yy * x);
-    // Relative to the product of the diagonal: ~0 when the cells are collinear.
-    if !(det.abs() > 1e-9 * (xx * yy * n).abs()) {
+    // Collinear cells have no plane. The spread of the cells about their mean, `C`, has
+    // `det C = det / n`; its eigenvalue ratio `λ_min/λ_max ≈ det C / (tr C)²` is >= ~1e-3 for
+    // any non-collinear set of cells in a window (cells lie on a lattice) and ~1e-10 for
+    // collinear ones (rounding of the window sums), so the test is scale-free. (Comparing
+    // `det` with `xx·yy·n` instead passes on noise when the cells lie in one row or column:
+    // `xx` or `yy` is then itself ~0. Regression test `collinear_ground_cells_have_no_plane`.)
+    let trace = (xx - x * x / n) + (yy - y * y / n);
+    if !(det / n > COLLINEAR_RATIO * trace * trace) {
         return None;
     }
     let a = (xz * (yy * n - y * y) - xy * (yz * n - y * sz) + x * (yz * y - yy * sz)) / det;
@@ -704,6 +1008,27 @@ mod tests {
     }
 
     #[test]
+    fn floor_small_is_floor() {
+        let mut xs = vec![-2.5, -2.0, -1.5, -0.5, -1e-300, -0.0, 0.0, 0.3, 0.5, 1.0, 1.5, 2.5, 1.9999999999999998, -1.0000000000000002, 1e15 + 0.5, -1e15 - 0.5];
+        let mut state = 5u64;
+        for i in 0..200_000 {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+            let scale = [1.0, 100.0, 1e6, 1e12, 1e15][i % 5];
+            let x = (u - 0.5) * 2.0 * scale;
+            // Also integers, halves and their neighbours.
+            let k = x.round();
+            xs.extend([x, k, k + 0.5, f64::from_bits(k.to_bits() + 1), f64::from_bits(k.to_bits().wrapping_sub(1))]);
+        }
+        for x in xs {
+            if x.abs() < FLOOR_SMALL_LIMIT {
+                assert_eq!(floor_small(x), x.floor() as i64, "{x}");
+                assert_eq!(floor_small(x), floor_i64(x), "{x}");
+            }
+        }
+    }
+
+    #[test]
     fn plane_fit_by_hand() {
         // z = 0.1 x - 0.2 y + 1 on a 3x3 grid of unit cells: slope sqrt(0.05), no residual.
         let mut s = [0.0; 10];
@@ -719,6 +1044,32 @@ mod tests {
         }
         let (grad, rms) = fit_plane(&s, 1.0, 1.0).unwrap();
         assert!((grad - 0.05f64.sqrt()).abs() < 1e-9 && rms < 1e-6, "{grad} {rms}");
+    }
+
+    #[test]
+    fn collinear_ground_cells_have_no_plane() {
+        // Window sums of cells at absolute positions far from the origin (as the map's
+        // summed-area tables give them), centred at (xc, yc).
+        fn sums(cells: &[(f64, f64, f64)]) -> [f64; 10] {
+            let mut s = [0.0; 10];
+            for &(x, y, z) in cells {
+                for (k, v) in [1.0, x, y, z, x * x, x * y, y * y, x * z, y * z, z * z].into_iter().enumerate() {
+                    s[k] += v;
+                }
+            }
+            s
+        }
+        let (x0, y0) = (123.45, -678.95);
+        // One column of cells 0.1 m apart, rising 3 cm/m: no plane.
+        let column: Vec<_> = (0..9).map(|k| (x0, y0 + 0.1 * k as f64, 0.03 * 0.1 * k as f64)).collect();
+        assert_eq!(fit_plane(&sums(&column), x0, y0 + 0.4), None);
+        let row: Vec<_> = (0..9).map(|k| (x0 + 0.1 * k as f64, y0, 0.01 * k as f64)).collect();
+        assert_eq!(fit_plane(&sums(&row), x0 + 0.4, y0), None);
+        // The same column plus one cell beside its end: a plane, with the column's slope.
+        let mut l_shape = column.clone();
+        l_shape.push((x0 + 0.1, y0, 0.0));
+        let (grad, rms) = fit_plane(&sums(&l_shape), x0, y0 + 0.4).expect("an L of cells spans a plane");
+        assert!((grad - 0.03).abs() < 1e-6 && rms < 1e-9, "{grad} {rms}");
     }
 
     #[test]

@@ -1,0 +1,383 @@
+//! Bindings of `subterra::plan::astar`: `RiskAStar` and its `PlanResult`.
+//!
+//! Conversions, error mapping and GIL release only; the search lives in the core crate.
+
+use std::borrow::Cow;
+
+use glam::DVec2;
+use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use subterra::plan::{CostModel, PlanOutcome, RiskAStar, RiskAStarConfig, RiskGrid};
+use subterra::terrain::{CellIndex, RiskMap};
+
+use crate::convert::type_name;
+use crate::errors::{config_error, input_error, IntoPyResult};
+use crate::terrain::PyRiskMap;
+
+/// A float config argument, or its default; a non-number is a `ConfigError` naming it.
+fn float_arg(py: Python<'_>, argument: &str, value: Option<&Bound<'_, PyAny>>, default: f64) -> PyResult<f64> {
+    match value {
+        None => Ok(default),
+        Some(v) => v.extract::<f64>().map_err(|_| config_error(py, format!("argument `{argument}` must be a number, got {}", type_name(v)))),
+    }
+}
+
+/// Two numbers `(x, y)` from any sequence or array; finiteness is checked by the core.
+fn point2(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<DVec2> {
+    let v: Vec<f64> = value
+        .extract()
+        .or_else(|_| {
+            let np = py.import("numpy")?;
+            np.call_method1("asarray", (value, "float64"))?.call_method0("ravel")?.call_method0("tolist")?.extract()
+        })
+        .map_err(|_| input_error(py, format!("argument `{argument}` must be two numbers (x, y), got {}", type_name(value))))?;
+    if v.len() != 2 {
+        return Err(input_error(py, format!("argument `{argument}` must have 2 elements (x, y), got {}", v.len())));
+    }
+    Ok(DVec2::new(v[0], v[1]))
+}
+
+/// A cell `(ix, iy)` from two non-negative integers; the grid bounds are checked by the core.
+fn cell2(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<CellIndex> {
+    let bad = || input_error(py, format!("argument `{argument}` must be two non-negative integers (ix, iy), got {}", type_name(value)));
+    let v: Vec<i64> = value
+        .extract()
+        .or_else(|_| {
+            let np = py.import("numpy")?;
+            let a = np.call_method1("asarray", (value,))?;
+            let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
+            if !matches!(kind.as_str(), "i" | "u") {
+                return Err(bad());
+            }
+            a.call_method0("ravel")?.call_method0("tolist")?.extract()
+        })
+        .map_err(|_| bad())?;
+    match v[..] {
+        [ix, iy] => match (u32::try_from(ix), u32::try_from(iy)) {
+            (Ok(ix), Ok(iy)) => Ok(CellIndex { ix, iy }),
+            _ => Err(input_error(py, format!("argument `{argument}` must be non-negative, got ({ix}, {iy})"))),
+        },
+        _ => Err(input_error(py, format!("argument `{argument}` must have 2 elements (ix, iy), got {}", v.len()))),
+    }
+}
+
+/// A risk grid's parts, borrowed from a `RiskMap` or a NumPy array (copied only when the array
+/// is not C-ordered `float32`).
+enum GridParts<'a> {
+    Map(&'a RiskMap),
+    Array { risk: Cow<'a, [f32]>, nx: usize, ny: usize, resolution_m: f64, origin_m: DVec2 },
+}
+
+impl GridParts<'_> {
+    /// The core's grid (checks every value: O(cells)).
+    fn grid(&self) -> subterra::Result<RiskGrid<'_>> {
+        match self {
+            GridParts::Map(m) => RiskGrid::from_map(m),
+            GridParts::Array { risk, nx, ny, resolution_m, origin_m } => RiskGrid::new(risk, *nx, *ny, *resolution_m, *origin_m),
+        }
+    }
+}
+
+/// Calls `f` with the grid given as `risk` (+ `resolution`, `origin` for an array).
+fn with_grid<T>(
+    py: Python<'_>,
+    risk: &Bound<'_, PyAny>,
+    resolution: Option<&Bound<'_, PyAny>>,
+    origin: Option<&Bound<'_, PyAny>>,
+    f: impl FnOnce(GridParts<'_>) -> T,
+) -> PyResult<T> {
+    if let Ok(map) = risk.cast::<PyRiskMap>() {
+        for (name, value) in [("resolution", resolution), ("origin", origin)] {
+            if value.is_some_and(|v| !v.is_none()) {
+                return Err(input_error(py, format!("argument `{name}` must be None when `risk` is a RiskMap (the map carries its geometry)")));
+            }
+        }
+        return Ok(f(GridParts::Map(map.get().map())));
+    }
+    let Ok(untyped) = risk.cast::<PyUntypedArray>() else {
+        return Err(input_error(py, format!("argument `risk` must be a 2-D float array (ny, nx) or a subterra.RiskMap, got {}", type_name(risk))));
+    };
+    if untyped.ndim() != 2 {
+        return Err(input_error(py, format!("argument `risk` must be 2-D (ny, nx), got shape {:?}", untyped.shape())));
+    }
+    let kind: String = untyped.dtype().getattr("kind")?.extract()?;
+    if kind != "f" {
+        return Err(input_error(py, format!("argument `risk` must be a float array (float32 preferred), got {}", type_name(risk))));
+    }
+    let resolution_m = match resolution {
+        Some(v) if !v.is_none() => {
+            v.extract::<f64>().map_err(|_| input_error(py, format!("argument `resolution` must be a number (cell side in metres), got {}", type_name(v))))?
+        }
+        _ => return Err(input_error(py, "argument `resolution` is required when `risk` is an array (cell side in metres)")),
+    };
+    let origin_m = match origin {
+        Some(v) if !v.is_none() => point2(py, "origin", v)?,
+        _ => DVec2::ZERO,
+    };
+    let converted;
+    let array = match risk.cast::<PyArray2<f32>>() {
+        Ok(a) => a.clone(),
+        Err(_) => {
+            converted = risk.call_method1("astype", ("float32",))?;
+            converted.cast::<PyArray2<f32>>().map_err(|_| input_error(py, format!("argument `risk` cannot be read as float32, got {}", type_name(risk))))?.clone()
+        }
+    };
+    let view = array.readonly();
+    let (ny, nx) = (view.shape()[0], view.shape()[1]);
+    // Borrow only a C-ordered buffer; anything else is copied in logical row-major order.
+    let values = match view.as_array().to_slice() {
+        Some(s) => Cow::Borrowed(s),
+        None => Cow::Owned(view.as_array().iter().copied().collect()),
+    };
+    Ok(f(GridParts::Array { risk: values, nx, ny, resolution_m, origin_m }))
+}
+
+/// Where the plan should start and end.
+enum Endpoints {
+    World(DVec2, DVec2),
+    Cells(CellIndex, CellIndex),
+}
+
+/// Risk-aware A* on an 8-connected grid (DESIGN §3); holds its search buffers between plans.
+#[pyclass(name = "RiskAStar", module = "subterra._core")]
+pub struct PyRiskAStar {
+    inner: RiskAStar,
+}
+
+impl PyRiskAStar {
+    fn run(&mut self, py: Python<'_>, risk: &Bound<'_, PyAny>, ends: Endpoints, resolution: Option<&Bound<'_, PyAny>>, origin: Option<&Bound<'_, PyAny>>) -> PyResult<PyPlanResult> {
+        let planner = &mut self.inner;
+        let outcome = with_grid(py, risk, resolution, origin, |parts| {
+            py.detach(|| {
+                let grid = parts.grid()?;
+                match ends {
+                    Endpoints::World(s, g) => planner.plan(&grid, s, g),
+                    Endpoints::Cells(s, g) => planner.plan_cells(&grid, s, g),
+                }
+            })
+        })?;
+        Ok(PyPlanResult { inner: outcome.py_err(py)? })
+    }
+}
+
+#[pymethods]
+impl PyRiskAStar {
+    #[new]
+    #[pyo3(signature = (*, lam = None, r_inst = None, r_total = None, carrot_m = None, unknown_risk = None, allow_corner_cutting = None, cost_model = "risk", additive_weight = None))]
+    fn new(
+        py: Python<'_>,
+        lam: Option<&Bound<'_, PyAny>>,
+        r_inst: Option<&Bound<'_, PyAny>>,
+        r_total: Option<&Bound<'_, PyAny>>,
+        carrot_m: Option<&Bound<'_, PyAny>>,
+        unknown_risk: Option<&Bound<'_, PyAny>>,
+        allow_corner_cutting: Option<&Bound<'_, PyAny>>,
+        cost_model: &str,
+        additive_weight: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let d = RiskAStarConfig::default();
+        let cost_model = match cost_model {
+            "risk" => CostModel::Risk,
+            "additive" => CostModel::Additive,
+            other => return Err(config_error(py, format!("argument `cost_model` must be \"risk\" or \"additive\", got {other:?}"))),
+        };
+        let allow_corner_cutting = match allow_corner_cutting {
+            None => d.allow_corner_cutting,
+            Some(v) => v
+                .extract::<bool>()
+                .map_err(|_| config_error(py, format!("argument `allow_corner_cutting` must be a bool, got {}", type_name(v))))?,
+        };
+        let config = RiskAStarConfig {
+            lam: float_arg(py, "lam", lam, d.lam)?,
+            r_inst: float_arg(py, "r_inst", r_inst, d.r_inst)?,
+            r_total: float_arg(py, "r_total", r_total, d.r_total)?,
+            carrot_m: float_arg(py, "carrot_m", carrot_m, d.carrot_m)?,
+            unknown_risk: float_arg(py, "unknown_risk", unknown_risk, d.unknown_risk)?,
+            allow_corner_cutting,
+            cost_model,
+            additive_weight: float_arg(py, "additive_weight", additive_weight, d.additive_weight)?,
+        };
+        Ok(Self { inner: RiskAStar::new(config).py_err(py)? })
+    }
+
+    /// Plans from the world position `start` = (x, y) [m] to `goal`. `risk`: a
+    /// `subterra.RiskMap` (its `risk` layer and geometry) or a 2-D float array `(ny, nx)` of
+    /// per-metre risks (row iy along world y, column ix along world x; converted to float32;
+    /// NaN = unknown) with `resolution` [m/cell] and `origin` (x, y) of cell (0, 0)'s lower-left
+    /// corner [m], default (0, 0). Releases the GIL while it runs.
+    #[pyo3(signature = (risk, start, goal, *, resolution = None, origin = None))]
+    fn plan(
+        &mut self,
+        py: Python<'_>,
+        risk: &Bound<'_, PyAny>,
+        start: &Bound<'_, PyAny>,
+        goal: &Bound<'_, PyAny>,
+        resolution: Option<&Bound<'_, PyAny>>,
+        origin: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<PyPlanResult> {
+        let ends = Endpoints::World(point2(py, "start", start)?, point2(py, "goal", goal)?);
+        self.run(py, risk, ends, resolution, origin)
+    }
+
+    /// Like `plan`, with the start and goal given as cells `(ix, iy)` (`risk[iy, ix]`).
+    #[pyo3(signature = (risk, start_cell, goal_cell, *, resolution = None, origin = None))]
+    fn plan_cells(
+        &mut self,
+        py: Python<'_>,
+        risk: &Bound<'_, PyAny>,
+        start_cell: &Bound<'_, PyAny>,
+        goal_cell: &Bound<'_, PyAny>,
+        resolution: Option<&Bound<'_, PyAny>>,
+        origin: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<PyPlanResult> {
+        let ends = Endpoints::Cells(cell2(py, "start", start_cell)?, cell2(py, "goal", goal_cell)?);
+        self.run(py, risk, ends, resolution, origin)
+    }
+
+    /// λ, the length weight [1/m].
+    #[getter]
+    fn lam(&self) -> f64 {
+        self.inner.config().lam
+    }
+    /// Cells with risk >= r_inst are untraversable.
+    #[getter]
+    fn r_inst(&self) -> f64 {
+        self.inner.config().r_inst
+    }
+    /// Largest accumulated risk of an accepted path.
+    #[getter]
+    fn r_total(&self) -> f64 {
+        self.inner.config().r_total
+    }
+    /// Path length from the start to the carrot [m].
+    #[getter]
+    fn carrot_m(&self) -> f64 {
+        self.inner.config().carrot_m
+    }
+    /// Risk of NaN (unknown) cells.
+    #[getter]
+    fn unknown_risk(&self) -> f64 {
+        self.inner.config().unknown_risk
+    }
+    /// Whether diagonal moves may pass an untraversable corner.
+    #[getter]
+    fn allow_corner_cutting(&self) -> bool {
+        self.inner.config().allow_corner_cutting
+    }
+
+    fn __repr__(&self) -> String {
+        let c = self.inner.config();
+        format!(
+            "RiskAStar(lam={}, r_inst={}, r_total={}, carrot_m={}, unknown_risk={}, allow_corner_cutting={})",
+            c.lam,
+            c.r_inst,
+            c.r_total,
+            c.carrot_m,
+            c.unknown_risk,
+            if c.allow_corner_cutting { "True" } else { "False" }
+        )
+    }
+}
+
+/// The outcome of one `RiskAStar.plan`.
+#[pyclass(name = "PlanResult", module = "subterra._core", frozen)]
+pub struct PyPlanResult {
+    inner: PlanOutcome,
+}
+
+#[pymethods]
+impl PyPlanResult {
+    /// "found", "start_blocked", "goal_blocked", "no_path" or "budget_exceeded".
+    #[getter]
+    fn status(&self) -> &'static str {
+        self.inner.status.name()
+    }
+    /// True iff the status is "found".
+    #[getter]
+    fn found(&self) -> bool {
+        self.inner.found().is_some()
+    }
+    /// Cell centres of the least-cost path, start first, float64 (N, 2) [m]; (0, 2) without one.
+    /// Also given with "budget_exceeded" (the rejected path).
+    #[getter]
+    fn path_world<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let pts = self.inner.path.as_ref().map_or(&[][..], |p| &p.points_world[..]);
+        let flat: Vec<f64> = pts.iter().flat_map(|p| [p.x, p.y]).collect();
+        flat.into_pyarray(py).reshape([pts.len(), 2])
+    }
+    /// Cells `(ix, iy)` of the path, int64 (N, 2); index a risk array as `risk[iy, ix]`.
+    #[getter]
+    fn path_cells<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<i64>>> {
+        let cells = self.inner.path.as_ref().map_or(&[][..], |p| &p.cells[..]);
+        let flat: Vec<i64> = cells.iter().flat_map(|c| [c.ix as i64, c.iy as i64]).collect();
+        flat.into_pyarray(py).reshape([cells.len(), 2])
+    }
+    /// `1 - exp(-S)` of the path, or None without a path.
+    #[getter]
+    fn accumulated_risk(&self) -> Option<f64> {
+        self.inner.path.as_ref().map(|p| p.accumulated_risk)
+    }
+    /// `S = Σ d·(ρ(a) + ρ(b))/2`, the path's risk integral, or None.
+    #[getter]
+    fn risk_integral(&self) -> Option<f64> {
+        self.inner.path.as_ref().map(|p| p.risk_integral)
+    }
+    /// Path length through the cell centres [m], or None.
+    #[getter]
+    fn length_m(&self) -> Option<f64> {
+        self.inner.path.as_ref().map(|p| p.length_m)
+    }
+    /// Path cost `λ·length + S`, or None.
+    #[getter]
+    fn cost(&self) -> Option<f64> {
+        self.inner.path.as_ref().map(|p| p.cost)
+    }
+    /// Cells expanded by the search (the goal included).
+    #[getter]
+    fn expanded(&self) -> usize {
+        self.inner.expanded
+    }
+    /// The point `carrot_m` of path length from the start (x, y) [m]; None unless "found".
+    #[getter]
+    fn carrot(&self) -> Option<(f64, f64)> {
+        self.inner.carrot_world.map(|p| (p.x, p.y))
+    }
+    /// The start cell (ix, iy).
+    #[getter]
+    fn start_cell(&self) -> (u32, u32) {
+        (self.inner.start_cell.ix, self.inner.start_cell.iy)
+    }
+    /// The goal cell (ix, iy).
+    #[getter]
+    fn goal_cell(&self) -> (u32, u32) {
+        (self.inner.goal_cell.ix, self.inner.goal_cell.iy)
+    }
+    /// Time of the search and the path tracing in the core [s]; not the conversions or the grid check.
+    #[getter]
+    fn time_s(&self) -> f64 {
+        self.inner.time_s
+    }
+
+    fn __repr__(&self) -> String {
+        let o = &self.inner;
+        match &o.path {
+            Some(p) => format!(
+                "PlanResult(status={:?}, cells={}, length_m={:.3}, cost={:.4}, accumulated_risk={:.4}, expanded={})",
+                o.status.name(),
+                p.cells.len(),
+                p.length_m,
+                p.cost,
+                p.accumulated_risk,
+                o.expanded
+            ),
+            None => format!("PlanResult(status={:?}, expanded={})", o.status.name(), o.expanded),
+        }
+    }
+}
+
+/// Adds the A* classes to the module.
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyRiskAStar>()?;
+    m.add_class::<PyPlanResult>()?;
+    Ok(())
+}

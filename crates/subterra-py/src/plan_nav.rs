@@ -1,0 +1,295 @@
+//! Bindings of `subterra::plan::navigator` (the wired ground-robot stack) and the recovery
+//! machine's records. Conversions, error mapping and GIL release only.
+
+use glam::DVec2;
+use numpy::{IntoPyArray, PyArray2};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+use subterra::plan::navigator::{Navigator, NavigatorConfig, NavigatorOutput};
+use subterra::plan::Transition;
+use subterra::Isometry3;
+
+use crate::convert::{isometry, type_name};
+use crate::errors::{input_error, IntoPyResult};
+use crate::terrain::{merged, parse_error, resolve_config, resolve_robot, to_py_dict, with_points, PyRiskMap, PyRobotConfig};
+
+/// Two finite numbers `(x, y)`.
+fn xy(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<DVec2> {
+    let v: Vec<f64> = py
+        .import("numpy")?
+        .call_method1("asarray", (value, "float64"))
+        .and_then(|a| a.call_method0("ravel")?.call_method0("tolist")?.extract())
+        .map_err(|_| input_error(py, format!("argument `{argument}` must be two numbers (x, y) [m], got {}", type_name(value))))?;
+    match v[..] {
+        [x, y] | [x, y, _] if x.is_finite() && y.is_finite() => Ok(DVec2::new(x, y)),
+        _ => Err(input_error(py, format!("argument `{argument}` must be two finite numbers (x, y) [m], got {v:?}"))),
+    }
+}
+
+fn transition_dict<'py>(py: Python<'py>, t: &Transition) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("time_s", t.time_s)?;
+    d.set_item("from", t.from.name())?;
+    d.set_item("to", t.to.name())?;
+    d.set_item("reason", &t.reason)?;
+    d.set_item("r_inst", t.r_inst)?;
+    d.set_item("r_total", t.r_total)?;
+    Ok(d)
+}
+
+fn points_array<'py>(py: Python<'py>, points: &[DVec2]) -> Bound<'py, PyArray2<f64>> {
+    let flat: Vec<f64> = points.iter().flat_map(|p| [p.x, p.y]).collect();
+    numpy::ndarray::Array2::from_shape_vec((points.len(), 2), flat).expect("n x 2 values").into_pyarray(py)
+}
+
+/// What one `Navigator.step` decided.
+#[pyclass(name = "NavigatorOutput", module = "subterra._core", frozen)]
+pub struct PyNavigatorOutput {
+    inner: NavigatorOutput,
+}
+
+#[pymethods]
+impl PyNavigatorOutput {
+    /// `(v, ω)`: forward speed [m/s] and yaw rate [rad/s] to command.
+    #[getter]
+    fn command(&self) -> (f64, f64) {
+        (self.inner.speed_m_s, self.inner.yaw_rate_rad_s)
+    }
+
+    /// The behaviour that produced the command: `track`, `clear_map`, `rotate`,
+    /// `raise_thresholds`, `back_out`, `goal_reached`, `home` or `failed`.
+    #[getter]
+    fn behaviour(&self) -> &'static str {
+        self.inner.behaviour.name()
+    }
+
+    /// `goal`, or `home` after the goal was given up.
+    #[getter]
+    fn target(&self) -> &'static str {
+        match self.inner.target {
+            subterra::plan::Target::Goal => "goal",
+            subterra::plan::Target::Home => "home",
+        }
+    }
+
+    /// Status of the plan made this step (`found`, `no_path`, `budget_exceeded`, ...), or None.
+    #[getter]
+    fn plan_status(&self) -> Option<&'static str> {
+        self.inner.plan.as_ref().map(|p| p.status.name())
+    }
+
+    /// The path being tracked, `(N, 2)` world [m] (empty without one).
+    #[getter]
+    fn path_world<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        points_array(py, &self.inner.path_world)
+    }
+
+    /// Status of the MPC solve this step (`solved`, `solved_inexact`, `infeasible_backup`,
+    /// `solver_failed_backup`), or None when it did not run.
+    #[getter]
+    fn mpc_status(&self) -> Option<&'static str> {
+        self.inner.mpc.as_ref().map(|m| m.status.name())
+    }
+
+    /// The MPC's predicted states `(N + 1, 4)` `[x, y, θ, v]`, or None.
+    #[getter]
+    fn predicted<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f64>>> {
+        self.inner.mpc.as_ref().map(|m| {
+            let flat: Vec<f64> = m.predicted.iter().flat_map(|s| s.to_array()).collect();
+            numpy::ndarray::Array2::from_shape_vec((m.predicted.len(), 4), flat).expect("n x 4 values").into_pyarray(py)
+        })
+    }
+
+    /// Risk under the robot [0-1].
+    #[getter]
+    fn local_risk(&self) -> f64 {
+        self.inner.local_risk
+    }
+
+    /// `v_max·(1 - local_risk)` [m/s].
+    #[getter]
+    fn speed_limit_m_s(&self) -> f64 {
+        self.inner.speed_limit_m_s
+    }
+
+    /// `(R_inst, R_total)` in force.
+    #[getter]
+    fn thresholds(&self) -> (f64, f64) {
+        (self.inner.r_inst, self.inner.r_total)
+    }
+
+    /// The recovery machine's transitions during this step: dicts with `time_s`, `from`,
+    /// `to`, `reason`, `r_inst`, `r_total`.
+    #[getter]
+    fn transitions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let items = self.inner.transitions.iter().map(|t| transition_dict(py, t)).collect::<PyResult<Vec<_>>>()?;
+        PyList::new(py, items)
+    }
+
+    /// Wall time per stage [s]: `map_s`, `plan_s`, `track_s`, `total_s`.
+    #[getter]
+    fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let t = self.inner.timings;
+        let d = PyDict::new(py);
+        d.set_item("map_s", t.map_s)?;
+        d.set_item("plan_s", t.plan_s)?;
+        d.set_item("track_s", t.track_s)?;
+        d.set_item("total_s", t.total_s)?;
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "NavigatorOutput(command=({:.3}, {:.3}), behaviour={:?}, plan={:?}, local_risk={:.3})",
+            self.inner.speed_m_s,
+            self.inner.yaw_rate_rad_s,
+            self.inner.behaviour.name(),
+            self.inner.plan.as_ref().map(|p| p.status.name()),
+            self.inner.local_risk
+        )
+    }
+}
+
+/// The ground robot's navigation stack (DESIGN §3): terrain mapper, risk-aware A*, MPC
+/// tracker and recovery behaviours, one `step` per control tick.
+#[pyclass(name = "Navigator", module = "subterra._core")]
+pub struct PyNavigator {
+    inner: Navigator,
+    last_stamp: Option<f64>,
+}
+
+#[pymethods]
+impl PyNavigator {
+    /// `goal`, `home`: world (x, y) [m]; `home` (where the robot returns when it gives up
+    /// the goal) defaults to its position at the first step. `robot`: None (Husky), a dict or a
+    /// `RobotConfig`. `terrain`: None, a dict, a `TerrainConfig` or a TOML path. `config`: a
+    /// (partial) dict with sections `planner`, `tracker`, `recovery`, `navigator` laid over
+    /// the defaults for the robot.
+    #[new]
+    #[pyo3(signature = (goal, *, home = None, robot = None, terrain = None, config = None))]
+    fn new(
+        py: Python<'_>,
+        goal: &Bound<'_, PyAny>,
+        home: Option<&Bound<'_, PyAny>>,
+        robot: Option<&Bound<'_, PyAny>>,
+        terrain: Option<&Bound<'_, PyAny>>,
+        config: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let goal = xy(py, "goal", goal)?;
+        let home = match home {
+            Some(h) if !h.is_none() => Some(xy(py, "home", h)?),
+            _ => None,
+        };
+        let robot = resolve_robot(py, robot)?;
+        let terrain = resolve_config(py, terrain)?;
+        let defaults = NavigatorConfig::for_robot(&robot);
+        let config = match config {
+            Some(d) if !d.is_none() => {
+                let value = merged(py, "config", serde_json::to_value(&defaults), d)?;
+                serde_json::from_value::<NavigatorConfig>(value).map_err(|e| parse_error(py, "config", e))?
+            }
+            _ => defaults,
+        };
+        let inner = Navigator::new(robot, terrain, config, goal, home).py_err(py)?;
+        Ok(Self { inner, last_stamp: None })
+    }
+
+    /// One control tick. `points`: a new scan `(N, 3)` in the sensor frame [m], or None.
+    /// `stamp` [s] (default 0.1 s after the previous step), `world_from_body` (4x4 odometry
+    /// pose, required), `body_from_sensor` (default identity), `confidence` in [0, 1],
+    /// `speed`: measured forward speed [m/s]. Releases the GIL while it runs.
+    #[pyo3(signature = (points, *, stamp = None, world_from_body, body_from_sensor = None, confidence = 1.0, speed = 0.0))]
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &mut self,
+        py: Python<'_>,
+        points: Option<&Bound<'_, PyAny>>,
+        stamp: Option<f64>,
+        world_from_body: &Bound<'_, PyAny>,
+        body_from_sensor: Option<&Bound<'_, PyAny>>,
+        confidence: f64,
+        speed: f64,
+    ) -> PyResult<PyNavigatorOutput> {
+        let world_from_body = isometry(py, "world_from_body", world_from_body)?;
+        let body_from_sensor = match body_from_sensor {
+            Some(m) if !m.is_none() => isometry(py, "body_from_sensor", m)?,
+            _ => Isometry3::IDENTITY,
+        };
+        let stamp_s = stamp.unwrap_or_else(|| self.last_stamp.map_or(0.0, |t| t + 0.1));
+        let nav = &mut self.inner;
+        let mut run = |points: Option<&[f32]>| {
+            py.detach(|| {
+                nav.step(&subterra::plan::navigator::NavigatorInput {
+                    stamp_s,
+                    points_sensor: points,
+                    world_from_body,
+                    body_from_sensor,
+                    confidence,
+                    speed_m_s: speed,
+                })
+            })
+        };
+        let out = match points {
+            Some(p) if !p.is_none() => with_points(py, "points", p, |flat| run(Some(flat)))?,
+            _ => run(None),
+        }
+        .py_err(py)?;
+        self.last_stamp = Some(stamp_s);
+        Ok(PyNavigatorOutput { inner: out })
+    }
+
+    /// The last coarse risk map (None before the first scan).
+    #[getter]
+    fn risk_map(&self, py: Python<'_>) -> PyResult<Option<Py<PyRiskMap>>> {
+        match self.inner.risk_map() {
+            Some(m) => {
+                let (stats, timings) = self.inner.last_terrain_stats();
+                Ok(Some(Py::new(py, PyRiskMap::from_core(m.clone(), "coarse", stats, timings))?))
+            }
+            None => Ok(None),
+        }
+    }
+
+    /// The robot.
+    #[getter]
+    fn robot(&self) -> PyRobotConfig {
+        PyRobotConfig::from_core(*self.inner.robot())
+    }
+
+    /// The configuration as a dict (sections `planner`, `tracker`, `recovery`, `navigator`).
+    #[getter]
+    fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py_dict(py, serde_json::to_string(self.inner.config()))
+    }
+
+    /// Every transition of the recovery machine so far (dicts, oldest first).
+    #[getter]
+    fn transitions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let items = self.inner.recovery().transitions().iter().map(|t| transition_dict(py, t)).collect::<PyResult<Vec<_>>>()?;
+        PyList::new(py, items)
+    }
+
+    /// The goal (x, y) [m].
+    #[getter]
+    fn goal(&self) -> (f64, f64) {
+        (self.inner.goal().x, self.inner.goal().y)
+    }
+
+    /// Home (x, y) [m].
+    #[getter]
+    fn home(&self) -> (f64, f64) {
+        let h = self.inner.recovery().home();
+        (h.x, h.y)
+    }
+
+    fn __repr__(&self) -> String {
+        let g = self.inner.goal();
+        format!("Navigator(goal=({:.2}, {:.2}), behaviour={:?})", g.x, g.y, self.inner.recovery().behaviour().name())
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyNavigator>()?;
+    m.add_class::<PyNavigatorOutput>()?;
+    Ok(())
+}

@@ -1,0 +1,865 @@
+//! Risk-aware A* on an 8-connected grid (DESIGN §3).
+//!
+//! In: a [`RiskGrid`] (row-major `(ny, nx)` risks, row `iy` along world y, column `ix` along
+//! world x, the layout of the terrain [`RiskMap`] layers), a start and a goal. Out: a
+//! [`PlanOutcome`]: the least-cost path, its cost, length and accumulated risk, the carrot point,
+//! or the reason there is no path.
+//!
+//! # Cost model
+//!
+//! A cell's risk `r` is the probability of failing per metre travelled in it.
+//! 1. NaN (unknown) is replaced by [`RiskAStarConfig::unknown_risk`].
+//! 2. A cell is **untraversable** iff `r >= r_inst` (`+inf` included).
+//! 3. Traversable cells have the hazard `ρ = -ln(1 - r)` [1/m], computed in `f64` as
+//!    `-ln_1p(-r)` with `r` clamped to at most [`MAX_RISK`] `= 1 - 2^-24` (the largest `f32`
+//!    below 1, so the clamp changes no `f32` risk and `ρ <= 16.64`), and the cost
+//!    `c = λ + ρ` [1/m].
+//! 4. A move between 8-neighbours `a`, `b` whose centres are `d` apart (`d = res` or
+//!    `res·√2`) costs `d·(c(a) + c(b))/2`. This is scikit-image's `MCP_Geometric` on the costs
+//!    `c` (unit sampling) times `res`, so optimal costs are comparable.
+//! 5. Diagonal moves. With `allow_corner_cutting = false` (the default) a diagonal move from
+//!    `a` to `a + (dx, dy)` is allowed only if both cells sharing that corner, `a + (dx, 0)` and
+//!    `a + (0, dy)`, are traversable (their risk does not enter the move's cost): the robot never
+//!    squeezes between two untraversable cells or brushes an untraversable corner. With
+//!    `allow_corner_cutting = true` every traversable 8-neighbour is reachable
+//!    (`MCP_Geometric`'s rule).
+//!
+//! A path's cost is therefore `λ·L + S`, with `L = Σ d` its length [m] and
+//! `S = Σ d·(ρ(a) + ρ(b))/2` its risk integral; its **accumulated risk** is `1 - exp(-S)`
+//! (computed as `-expm1(-S)`), DESIGN §3's `1 - exp(-Σ d·(-ln(1 - r̄)))` with the same
+//! cell averaging as the cost.
+//!
+//! # Search
+//!
+//! A* from the start cell to the goal cell. `g` is the cost from the start; the heuristic is
+//! `h = λ·res·octile(n, goal)` with `octile = max(|Δx|, |Δy|) + (√2 - 1)·min(|Δx|, |Δy|)` cells,
+//! the length of the shortest 8-connected path, so `h` is admissible and consistent (every move
+//! costs at least `λ·d` because `ρ >= 0`): the first time the goal is popped its `g` is the
+//! optimal cost, and a closed cell is never reopened. It is never smaller than DESIGN's
+//! `λ·euclid` bound (a better-informed heuristic: up to ties, A* with it expands a subset of
+//! the cells it would expand with `λ·euclid`). An expanded cell's `g` is set to `-inf`, so one
+//! comparison `g_new < g` skips closed and untraversable neighbours. The open list is a binary heap ordered by
+//! `f = g + h`, ties broken by the smaller `h` (as `f32`) and then the smaller flat index
+//! `iy·nx + ix`, with stale entries skipped when popped, so a plan is deterministic. A cell's
+//! `g` improves only when strictly smaller, so among equal-cost predecessors the first one
+//! found is kept. Moves are tried in the order E, N, W, S, NE, NW, SW, SE.
+//!
+//! # Outcome
+//!
+//! In this order: the start cell untraversable -> [`PlanStatus::StartBlocked`]; the goal cell
+//! untraversable -> [`PlanStatus::GoalBlocked`]; the open list empties before the goal is
+//! popped -> [`PlanStatus::NoPath`]; otherwise the least-cost path `P` is found and its
+//! accumulated risk `R(P)` is compared with `r_total`: `R(P) > r_total` ->
+//! [`PlanStatus::BudgetExceeded`] (with `P`, so the caller sees what was rejected), else
+//! [`PlanStatus::Found`]. Only the least-cost path's risk is checked: a costlier path whose risk
+//! would fit the budget is not searched for (that is a constrained shortest-path problem).
+//!
+//! The planner holds its search buffers between calls: a node array indexed by cell, reused
+//! through a per-call stamp (no clearing), and the heap's storage. A cell's cost is computed the
+//! first time the search touches it.
+//!
+//! [`RiskMap`]: crate::terrain::RiskMap
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+use std::time::Instant;
+
+use glam::DVec2;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{require_positive, Error, Result};
+use crate::terrain::{CellIndex, GridGeometry, Layer, RiskMap};
+
+/// Largest risk used in `-ln(1 - r)`: `1 - 2^-24`, the largest `f32` below 1. Keeps the hazard
+/// finite (at most `24·ln 2 = 16.64` per metre).
+pub const MAX_RISK: f64 = 1.0 - 1.0 / 16_777_216.0;
+/// Most cells of a grid (2^24 = 4096 x 4096; the search state takes 24 bytes per cell).
+pub const MAX_GRID_CELLS: usize = 1 << 24;
+/// Most cells along one side of a grid (2^16).
+pub const MAX_SIDE: usize = 1 << 16;
+/// Largest cell side accepted [m]; beyond it the geometry is a mistake.
+pub const MAX_RESOLUTION_M: f64 = 1.0e4;
+/// Largest length weight λ accepted [1/m]; keeps every path cost finite.
+pub const MAX_LAMBDA_PER_M: f64 = 1.0e6;
+
+/// How a cell's risk becomes a cost per metre.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum CostModel {
+    /// DESIGN §3: `c = λ - ln(1 - r)`; the accumulated-risk budget `R_total` applies.
+    #[default]
+    Risk,
+    /// The conventional baseline (Nav2 Smac-style): `c = 1 + k·r` with `k` =
+    /// `additive_weight`; cells at or above `R_inst` blocked; **no** budget (a path is
+    /// `Found` whatever its accumulated risk, which is still reported).
+    Additive,
+}
+
+/// Settings of [`RiskAStar`]. "subterra" as a source means an engineering choice of this
+/// library, not a published value.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RiskAStarConfig {
+    /// λ, the weight of path length in the cost `d·(λ - ln(1 - r̄))` [1/m]: a detour of `x`
+    /// metres is worth avoiding a risk integral of `λ·x`. Small, so that risk dominates and
+    /// among riskless paths the shortest wins (DESIGN §3). subterra: 0.1.
+    pub lam: f64,
+    /// `R_inst`: cells with risk `>= r_inst` are untraversable, in (0, 1] [1]. subterra: 0.8.
+    pub r_inst: f64,
+    /// `R_total`: the largest accumulated risk of an accepted path, in (0, 1] [1]. subterra: 0.5.
+    pub r_total: f64,
+    /// Path length from the start to the carrot point [m]. DESIGN §3: 1.
+    pub carrot_m: f64,
+    /// Risk of a cell whose risk is NaN (unknown), in [0, 1] [1/m]; `>= r_inst` makes unknown
+    /// cells untraversable. subterra: 0.15, the terrain mapper's `risk.unknown`.
+    pub unknown_risk: f64,
+    /// Whether a diagonal move may pass an untraversable cell at the corner it crosses (see the
+    /// module docs). subterra: false.
+    pub allow_corner_cutting: bool,
+    /// The cost model: `risk` (DESIGN §3) or `additive` (the baseline). subterra: risk.
+    #[serde(default)]
+    pub cost_model: CostModel,
+    /// `k` of the additive model `1 + k·r` [1]. Nav2 Smac planner's `cost_penalty`: 2.0.
+    #[serde(default = "default_additive_weight")]
+    pub additive_weight: f64,
+}
+
+fn default_additive_weight() -> f64 {
+    2.0
+}
+
+impl Default for RiskAStarConfig {
+    fn default() -> Self {
+        Self {
+            lam: 0.1,
+            r_inst: 0.8,
+            r_total: 0.5,
+            carrot_m: 1.0,
+            unknown_risk: 0.15,
+            allow_corner_cutting: false,
+            cost_model: CostModel::Risk,
+            additive_weight: default_additive_weight(),
+        }
+    }
+}
+
+impl RiskAStarConfig {
+    /// Checks every field, naming it (`astar.<field>`) on error.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.lam.is_finite() && self.lam > 0.0 && self.lam <= MAX_LAMBDA_PER_M) {
+            return Err(Error::config("astar.lam", format!("must be in (0, {MAX_LAMBDA_PER_M:e}] 1/m"), self.lam));
+        }
+        let unit = |field: &str, value: f64| {
+            if value.is_finite() && value > 0.0 && value <= 1.0 {
+                Ok(())
+            } else {
+                Err(Error::config(field, "must be in (0, 1]", value))
+            }
+        };
+        unit("astar.r_inst", self.r_inst)?;
+        unit("astar.r_total", self.r_total)?;
+        require_positive("astar.carrot_m", self.carrot_m)?;
+        if !(0.0..=1.0).contains(&self.unknown_risk) {
+            return Err(Error::config("astar.unknown_risk", "must be in [0, 1]", self.unknown_risk));
+        }
+        if !(self.additive_weight.is_finite() && self.additive_weight >= 0.0 && self.additive_weight <= MAX_LAMBDA_PER_M) {
+            return Err(Error::config("astar.additive_weight", format!("must be in [0, {MAX_LAMBDA_PER_M:e}]"), self.additive_weight));
+        }
+        Ok(())
+    }
+
+    /// Parses and validates a TOML document laid out like `configs/astar.toml`.
+    pub fn from_toml_str(text: &str) -> Result<Self> {
+        let config: Self = toml::from_str(text).map_err(|e| Error::ConfigParse { message: e.to_string() })?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The hazard `-ln(1 - r)` [1/m] of a cell of risk `r`, or `None` if it is untraversable.
+    #[inline]
+    pub fn hazard(&self, risk: f32) -> Option<f64> {
+        let r = if risk.is_nan() { self.unknown_risk } else { risk as f64 };
+        if r >= self.r_inst {
+            None
+        } else {
+            Some(-(-r.min(MAX_RISK)).ln_1p())
+        }
+    }
+
+    /// The cost [1/m] of a cell of risk `r`: `λ - ln(1 - r)`, or `1 + k·r` with the additive
+    /// model; `+inf` if it is untraversable.
+    #[inline]
+    pub fn cell_cost(&self, risk: f32) -> f64 {
+        match self.cost_model {
+            CostModel::Risk => self.hazard(risk).map_or(f64::INFINITY, |rho| self.lam + rho),
+            CostModel::Additive => {
+                let r = if risk.is_nan() { self.unknown_risk } else { risk as f64 };
+                if r >= self.r_inst { f64::INFINITY } else { 1.0 + self.additive_weight * r.max(0.0) }
+            }
+        }
+    }
+
+    /// The least cost per metre of any cell: the heuristic's scale [1/m].
+    #[inline]
+    pub fn min_cell_cost(&self) -> f64 {
+        match self.cost_model {
+            CostModel::Risk => self.lam,
+            CostModel::Additive => 1.0,
+        }
+    }
+}
+
+/// A risk grid: per-cell risks over a world-axis-aligned geometry.
+#[derive(Debug, Clone, Copy)]
+pub struct RiskGrid<'a> {
+    risk: &'a [f32],
+    nx: usize,
+    ny: usize,
+    resolution_m: f64,
+    origin_m: DVec2,
+    /// The terrain map's geometry when the grid is a [`RiskMap`]'s: cells are then found and
+    /// placed exactly as the map does (world-aligned global cells).
+    map_geometry: Option<GridGeometry>,
+}
+
+impl<'a> RiskGrid<'a> {
+    /// A grid of `nx x ny` cells of side `resolution_m`, whose cell `(0, 0)` has its lower-left
+    /// corner at the world position `origin_m`. `risk` is row-major `(ny, nx)`: `risk[iy·nx + ix]`.
+    /// Risks are per metre in [0, 1]; NaN means unknown; values `>= r_inst` (`+inf` included) are
+    /// untraversable; negative values are an error. Checks every value once (O(cells)).
+    pub fn new(risk: &'a [f32], nx: usize, ny: usize, resolution_m: f64, origin_m: DVec2) -> Result<Self> {
+        if nx == 0 || ny == 0 {
+            return Err(Error::input("risk", format!("is empty (shape ({ny}, {nx})); a grid needs at least one cell")));
+        }
+        let cells = nx.checked_mul(ny).filter(|&n| n <= MAX_GRID_CELLS && nx <= MAX_SIDE && ny <= MAX_SIDE).ok_or_else(|| {
+            Error::input("risk", format!("has shape ({ny}, {nx}); at most {MAX_GRID_CELLS} cells and {MAX_SIDE} on a side"))
+        })?;
+        if risk.len() != cells {
+            return Err(Error::input("risk", format!("has {} values but the shape ({ny}, {nx}) needs {cells}", risk.len())));
+        }
+        if !(resolution_m.is_finite() && resolution_m > 0.0 && resolution_m <= MAX_RESOLUTION_M) {
+            return Err(Error::input("resolution", format!("must be in (0, {MAX_RESOLUTION_M:e}] m, got {resolution_m}")));
+        }
+        if !origin_m.is_finite() {
+            return Err(Error::input("origin", format!("must be finite, got ({}, {})", origin_m.x, origin_m.y)));
+        }
+        // `r < 0` is false for NaN: unknown cells pass.
+        if let Some(i) = risk.iter().position(|&r| r < 0.0) {
+            return Err(Error::input(
+                "risk",
+                format!("has the negative value {} at row {}, column {}; risks must be in [0, 1] (NaN = unknown)", risk[i], i / nx, i % nx),
+            ));
+        }
+        Ok(Self { risk, nx, ny, resolution_m, origin_m, map_geometry: None })
+    }
+
+    /// The `risk` layer of a terrain map, with its geometry: a world position is in the cell
+    /// [`GridGeometry::cell_of`] gives, and a cell's centre is [`GridGeometry::centre_of`].
+    pub fn from_map(map: &'a RiskMap) -> Result<Self> {
+        let g = map.geometry();
+        let grid = Self::new(map.get(Layer::Risk), g.nx, g.ny, g.resolution_m, g.origin_m())?;
+        Ok(Self { map_geometry: Some(*g), ..grid })
+    }
+
+    /// Cells along world x.
+    pub fn nx(&self) -> usize {
+        self.nx
+    }
+    /// Cells along world y.
+    pub fn ny(&self) -> usize {
+        self.ny
+    }
+    /// Cell side [m/cell].
+    pub fn resolution_m(&self) -> f64 {
+        self.resolution_m
+    }
+    /// World position of cell `(0, 0)`'s lower-left corner [m].
+    pub fn origin_m(&self) -> DVec2 {
+        self.origin_m
+    }
+    /// The risks, row-major `(ny, nx)`.
+    pub fn risk(&self) -> &'a [f32] {
+        self.risk
+    }
+
+    /// The cell holding the world position `p` (`floor((p - origin)/res)`, or the map's rule),
+    /// if inside the grid.
+    pub fn cell_of(&self, p: DVec2) -> Option<CellIndex> {
+        if let Some(g) = &self.map_geometry {
+            return g.cell_of(p.x, p.y);
+        }
+        let q = ((p - self.origin_m) / self.resolution_m).floor();
+        if q.x >= 0.0 && q.y >= 0.0 && q.x < self.nx as f64 && q.y < self.ny as f64 {
+            Some(CellIndex { ix: q.x as u32, iy: q.y as u32 })
+        } else {
+            None
+        }
+    }
+
+    /// World position of a cell's centre [m].
+    pub fn centre_of(&self, cell: CellIndex) -> DVec2 {
+        if let Some(g) = &self.map_geometry {
+            return g.centre_of(cell);
+        }
+        self.origin_m + (DVec2::new(cell.ix as f64, cell.iy as f64) + 0.5) * self.resolution_m
+    }
+
+    fn flat(&self, cell: CellIndex) -> usize {
+        cell.iy as usize * self.nx + cell.ix as usize
+    }
+
+    fn cell_at(&self, flat: usize) -> CellIndex {
+        CellIndex { ix: (flat % self.nx) as u32, iy: (flat / self.nx) as u32 }
+    }
+
+    fn check_cell(&self, argument: &str, cell: CellIndex) -> Result<()> {
+        if (cell.ix as usize) < self.nx && (cell.iy as usize) < self.ny {
+            Ok(())
+        } else {
+            Err(Error::input(argument, format!("cell (ix={}, iy={}) is outside the grid of {} x {} cells", cell.ix, cell.iy, self.nx, self.ny)))
+        }
+    }
+
+    fn locate(&self, argument: &str, p: DVec2) -> Result<CellIndex> {
+        if !p.is_finite() {
+            return Err(Error::input(argument, format!("must be finite, got ({}, {})", p.x, p.y)));
+        }
+        self.cell_of(p).ok_or_else(|| {
+            let (o, res) = (self.origin_m, self.resolution_m);
+            Error::input(
+                argument,
+                format!(
+                    "({}, {}) lies outside the grid, which covers x in [{}, {}), y in [{}, {}) m",
+                    p.x,
+                    p.y,
+                    o.x,
+                    o.x + self.nx as f64 * res,
+                    o.y,
+                    o.y + self.ny as f64 * res
+                ),
+            )
+        })
+    }
+}
+
+/// Why a plan has or has no path.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum PlanStatus {
+    /// The least-cost path is within the risk budget.
+    Found,
+    /// The start cell is untraversable (`r >= r_inst`).
+    StartBlocked,
+    /// The goal cell is untraversable (`r >= r_inst`).
+    GoalBlocked,
+    /// No traversable path joins start and goal.
+    NoPath,
+    /// The least-cost path's accumulated risk exceeds `r_total` (the path is reported).
+    BudgetExceeded,
+}
+
+impl PlanStatus {
+    /// `found`, `start_blocked`, `goal_blocked`, `no_path` or `budget_exceeded`.
+    pub fn name(self) -> &'static str {
+        match self {
+            PlanStatus::Found => "found",
+            PlanStatus::StartBlocked => "start_blocked",
+            PlanStatus::GoalBlocked => "goal_blocked",
+            PlanStatus::NoPath => "no_path",
+            PlanStatus::BudgetExceeded => "budget_exceeded",
+        }
+    }
+}
+
+/// A least-cost path from the start cell to the goal cell.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedPath {
+    /// The cells, start first, goal last; consecutive cells are 8-neighbours.
+    pub cells: Vec<CellIndex>,
+    /// The cells' centres in the world frame [m].
+    pub points_world: Vec<DVec2>,
+    /// `λ·L + S`, the sum of the move costs (the A* `g` of the goal) [1].
+    pub cost: f64,
+    /// `L`, the length of the polyline through the cell centres [m].
+    pub length_m: f64,
+    /// `S = Σ d·(ρ(a) + ρ(b))/2`, the risk integral [1].
+    pub risk_integral: f64,
+    /// `1 - exp(-S)`, the accumulated risk [1].
+    pub accumulated_risk: f64,
+}
+
+/// The result of one [`RiskAStar::plan`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlanOutcome {
+    /// Whether a path was found, and if not why.
+    pub status: PlanStatus,
+    /// The least-cost path: with [`PlanStatus::Found`] and [`PlanStatus::BudgetExceeded`].
+    pub path: Option<PlannedPath>,
+    /// The point `carrot_m` of path length from the start along the path's polyline (the goal's
+    /// centre if the path is shorter) [m, world]: with [`PlanStatus::Found`] only.
+    pub carrot_world: Option<DVec2>,
+    /// The start cell.
+    pub start_cell: CellIndex,
+    /// The goal cell.
+    pub goal_cell: CellIndex,
+    /// Cells popped from the open list and expanded (the goal included).
+    pub expanded: usize,
+    /// Wall time of the plan [s].
+    pub time_s: f64,
+}
+
+impl PlanOutcome {
+    /// The path when the status is [`PlanStatus::Found`].
+    pub fn found(&self) -> Option<&PlannedPath> {
+        if self.status == PlanStatus::Found {
+            self.path.as_ref()
+        } else {
+            None
+        }
+    }
+}
+
+/// The 8 moves `(dx, dy)`: orthogonal first (E, N, W, S), then diagonal (NE, NW, SW, SE).
+const MOVES: [(i32, i32); 8] = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1)];
+/// For diagonal move `4 + k`, the two orthogonal moves whose cells share its corner.
+const CORNERS: [(usize, usize); 4] = [(0, 1), (2, 1), (2, 3), (0, 3)];
+/// Parent of the start cell.
+const NO_PARENT: u8 = u8::MAX;
+
+/// Search state of one cell; valid only when `stamp` is the planner's current stamp.
+#[derive(Debug, Clone, Copy, Default)]
+struct Node {
+    /// Cost from the start: `+inf` not reached, [`CLOSED`] expanded (the goal keeps its cost).
+    g: f64,
+    /// Cell cost `λ + ρ` (`+inf`: untraversable).
+    cost: f64,
+    stamp: u32,
+    /// The move (index into `MOVES`) that reached this cell.
+    parent: u8,
+}
+
+/// `g` of an expanded cell: no new cost is below it, so a closed cell is never improved, and an
+/// untraversable neighbour's `+inf` cost never improves anything either (one comparison tests
+/// all three).
+const CLOSED: f64 = f64::NEG_INFINITY;
+
+/// An open-list entry: the key `f.to_bits() << 64 | (h as f32).to_bits() << 32 | iy << 16 | ix`
+/// as one integer, ordered so that `BinaryHeap` pops the smallest. `f, h >= 0`, so their bits
+/// order as their values, and `(iy, ix)` orders as the flat index `iy·nx + ix`: entries pop in
+/// the order of `(f, h, flat index)`. Sides are at most [`MAX_SIDE`] cells.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Open(u128);
+
+impl Open {
+    #[inline]
+    fn new(f: f64, h: f64, x: usize, y: usize) -> Self {
+        let tie = (((h as f32).to_bits() as u64) << 32) | ((y as u64) << 16) | x as u64;
+        Self(((f.to_bits() as u128) << 64) | tie as u128)
+    }
+
+    /// `(ix, iy)`.
+    #[inline]
+    fn cell(self) -> (usize, usize) {
+        ((self.0 & 0xffff) as usize, ((self.0 >> 16) & 0xffff) as usize)
+    }
+}
+
+impl Ord for Open {
+    #[inline]
+    fn cmp(&self, other: &Self) -> Ordering {
+        other.0.cmp(&self.0)
+    }
+}
+
+impl PartialOrd for Open {
+    #[inline]
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// The risk-aware A* planner (see the module docs for the exact algorithm).
+#[derive(Debug, Clone)]
+pub struct RiskAStar {
+    config: RiskAStarConfig,
+    nodes: Vec<Node>,
+    open: BinaryHeap<Open>,
+    stamp: u32,
+}
+
+impl RiskAStar {
+    /// A planner; fails if the config is invalid.
+    pub fn new(config: RiskAStarConfig) -> Result<Self> {
+        config.validate()?;
+        Ok(Self { config, nodes: Vec::new(), open: BinaryHeap::new(), stamp: 0 })
+    }
+
+    /// The config.
+    pub fn config(&self) -> &RiskAStarConfig {
+        &self.config
+    }
+
+    /// Plans from the cell holding the world position `start_world` to the one holding
+    /// `goal_world` [m]. Errors (naming `start` or `goal`) if a position is not finite or lies
+    /// outside the grid; "no path" is an outcome.
+    pub fn plan(&mut self, grid: &RiskGrid<'_>, start_world: DVec2, goal_world: DVec2) -> Result<PlanOutcome> {
+        let start = grid.locate("start", start_world)?;
+        let goal = grid.locate("goal", goal_world)?;
+        self.plan_cells(grid, start, goal)
+    }
+
+    /// Plans from cell `start` to cell `goal`. Errors (naming `start` or `goal`) if a cell is
+    /// outside the grid.
+    pub fn plan_cells(&mut self, grid: &RiskGrid<'_>, start: CellIndex, goal: CellIndex) -> Result<PlanOutcome> {
+        let started = Instant::now();
+        grid.check_cell("start", start)?;
+        grid.check_cell("goal", goal)?;
+        let (status, expanded) = self.search(grid, grid.flat(start), grid.flat(goal));
+        let path = match status {
+            PlanStatus::Found | PlanStatus::BudgetExceeded => Some(self.trace(grid, grid.flat(goal))),
+            _ => None,
+        };
+        let status = match &path {
+            Some(p) if self.config.cost_model == CostModel::Risk && p.accumulated_risk > self.config.r_total => PlanStatus::BudgetExceeded,
+            _ => status,
+        };
+        let carrot_world = match (&path, status) {
+            (Some(p), PlanStatus::Found) => Some(carrot(&p.points_world, self.config.carrot_m)),
+            _ => None,
+        };
+        Ok(PlanOutcome { status, path, carrot_world, start_cell: start, goal_cell: goal, expanded, time_s: started.elapsed().as_secs_f64() })
+    }
+
+    /// Starts a new search over `cells` cells: grows the node array and moves to a fresh stamp.
+    fn begin(&mut self, cells: usize) {
+        if self.nodes.len() < cells {
+            self.nodes.resize(cells, Node::default());
+        }
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            // Wrapped: forget every old stamp.
+            self.nodes.iter_mut().for_each(|n| n.stamp = 0);
+            self.stamp = 1;
+        }
+        self.open.clear();
+    }
+
+    /// The node of cell `i`, initialised (cost computed, not reached, open) on first touch.
+    #[inline]
+    fn touch(nodes: &mut [Node], stamp: u32, config: &RiskAStarConfig, risk: &[f32], i: usize) -> Node {
+        let node = &mut nodes[i];
+        if node.stamp != stamp {
+            *node = Node { g: f64::INFINITY, cost: config.cell_cost(risk[i]), stamp, parent: NO_PARENT };
+        }
+        *node
+    }
+
+    /// A* from `start` to `goal` (flat indices). Returns `Found` (the goal's `g` and parents are
+    /// set; the budget is checked by the caller), `StartBlocked`, `GoalBlocked` or `NoPath`, and
+    /// the number of expanded cells.
+    fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize) -> (PlanStatus, usize) {
+        let (nx, ny) = (grid.nx, grid.ny);
+        self.begin(nx * ny);
+        let stamp = self.stamp;
+        let config = self.config;
+        let risk = grid.risk;
+        let nodes = &mut self.nodes[..];
+        if Self::touch(nodes, stamp, &config, risk, start).cost.is_infinite() {
+            return (PlanStatus::StartBlocked, 0);
+        }
+        if Self::touch(nodes, stamp, &config, risk, goal).cost.is_infinite() {
+            return (PlanStatus::GoalBlocked, 0);
+        }
+        let res = grid.resolution_m;
+        let step = [res, res * std::f64::consts::SQRT_2];
+        let (gx, gy) = ((goal % nx) as f64, (goal / nx) as f64);
+        let h_scale = config.min_cell_cost() * res;
+        let heuristic = |x: usize, y: usize| {
+            let (dx, dy) = ((x as f64 - gx).abs(), (y as f64 - gy).abs());
+            h_scale * (dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy))
+        };
+        // Flat offsets of MOVES.
+        let w = nx as isize;
+        let offsets: [isize; 8] = [1, w, -1, -w, w + 1, w - 1, -w - 1, -w + 1];
+        nodes[start].g = 0.0;
+        let (sx, sy) = (start % nx, start / nx);
+        let h0 = heuristic(sx, sy);
+        self.open.push(Open::new(h0, h0, sx, sy));
+        let mut expanded = 0;
+        while let Some(top) = self.open.pop() {
+            let (ax, ay) = top.cell();
+            let a = ay * nx + ax;
+            let node_a = &mut nodes[a];
+            let (g_a, cost_a) = (node_a.g, node_a.cost);
+            if g_a == CLOSED {
+                continue; // stale entry
+            }
+            expanded += 1;
+            if a == goal {
+                return (PlanStatus::Found, expanded);
+            }
+            node_a.g = CLOSED;
+            // Away from the border every move stays inside the grid.
+            let interior = ax > 0 && ay > 0 && ax + 1 < nx && ay + 1 < ny;
+            let mut orthogonal_open = [false; 4];
+            for k in 0..8 {
+                let (dx, dy) = MOVES[k];
+                let (bx, by) = (ax.wrapping_add_signed(dx as isize), ay.wrapping_add_signed(dy as isize));
+                // Off the grid, a coordinate wraps to a huge value.
+                if !interior && (bx >= nx || by >= ny) {
+                    continue;
+                }
+                let diagonal = k >= 4;
+                if diagonal && !config.allow_corner_cutting {
+                    let (p, q) = CORNERS[k - 4];
+                    if !(orthogonal_open[p] && orthogonal_open[q]) {
+                        continue;
+                    }
+                }
+                let b = a.wrapping_add_signed(offsets[k]);
+                let node_b = Self::touch(nodes, stamp, &config, risk, b);
+                if !diagonal {
+                    orthogonal_open[k] = node_b.cost < f64::INFINITY;
+                }
+                // `+inf` for an untraversable `b`; never below a closed `b`'s CLOSED.
+                let g = g_a + step[diagonal as usize] * (cost_a + node_b.cost) * 0.5;
+                if g < node_b.g {
+                    let node = &mut nodes[b];
+                    node.g = g;
+                    node.parent = k as u8;
+                    let h = heuristic(bx, by);
+                    self.open.push(Open::new(g + h, h, bx, by));
+                }
+            }
+        }
+        (PlanStatus::NoPath, expanded)
+    }
+
+    /// The path to `goal` through the parents of the last search, with its cost, length, risk
+    /// integral and accumulated risk.
+    fn trace(&self, grid: &RiskGrid<'_>, goal: usize) -> PlannedPath {
+        let mut flat = vec![goal];
+        let mut i = goal;
+        while let Some(&(dx, dy)) = MOVES.get(self.nodes[i].parent as usize) {
+            let (x, y) = ((i % grid.nx) as i64 - dx as i64, (i / grid.nx) as i64 - dy as i64);
+            i = (y * grid.nx as i64 + x) as usize;
+            flat.push(i);
+        }
+        flat.reverse();
+        let cells: Vec<CellIndex> = flat.iter().map(|&i| grid.cell_at(i)).collect();
+        let points_world: Vec<DVec2> = cells.iter().map(|&c| grid.centre_of(c)).collect();
+        let hazard = |i: usize| self.config.hazard(grid.risk[i]).unwrap_or(f64::INFINITY);
+        let (mut length_m, mut risk_integral) = (0.0, 0.0);
+        for w in flat.windows(2) {
+            let diagonal = w[0] % grid.nx != w[1] % grid.nx && w[0] / grid.nx != w[1] / grid.nx;
+            let d = if diagonal { grid.resolution_m * std::f64::consts::SQRT_2 } else { grid.resolution_m };
+            length_m += d;
+            risk_integral += d * (hazard(w[0]) + hazard(w[1])) * 0.5;
+        }
+        PlannedPath { cells, points_world, cost: self.nodes[goal].g, length_m, risk_integral, accumulated_risk: -(-risk_integral).exp_m1() }
+    }
+}
+
+/// The point `distance_m` along the polyline `points` from its first point; its last point if
+/// the polyline is shorter.
+fn carrot(points: &[DVec2], distance_m: f64) -> DVec2 {
+    let mut left = distance_m;
+    for w in points.windows(2) {
+        let seg = w[0].distance(w[1]);
+        if seg >= left {
+            return w[0] + (w[1] - w[0]) * (left / seg);
+        }
+        left -= seg;
+    }
+    points.last().copied().unwrap_or(DVec2::NAN)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn planner(f: impl FnOnce(&mut RiskAStarConfig)) -> RiskAStar {
+        let mut c = RiskAStarConfig::default();
+        f(&mut c);
+        RiskAStar::new(c).unwrap()
+    }
+
+    fn cell(ix: u32, iy: u32) -> CellIndex {
+        CellIndex { ix, iy }
+    }
+
+    #[test]
+    fn defaults_equal_the_committed_config() {
+        let text = include_str!("../../../../configs/astar.toml");
+        assert_eq!(RiskAStarConfig::from_toml_str(text).unwrap(), RiskAStarConfig::default());
+    }
+
+    #[test]
+    fn one_diagonal_and_one_straight_move_by_hand() {
+        // 3 x 2 grid, res 0.5, λ = 0.1: path (0,0) -> (1,1) -> (2,1) with risks 0.2, 0.5, 0.
+        // Costs c = 0.1 - ln(0.8) = 0.3231435513, 0.1 - ln(0.5) = 0.7931471806, 0.1.
+        // Diagonal: 0.5·√2·(0.3231435513 + 0.7931471806)/2 = 0.3946683731;
+        // straight: 0.5·(0.7931471806 + 0.1)/2 = 0.2232867951; total 0.6179551683.
+        let risk = [0.2, 0.9, 0.9, 0.9, 0.5, 0.0];
+        let grid = RiskGrid::new(&risk, 3, 2, 0.5, DVec2::new(-1.0, 2.0)).unwrap();
+        let mut p = planner(|c| {
+            c.lam = 0.1;
+            c.r_total = 1.0;
+            c.allow_corner_cutting = true;
+        });
+        let out = p.plan_cells(&grid, cell(0, 0), cell(2, 1)).unwrap();
+        assert_eq!(out.status, PlanStatus::Found);
+        let path = out.path.unwrap();
+        assert_eq!(path.cells, vec![cell(0, 0), cell(1, 1), cell(2, 1)]);
+        assert!((path.cost - 0.617_955_168_3).abs() < 1e-8, "{}", path.cost);
+        assert!((path.length_m - (0.5 * 2f64.sqrt() + 0.5)).abs() < 1e-12);
+        // S = cost - λ·L = 0.6179551683 - 0.1·1.2071067812 = 0.4972444902; R = 1 - e^-S.
+        // (Risks are f32: 0.2f32 = 0.2000000030, hence the 1e-8 tolerances.)
+        assert!((path.risk_integral - 0.497_244_490_2).abs() < 1e-8);
+        assert!((path.accumulated_risk - (1.0 - (-0.497_244_490_2f64).exp())).abs() < 1e-8);
+        assert_eq!(path.points_world[0], DVec2::new(-0.75, 2.25));
+        assert_eq!(path.points_world[2], DVec2::new(0.25, 2.75));
+    }
+
+    #[test]
+    fn corner_cutting_rule() {
+        // Row 1:  . .   Start S = (0, 0), goal (1, 1), lethal X at (1, 0): without corner
+        // Row 0:  S X   cutting the diagonal is refused and the path goes round by (0, 1).
+        let risk = [0.0, 1.0, 0.0, 0.0];
+        let grid = RiskGrid::new(&risk, 2, 2, 1.0, DVec2::ZERO).unwrap();
+        let out = planner(|_| {}).plan_cells(&grid, cell(0, 0), cell(1, 1)).unwrap();
+        assert_eq!(out.path.unwrap().cells, vec![cell(0, 0), cell(0, 1), cell(1, 1)]);
+        let out = planner(|c| c.allow_corner_cutting = true).plan_cells(&grid, cell(0, 0), cell(1, 1)).unwrap();
+        assert_eq!(out.path.unwrap().cells, vec![cell(0, 0), cell(1, 1)]);
+        // Both corner cells lethal: no path without corner cutting.
+        let risk = [0.0, 1.0, 1.0, 0.0];
+        let grid = RiskGrid::new(&risk, 2, 2, 1.0, DVec2::ZERO).unwrap();
+        assert_eq!(planner(|_| {}).plan_cells(&grid, cell(0, 0), cell(1, 1)).unwrap().status, PlanStatus::NoPath);
+    }
+
+    #[test]
+    fn blocked_and_unreachable_are_told_apart() {
+        let risk = [0.0, 0.9, 0.0, 0.0, 0.9, 0.0];
+        let grid = RiskGrid::new(&risk, 3, 2, 1.0, DVec2::ZERO).unwrap();
+        let mut p = planner(|_| {});
+        assert_eq!(p.plan_cells(&grid, cell(1, 0), cell(2, 0)).unwrap().status, PlanStatus::StartBlocked);
+        assert_eq!(p.plan_cells(&grid, cell(0, 0), cell(1, 1)).unwrap().status, PlanStatus::GoalBlocked);
+        let out = p.plan_cells(&grid, cell(0, 0), cell(2, 1)).unwrap();
+        assert_eq!((out.status, out.path, out.carrot_world, out.expanded), (PlanStatus::NoPath, None, None, 2));
+        // Unknown cells take `unknown_risk`: untraversable when it reaches r_inst.
+        let risk = [0.0, f32::NAN, 0.0];
+        let grid = RiskGrid::new(&risk, 3, 1, 1.0, DVec2::ZERO).unwrap();
+        assert_eq!(p.plan_cells(&grid, cell(0, 0), cell(2, 0)).unwrap().status, PlanStatus::Found);
+        let mut q = planner(|c| c.unknown_risk = 0.8);
+        assert_eq!(q.plan_cells(&grid, cell(0, 0), cell(2, 0)).unwrap().status, PlanStatus::NoPath);
+    }
+
+    #[test]
+    fn start_equals_goal() {
+        let risk = [0.3; 4];
+        let grid = RiskGrid::new(&risk, 2, 2, 1.0, DVec2::new(1.0, 1.0)).unwrap();
+        let out = planner(|_| {}).plan(&grid, DVec2::new(1.2, 1.7), DVec2::new(1.9, 1.1)).unwrap();
+        let path = out.path.as_ref().unwrap();
+        assert_eq!((out.status, path.cells.len(), path.cost, path.length_m, path.accumulated_risk), (PlanStatus::Found, 1, 0.0, 0.0, 0.0));
+        assert_eq!(out.carrot_world, Some(DVec2::new(1.5, 1.5)));
+    }
+
+    #[test]
+    fn carrot_by_hand() {
+        let pts = [DVec2::new(0.0, 0.0), DVec2::new(0.5, 0.0), DVec2::new(1.0, 0.5)];
+        // 0.5 along the first segment, then 0.5 of the 0.7071 diagonal.
+        let c = carrot(&pts, 1.0);
+        let t = 0.5 / 0.5f64.hypot(0.5);
+        assert!((c - DVec2::new(0.5 + 0.5 * t, 0.5 * t)).length() < 1e-12);
+        assert_eq!(carrot(&pts, 5.0), DVec2::new(1.0, 0.5));
+        assert_eq!(carrot(&pts[..1], 1.0), DVec2::ZERO);
+    }
+
+    #[test]
+    fn budget_boundary_is_inclusive() {
+        let risk = [0.1f32; 10];
+        let grid = RiskGrid::new(&risk, 10, 1, 0.5, DVec2::ZERO).unwrap();
+        let probe = planner(|c| c.r_total = 1.0).plan_cells(&grid, cell(0, 0), cell(9, 0)).unwrap();
+        let r = probe.path.unwrap().accumulated_risk;
+        // 4.5 m at -ln(0.9)/m: R = 1 - 0.9^4.5.
+        assert!((r - (1.0 - (1.0 - 0.1f32 as f64).powf(4.5))).abs() < 1e-12, "{r}");
+        let at = planner(|c| c.r_total = r).plan_cells(&grid, cell(0, 0), cell(9, 0)).unwrap();
+        assert_eq!(at.status, PlanStatus::Found);
+        let below = planner(|c| c.r_total = f64::from_bits(r.to_bits() - 1)).plan_cells(&grid, cell(0, 0), cell(9, 0)).unwrap();
+        assert_eq!(below.status, PlanStatus::BudgetExceeded);
+        assert_eq!(below.path.unwrap().accumulated_risk, r);
+        assert_eq!(below.carrot_world, None);
+    }
+
+    #[test]
+    fn bad_config_and_input_name_the_field() {
+        let err = |f: fn(&mut RiskAStarConfig)| {
+            let mut c = RiskAStarConfig::default();
+            f(&mut c);
+            RiskAStar::new(c).unwrap_err().to_string()
+        };
+        assert!(err(|c| c.lam = 0.0).contains("astar.lam"));
+        assert!(err(|c| c.lam = f64::NAN).contains("astar.lam"));
+        assert!(err(|c| c.r_inst = 1.5).contains("astar.r_inst"));
+        assert!(err(|c| c.r_total = 0.0).contains("astar.r_total"));
+        assert!(err(|c| c.carrot_m = -1.0).contains("astar.carrot_m"));
+        assert!(err(|c| c.unknown_risk = f64::NAN).contains("astar.unknown_risk"));
+        let risk = [0.0f32; 6];
+        assert!(RiskGrid::new(&risk, 3, 3, 1.0, DVec2::ZERO).unwrap_err().to_string().contains("`risk`"));
+        assert!(RiskGrid::new(&risk[..0], 0, 3, 1.0, DVec2::ZERO).unwrap_err().to_string().contains("empty"));
+        assert!(RiskGrid::new(&risk, 3, 2, 0.0, DVec2::ZERO).unwrap_err().to_string().contains("`resolution`"));
+        assert!(RiskGrid::new(&risk, 3, 2, 1.0, DVec2::new(f64::NAN, 0.0)).unwrap_err().to_string().contains("`origin`"));
+        let negative = [0.0, 0.0, 0.0, 0.0, -0.5, 0.0];
+        assert!(RiskGrid::new(&negative, 3, 2, 1.0, DVec2::ZERO).unwrap_err().to_string().contains("row 1, column 1"));
+        let grid = RiskGrid::new(&risk, 3, 2, 1.0, DVec2::ZERO).unwrap();
+        let mut p = planner(|_| {});
+        assert!(p.plan(&grid, DVec2::new(f64::NAN, 0.0), DVec2::ZERO).unwrap_err().to_string().contains("`start`"));
+        assert!(p.plan(&grid, DVec2::ZERO, DVec2::new(3.0, 0.5)).unwrap_err().to_string().contains("`goal`"));
+        assert!(p.plan(&grid, DVec2::new(-1e-9, 0.5), DVec2::ZERO).unwrap_err().to_string().contains("`start`"));
+        assert!(p.plan_cells(&grid, cell(0, 2), cell(0, 0)).unwrap_err().to_string().contains("`start`"));
+    }
+
+    #[test]
+    fn a_terrain_map_is_planned_on_its_own_cells() {
+        use crate::terrain::{GridGeometry, MapConfig};
+        let config = MapConfig { resolution_m: 0.1, size_x_m: 2.0, size_y_m: 1.0 };
+        let mut map = RiskMap::zeros(GridGeometry::centred_on(&config, 0.37, -0.21), 0.0);
+        let geometry = *map.geometry();
+        // A lethal column through the map but for its top row.
+        for iy in 0..geometry.ny - 1 {
+            map.get_mut(Layer::Risk)[geometry.flat(CellIndex { ix: 12, iy: iy as u32 })] = 1.0;
+        }
+        let grid = RiskGrid::from_map(&map).unwrap();
+        let (start, goal) = (DVec2::new(-0.3, -0.5), DVec2::new(1.05, -0.55));
+        let out = planner(|c| c.r_total = 1.0).plan(&grid, start, goal).unwrap();
+        assert_eq!(out.status, PlanStatus::Found);
+        assert_eq!(Some(out.start_cell), geometry.cell_of(start.x, start.y));
+        assert_eq!(Some(out.goal_cell), geometry.cell_of(goal.x, goal.y));
+        let path = out.path.unwrap();
+        assert!(path.cells.iter().all(|&c| map.get(Layer::Risk)[geometry.flat(c)] < 0.8));
+        assert!(path.cells.iter().any(|c| c.iy as usize == geometry.ny - 1), "goes over the wall's top");
+        for (c, p) in path.cells.iter().zip(&path.points_world) {
+            assert_eq!(*p, geometry.centre_of(*c));
+        }
+    }
+
+    #[test]
+    fn stamps_reuse_the_buffers_across_grids() {
+        // A big grid, then a small one, then the big one again: same answers as fresh planners.
+        let big: Vec<f32> = (0..400).map(|i| ((i * 37) % 100) as f32 / 120.0).collect();
+        let small = [0.0f32, 0.5, 0.2, 0.0];
+        let gb = RiskGrid::new(&big, 20, 20, 0.1, DVec2::ZERO).unwrap();
+        let gs = RiskGrid::new(&small, 2, 2, 0.1, DVec2::ZERO).unwrap();
+        let mut p = planner(|c| c.r_total = 1.0);
+        let first = p.plan_cells(&gb, cell(0, 0), cell(19, 19)).unwrap();
+        let s = p.plan_cells(&gs, cell(0, 0), cell(1, 1)).unwrap();
+        let again = p.plan_cells(&gb, cell(0, 0), cell(19, 19)).unwrap();
+        assert_eq!((&first.path, first.expanded), (&again.path, again.expanded));
+        let fresh = planner(|c| c.r_total = 1.0).plan_cells(&gs, cell(0, 0), cell(1, 1)).unwrap();
+        assert_eq!(s.path, fresh.path);
+        // Force the stamp to wrap.
+        p.stamp = u32::MAX;
+        let wrapped = p.plan_cells(&gb, cell(0, 0), cell(19, 19)).unwrap();
+        assert_eq!(wrapped.path, again.path);
+    }
+}

@@ -1,0 +1,695 @@
+"""``subterra replay RECORDING``: run a pipeline over a ROS bag or an MCAP file.
+
+With no topics, lists the recording's topics (name, type, count). Otherwise runs
+
+* ``--pipeline depth`` (``--depth-topic``, ``--info-topic``): APF-PF
+  (:class:`subterra.DepthPerception` + :class:`subterra.ApfController`) on every depth
+  image, in log-time order. The camera is the first ``CameraInfo``; ``body_from_camera``
+  comes from ``/tf_static`` when the recording links the body frame to the image's frame,
+  else the forward-looking default. The goal: with ``--odom-topic``, ``--goal`` is a point
+  in the odometry's world frame (default 5 m ahead of the first pose), turned into the
+  body frame with the pose at each image's stamp; without odometry, ``--goal`` is fixed in
+  the body frame (default 5 m straight ahead).
+* ``--pipeline terrain`` (``--cloud-topic``): :class:`subterra.TerrainMapper` on every
+  cloud. Poses ``world_from_body`` from ``--odom-topic`` (interpolated at each cloud's
+  stamp), else from ``/tf`` (world frame -> body frame), else the identity (a robot
+  standing still); ``body_from_sensor`` from ``/tf_static`` when it links the body frame to
+  the cloud's frame, else ``--sensor-height``, else the height estimated from the first
+  cloud.
+
+and writes to ``--out``: the figures of the simulated runs (depth: ``perception.png``;
+terrain: the layer PNGs, ``risk.png``, ``overview.png``, ...), ``summary.json`` (what was
+used, per-message timings: read, decode, pipeline, write) and ``replay.mcap``
+(:mod:`subterra.viz.foxglove`: commands, belief markers, risk grids, layer images, path,
+tf), plus ``replay.rrd`` for the depth pipeline when ``rerun-sdk`` is installed.
+
+The MCAP is written as the replay goes and closed in a ``finally``: when the recording
+turns out to be corrupt half-way (or a message is bad), the error is raised after the MCAP
+and a ``summary.json`` with ``"error"`` have been written for the messages before it.
+
+Frames: the output's world frame is the odometry's ``frame_id`` (``--world-frame``,
+default ``odom``), its body frame the odometry's ``child_frame_id`` (``--body-frame``,
+default ``base_link``), as REP 105 names them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from subterra.errors import InputError, SubterraError
+
+__all__ = [
+    "DEFAULT_GOAL_AHEAD_M",
+    "DEFAULT_LAYERS",
+    "PIPELINES",
+    "register_cli",
+    "replay",
+    "run_cli",
+]
+
+PIPELINES = ("depth", "terrain")
+#: Default goal: this far straight ahead of the body [m] (at the first pose with odometry).
+DEFAULT_GOAL_AHEAD_M = 5.0
+#: Map layers written as images to the output MCAP unless ``--layers`` says otherwise.
+DEFAULT_LAYERS = (
+    "ground_height", "collision", "step", "negative", "tilt", "roughness", "unknown", "mission", "risk", "risk_variance",
+)
+#: Poses further than this from the nearest odometry / tf sample are not used [ns].
+POSE_TOLERANCE_NS = 500_000_000
+#: Depth images written to the Rerun file: one in this many.
+RERUN_DEPTH_EVERY = 5
+
+_IMAGE = "sensor_msgs/msg/Image"
+_INFO = "sensor_msgs/msg/CameraInfo"
+_CLOUD = "sensor_msgs/msg/PointCloud2"
+_ODOM = "nav_msgs/msg/Odometry"
+_TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
+
+
+# ---------------------------------------------------------------------- helpers
+
+
+def _timed(it: Iterator[Any]) -> Iterator[tuple[Any, float]]:
+    """Each item of ``it`` with the seconds spent getting it (reading + deserialising)."""
+    while True:
+        t0 = time.perf_counter()
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        yield item, time.perf_counter() - t0
+
+
+def _stamp(msg: Any, log_ns: int) -> int:
+    """The header stamp [ns], or the log time when the header has none (stamp 0)."""
+    from subterra.io.ros import stamp_ns
+
+    try:
+        s = stamp_ns(msg)
+    except SubterraError:
+        return log_ns
+    return s if s > 0 else log_ns
+
+
+def _median_ms(values: Sequence[float]) -> float | None:
+    return float(np.median(values) * 1e3) if len(values) else None
+
+
+def _timing(read: list[float], decode: list[float], pipeline: list[float], write: list[float]) -> dict[str, Any]:
+    out = {
+        "read_ms_median": _median_ms(read),
+        "decode_ms_median": _median_ms(decode),
+        "pipeline_ms_median": _median_ms(pipeline),
+        "write_ms_median": _median_ms(write),
+    }
+    if read and pipeline:
+        ingest = np.asarray(read) + np.asarray(decode)
+        out["read_decode_ms_median"] = float(np.median(ingest) * 1e3)
+        out["read_decode_percent_of_pipeline"] = float(100.0 * np.median(ingest) / np.median(pipeline))
+    return out
+
+
+class _Context:
+    """What the pre-pass learns: odometry poses, tf, and the frames to use."""
+
+    def __init__(self) -> None:
+        from subterra.io.ros import PoseTrack, TransformBuffer
+
+        self.track = PoseTrack(POSE_TOLERANCE_NS)
+        self.tf = TransformBuffer(POSE_TOLERANCE_NS)
+        self.odom_frames: tuple[str, str] | None = None
+        self.tf_messages = 0
+        self.odom_messages = 0
+
+
+def _pre_pass(rec: Any, odom_topic: str | None) -> _Context:
+    from subterra.io.ros import decode_odometry
+
+    ctx = _Context()
+    tf_topics = [t.name for t in rec.topics.values() if t.type in _TF_TYPES]
+    topics = tf_topics + ([odom_topic] if odom_topic else [])
+    if not topics:
+        return ctx
+    for topic, log_ns, msg in rec.messages(topics):
+        where = f"{topic} at log time {log_ns} ns"
+        if topic == odom_topic:
+            sample = decode_odometry(msg, where=where)
+            ctx.track.add(sample.stamp_ns if sample.stamp_ns > 0 else log_ns, sample.world_from_body)
+            ctx.odom_frames = ctx.odom_frames or (sample.frame_id.lstrip("/"), sample.child_frame_id.lstrip("/"))
+            ctx.odom_messages += 1
+        else:
+            ctx.tf_messages += 1
+            ctx.tf.add_message(msg, static=topic.endswith("tf_static"), where=where)
+    if odom_topic and ctx.odom_messages == 0:
+        raise InputError(f"--odom-topic {odom_topic!r} has no messages: {rec.path}")
+    return ctx
+
+
+def _frames(ctx: _Context, world_frame: str | None, body_frame: str | None) -> tuple[str, str]:
+    from subterra.viz.foxglove import DEFAULT_BODY_FRAME, DEFAULT_WORLD_FRAME
+
+    world = world_frame or (ctx.odom_frames[0] if ctx.odom_frames and ctx.odom_frames[0] else DEFAULT_WORLD_FRAME)
+    body = body_frame or (ctx.odom_frames[1] if ctx.odom_frames and ctx.odom_frames[1] else DEFAULT_BODY_FRAME)
+    return world.lstrip("/"), body.lstrip("/")
+
+
+def _mount(ctx: _Context, body: str, sensor_frame: str) -> np.ndarray | None:
+    """``body_from_sensor`` from static tf, or None when tf does not link the two."""
+    sensor_frame = sensor_frame.lstrip("/")
+    if not sensor_frame or sensor_frame == body or not ctx.tf.static_only(body, sensor_frame):
+        return None
+    return ctx.tf.lookup(body, sensor_frame)
+
+
+def _pose(ctx: _Context, world: str, body: str, stamp: int, odom: bool) -> np.ndarray | None:
+    if odom:
+        return ctx.track.at(stamp)
+    if world in ctx.tf.frames and body in ctx.tf.frames:
+        try:
+            return ctx.tf.lookup(world, body, stamp)
+        except InputError:
+            return None
+    return None
+
+
+def _with_context(exc: SubterraError, where: str) -> SubterraError:
+    """The same kind of error, with where it happened appended (the path stays last)."""
+    new = type(exc)(f"{exc} (at {where})")
+    new.__cause__ = exc
+    return new
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="msg", leave=False, disable=None if enabled else True)
+
+
+# ---------------------------------------------------------------------- entry point
+
+
+def replay(
+    recording: str | Path,
+    out: str | Path,
+    *,
+    pipeline: str | None = None,
+    depth_topic: str | None = None,
+    info_topic: str | None = None,
+    cloud_topic: str | None = None,
+    odom_topic: str | None = None,
+    goal: Sequence[float] | None = None,
+    preset: str = "flight",
+    config: Any = None,
+    terrain_config: Any = None,
+    scale: float | None = None,
+    seed: int = 0,
+    world_frame: str | None = None,
+    body_frame: str | None = None,
+    sensor_height: float | None = None,
+    layers: Sequence[str] | None = DEFAULT_LAYERS,
+    max_messages: int | None = None,
+    rerun: bool | None = None,
+    plots: bool = True,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Runs ``pipeline`` over ``recording`` and writes the run folder ``out``; returns the summary.
+
+    ``pipeline`` None is inferred from the topics given. ``layers``: terrain layers
+    written as images (None: all). ``max_messages``: stop after that many images or
+    clouds. ``rerun``: write ``replay.rrd`` (depth only; None = when ``rerun-sdk`` is
+    installed).
+
+    Raises:
+        InputError: a topic is missing (the message lists the topics present) or of the
+            wrong type; the image size differs from the ``CameraInfo``'s; a cloud is
+            empty; bad arguments.
+        FileFormatError: the recording is truncated, corrupt or of an unknown encoding.
+    """
+    from subterra.io.recordings import open_recording
+
+    pipeline = _pipeline(pipeline, depth_topic, info_topic, cloud_topic)
+    if max_messages is not None and max_messages < 1:
+        raise InputError(f"argument `--max-messages` must be >= 1, got {max_messages}")
+    if goal is not None:
+        goal = np.asarray(goal, dtype=np.float64)
+        if goal.shape != (3,) or not np.all(np.isfinite(goal)):
+            raise InputError(f"argument `--goal` must be three finite numbers x,y,z [m], got {goal.tolist()}")
+    out = Path(out)
+    with open_recording(recording) as rec:
+        if pipeline == "depth":
+            return _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, config, scale, seed,
+                                 world_frame, body_frame, max_messages, rerun, plots, progress)
+        return _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_frame, body_frame, sensor_height,
+                               layers, max_messages, plots, progress)
+
+
+def _pipeline(pipeline: str | None, depth_topic: str | None, info_topic: str | None, cloud_topic: str | None) -> str:
+    if pipeline is not None and pipeline not in PIPELINES:
+        raise InputError(f"argument `--pipeline` must be depth or terrain, got {pipeline!r}")
+    depth_given = depth_topic is not None or info_topic is not None
+    if depth_given and cloud_topic is not None:
+        raise InputError("give --depth-topic/--info-topic (depth pipeline) or --cloud-topic (terrain pipeline), not both")
+    inferred = "depth" if depth_given else "terrain" if cloud_topic is not None else None
+    if pipeline is None:
+        pipeline = inferred
+    if pipeline is None:
+        raise InputError("no topic given: --depth-topic and --info-topic (depth) or --cloud-topic (terrain)")
+    if pipeline == "depth" and (depth_topic is None or info_topic is None):
+        raise InputError("--pipeline depth needs both --depth-topic (sensor_msgs/Image) and --info-topic (sensor_msgs/CameraInfo)")
+    if pipeline == "terrain" and cloud_topic is None:
+        raise InputError("--pipeline terrain needs --cloud-topic (sensor_msgs/PointCloud2)")
+    return pipeline
+
+
+# ---------------------------------------------------------------------- depth
+
+
+def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, config, scale, seed,
+                  world_frame, body_frame, max_messages, rerun, plots, progress) -> dict[str, Any]:
+    from subterra import ApfController, DepthPerception
+    from subterra.io.ros import decode_camera_info, decode_depth_image
+    from subterra.perceive import summarise
+    from subterra.viz.foxglove import FoxgloveWriter
+
+    images = rec.topic(depth_topic, [_IMAGE], role="--depth-topic")
+    rec.topic(info_topic, [_INFO], role="--info-topic")
+    if odom_topic is not None:
+        rec.topic(odom_topic, [_ODOM], role="--odom-topic")
+    # The camera: the first CameraInfo.
+    first_info = next(iter(rec.messages([info_topic])), None)
+    if first_info is None:
+        raise InputError(f"--info-topic {info_topic!r} has no messages: {rec.path}")
+    intrinsics = decode_camera_info(first_info.message, where=f"{info_topic} at log time {first_info.stamp_ns} ns")
+    camera = intrinsics.to_camera()
+    ctx = _pre_pass(rec, odom_topic)
+    world, body = _frames(ctx, world_frame, body_frame)
+    odom = odom_topic is not None
+
+    out.mkdir(parents=True, exist_ok=True)
+    writer = FoxgloveWriter(out / "replay.mcap", world_frame=world, body_frame=body, layers=())
+    recorder = _rerun_recorder(out, rerun)
+    records: list[dict[str, Any]] = []
+    read_s: list[float] = []
+    decode_s: list[float] = []
+    pipeline_s: list[float] = []
+    write_s: list[float] = []
+    perception = controller = None
+    goal_world = goal_body_fixed = None
+    body_from_camera = None
+    mount_source = "default: forward-looking camera (optical z = body x)"
+    frames_without_pose = 0
+    error: SubterraError | None = None
+    first_log = None
+    bar = _progress(images.count if max_messages is None else min(images.count, max_messages), "replay depth", progress)
+    try:
+        for (topic, log_ns, msg), dt_read in _timed(rec.messages([depth_topic])):
+            stamp = _stamp(msg, log_ns)
+            where = f"{topic} at stamp {stamp} ns"
+            t0 = time.perf_counter()
+            depth = decode_depth_image(msg, scale=scale, where=where)
+            if depth.data.shape != (camera.height, camera.width):
+                raise InputError(
+                    f"--depth-topic {topic!r}: the image at stamp {stamp} ns is {depth.data.shape[1]}x{depth.data.shape[0]} "
+                    f"but --info-topic {info_topic!r} says {camera.width}x{camera.height}: {rec.path}"
+                )
+            t1 = time.perf_counter()
+            if perception is None:  # the first image: its frame gives the mounting
+                first_log = log_ns
+                frame = str(msg.header.frame_id).lstrip("/")
+                body_from_camera = _mount(ctx, body, frame)
+                if body_from_camera is not None:
+                    mount_source = f"tf_static: {body} <- {frame}"
+                perception = DepthPerception(camera, preset, config=config, seed=seed, body_from_camera=body_from_camera)
+                controller = ApfController(preset, config=config)
+                body_from_camera = np.asarray(perception.body_from_camera)
+                if frame and frame != body:
+                    writer.static_transform(log_ns, stamp, body, frame, body_from_camera)
+                if odom:
+                    first = ctx.track.first
+                    goal_world = goal if goal is not None else (first @ np.array([DEFAULT_GOAL_AHEAD_M, 0, 0, 1.0]))[:3]
+                else:
+                    goal_body_fixed = goal if goal is not None else np.array([DEFAULT_GOAL_AHEAD_M, 0.0, 0.0])
+            pose = _pose(ctx, world, body, stamp, odom) if odom else None
+            if odom and pose is not None:
+                goal_body = (np.linalg.inv(pose) @ np.append(goal_world, 1.0))[:3]
+            elif odom:
+                frames_without_pose += 1
+                goal_body = np.array([DEFAULT_GOAL_AHEAD_M, 0.0, 0.0])
+            else:
+                goal_body = goal_body_fixed
+            try:
+                t2 = time.perf_counter()
+                result = perception.update(depth.data, depth.scale_m_per_unit if depth.data.dtype == np.uint16 else None)
+                cmd = controller.command(goal_body, perception=[result])
+                t3 = time.perf_counter()
+            except SubterraError as exc:
+                raise _with_context(exc, where) from exc
+            states = np.asarray(result.belief_states, dtype=np.int64)
+            probs = np.asarray(result.belief_probabilities, dtype=np.float64)
+            grid = states != perception.free_state
+            centres = perception.voxel_centres("body")[states[grid]] if grid.any() else np.zeros((0, 3))
+            writer.command(log_ns, stamp, cmd.v_x, cmd.v_y, cmd.v_z, cmd.yaw_rate)
+            writer.belief(log_ns, stamp, centres, probs[grid], p_free=result.p_free)
+            if pose is not None:
+                writer.pose(log_ns, stamp, pose)
+            t4 = time.perf_counter()
+            if recorder is not None:
+                _rerun_frame(recorder, (log_ns - first_log) / 1e9, depth, camera, centres, probs[grid], pose,
+                             body_from_camera, cmd, result.p_free)
+            mp = result.most_probable
+            records.append({
+                "frame": len(records), "name": f"{stamp}", "stamp_ns": stamp, "log_time_ns": log_ns,
+                "p_free": result.p_free,
+                "map_depth_m": None if mp is None else mp.depth_m,
+                "map_probability": None if mp is None else mp.probability,
+                "map_voxel": None if mp is None else list(mp.voxel),
+                "closest_depth_m": result.closest_depth_m,
+                "valid_pixels": result.valid_pixels, "in_range_pixels": result.in_range_pixels,
+                "repulsive_body": result.repulsive_body.tolist(),
+                "goal_body": [float(v) for v in goal_body],
+                "command": {"v_x": cmd.v_x, "v_y": cmd.v_y, "v_z": cmd.v_z, "yaw_rate": cmd.yaw_rate, "reached": cmd.reached},
+                "timings_s": result.timings,
+            })
+            read_s.append(dt_read)
+            decode_s.append(t1 - t0)
+            pipeline_s.append(t3 - t2)
+            write_s.append(t4 - t3)
+            bar.update(1)
+            if max_messages is not None and len(records) >= max_messages:
+                break
+    except SubterraError as exc:
+        error = exc
+    finally:
+        bar.close()
+        writer.close()
+        if recorder is not None:
+            recorder.close()
+
+    summary: dict[str, Any] = {
+        "recording": str(rec.path), "format": rec.format, "profile": rec.profile, "pipeline": "depth",
+        "completed": error is None, "error": None if error is None else str(error),
+        "topics": {"depth": depth_topic, "info": info_topic, "odom": odom_topic},
+        "frame_ids": {"world": world, "body": body},
+        "body_from_camera": None if body_from_camera is None else body_from_camera.tolist(),
+        "body_from_camera_source": mount_source,
+        "goal": {"frame": world if odom else body, "xyz_m": None if (goal_world if odom else goal_body_fixed) is None
+                 else [float(v) for v in (goal_world if odom else goal_body_fixed)]},
+        "frames_without_pose": frames_without_pose,
+        "output_mcap": str(writer.path), "output_counts": writer.counts,
+        "replay_timing": _timing(read_s, decode_s, pipeline_s, write_s),
+    }
+    if perception is not None:
+        summary = {**summary, **summarise(perception, records, source=str(rec.path), preset=preset)}
+    else:
+        summary["records"] = records
+    figures = []
+    if plots and records:
+        from subterra.viz.plots import plot_depth_trace
+
+        plot_depth_trace(records, out / "perception.png", title=f"APF-PF ({preset}) on {rec.path.name} {depth_topic}")
+        figures.append("perception.png")
+    summary["figures"] = figures
+    summary["rerun"] = str(out / "replay.rrd") if recorder is not None else None
+    (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    if error is not None:
+        raise error
+    return summary
+
+
+def _rerun_recorder(out: Path, rerun: bool | None):
+    if rerun is False:
+        return None
+    from subterra.viz.rerun import RerunRecorder, rerun_available
+
+    if not rerun_available():
+        if rerun:
+            raise InputError("--rerun needs rerun-sdk: pip install 'subterra[viz]'")
+        return None
+    return RerunRecorder(out / "replay.rrd", application_id="subterra-replay", depth_every=RERUN_DEPTH_EVERY)
+
+
+def _rerun_frame(recorder, time_s, depth, camera, centres_body, probs, pose, body_from_camera, cmd, p_free) -> None:
+    world_from_body = pose if pose is not None else np.eye(4)
+    data = depth.data
+    if data.dtype == np.uint16 and depth.scale_m_per_unit != 0.001:
+        data = (data.astype(np.float32) * np.float32(depth.scale_m_per_unit))
+    centres_world = (world_from_body[:3, :3] @ centres_body.T).T + world_from_body[:3, 3] if len(centres_body) else np.zeros((0, 3))
+    recorder.log_frame(
+        time_s, depth=data, world_from_camera=world_from_body @ body_from_camera, camera=camera,
+        belief_points_world=centres_world, belief_weights=probs, position=world_from_body[:3, 3],
+        command=np.array([cmd.v_x, cmd.v_y, cmd.v_z, cmd.yaw_rate]), p_free=p_free,
+    )
+
+
+# ---------------------------------------------------------------------- terrain
+
+
+def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_frame, body_frame, sensor_height,
+                    layers, max_messages, plots, progress) -> dict[str, Any]:
+    from subterra import TerrainMapper
+    from subterra.io.ros import decode_pointcloud2
+    from subterra.terrain import estimate_sensor_height, lethal_cells, translation
+    from subterra.viz.foxglove import FoxgloveWriter
+
+    clouds = rec.topic(cloud_topic, [_CLOUD], role="--cloud-topic")
+    if odom_topic is not None:
+        rec.topic(odom_topic, [_ODOM], role="--odom-topic")
+    if sensor_height is not None and not (math.isfinite(sensor_height) and sensor_height > 0):
+        raise InputError(f"argument `--sensor-height` must be a finite number > 0 m, got {sensor_height}")
+    ctx = _pre_pass(rec, odom_topic)
+    world, body = _frames(ctx, world_frame, body_frame)
+    odom = odom_topic is not None
+    if odom:
+        pose_kind, pose_source = "odom", f"odometry {odom_topic}"
+    elif world in ctx.tf.frames and body in ctx.tf.frames:
+        pose_kind, pose_source = "tf", f"tf: {world} <- {body}"
+    else:
+        pose_kind, pose_source = "none", "none: identity (the robot stands still at the world origin)"
+
+    mapper = TerrainMapper(config=terrain_config)
+    out.mkdir(parents=True, exist_ok=True)
+    writer = FoxgloveWriter(out / "replay.mcap", world_frame=world, body_frame=body, layers=layers)
+    scans: list[dict[str, Any]] = []
+    read_s: list[float] = []
+    decode_s: list[float] = []
+    pipeline_s: list[float] = []
+    write_s: list[float] = []
+    body_from_sensor = None
+    mount_source = None
+    first_stamp = None
+    risk_map = None
+    world_from_body = np.eye(4)
+    dropped_total = 0
+    error: SubterraError | None = None
+    bar = _progress(clouds.count if max_messages is None else min(clouds.count, max_messages), "replay terrain", progress)
+    try:
+        for (topic, log_ns, msg), dt_read in _timed(rec.messages([cloud_topic])):
+            stamp = _stamp(msg, log_ns)
+            where = f"{topic} at stamp {stamp} ns"
+            t0 = time.perf_counter()
+            cloud = decode_pointcloud2(msg, fields=(), where=where)
+            t1 = time.perf_counter()
+            if len(cloud) == 0:
+                raise InputError(
+                    f"--cloud-topic {topic!r}: the cloud at stamp {stamp} ns has no points "
+                    f"({cloud.width}x{cloud.height}, {cloud.dropped} non-finite dropped): {rec.path}"
+                )
+            if body_from_sensor is None:
+                body_from_sensor = _mount(ctx, body, cloud.frame_id)
+                if body_from_sensor is not None:
+                    mount_source = f"tf_static: {body} <- {cloud.frame_id}"
+                else:
+                    if sensor_height is None:
+                        sensor_height = estimate_sensor_height(cloud.points)
+                        mount_source = "estimated from the first cloud (level sensor)"
+                        if not sensor_height > 0:
+                            raise InputError(
+                                f"cannot estimate the height of the sensor above the ground from the first cloud on "
+                                f"{topic!r} (got {sensor_height:.2f} m) and tf has no {body} <- {cloud.frame_id or '?'}: "
+                                f"give --sensor-height or --body-frame: {rec.path}"
+                            )
+                    else:
+                        mount_source = "--sensor-height (level sensor)"
+                    body_from_sensor = translation(z=sensor_height)
+                if cloud.frame_id and cloud.frame_id.lstrip("/") != body:
+                    writer.static_transform(log_ns, stamp, body, cloud.frame_id.lstrip("/"), body_from_sensor)
+                first_stamp = stamp
+            pose = np.eye(4) if pose_kind == "none" else _pose(ctx, world, body, stamp, odom)
+            if pose is None:
+                raise InputError(f"no pose within {POSE_TOLERANCE_NS / 1e9:g} s of the cloud ({pose_source}): {rec.path}")
+            world_from_body = pose
+            try:
+                t2 = time.perf_counter()
+                risk_map = mapper.update(cloud.points, stamp=(stamp - first_stamp) / 1e9, world_from_body=world_from_body,
+                                         body_from_sensor=body_from_sensor)
+                t3 = time.perf_counter()
+            except SubterraError as exc:
+                raise _with_context(exc, where) from exc
+            writer.pose(log_ns, stamp, world_from_body)
+            writer.risk_map(log_ns, stamp, risk_map)
+            if mapper.last_fine is not None:
+                writer.risk_map(log_ns, stamp, mapper.last_fine, topic="/subterra/risk_fine", with_layers=False)
+            t4 = time.perf_counter()
+            dropped_total += cloud.dropped
+            scans.append({
+                "stamp_ns": stamp, "log_time_ns": log_ns, "frame_id": cloud.frame_id, "points": len(cloud),
+                "dropped_non_finite": cloud.dropped, "organised": [cloud.height, cloud.width],
+                "position_m": world_from_body[:3, 3].tolist(), "stats": dict(risk_map.stats), "timings": dict(risk_map.timings),
+            })
+            read_s.append(dt_read)
+            decode_s.append(t1 - t0)
+            pipeline_s.append(t3 - t2)
+            write_s.append(t4 - t3)
+            bar.update(1)
+            if max_messages is not None and len(scans) >= max_messages:
+                break
+    except SubterraError as exc:
+        error = exc
+    finally:
+        bar.close()
+        writer.close()
+
+    summary: dict[str, Any] = {
+        "recording": str(rec.path), "format": rec.format, "profile": rec.profile, "pipeline": "terrain",
+        "completed": error is None, "error": None if error is None else str(error),
+        "topics": {"cloud": cloud_topic, "odom": odom_topic},
+        "frame_ids": {"world": world, "body": body},
+        "poses": pose_source,
+        "body_from_sensor": None if body_from_sensor is None else np.asarray(body_from_sensor).tolist(),
+        "body_from_sensor_source": mount_source,
+        "dropped_non_finite": dropped_total,
+        "output_mcap": str(writer.path), "output_counts": writer.counts,
+        "replay_timing": _timing(read_s, decode_s, pipeline_s, write_s),
+        "scans": scans,
+    }
+    figures: list[str] = []
+    if risk_map is not None:
+        layers_stats = {}
+        for name in risk_map.layer_names:
+            a = risk_map.layer(name)
+            finite = a[np.isfinite(a)]
+            layers_stats[name] = (
+                {"min": float(finite.min()), "mean": float(finite.mean()), "max": float(finite.max()), "finite_cells": int(finite.size)}
+                if finite.size else {"min": None, "mean": None, "max": None, "finite_cells": 0}
+            )
+        summary.update({
+            "map": {"resolution_m": risk_map.resolution, "shape": list(risk_map.shape), "cells": risk_map.nx * risk_map.ny,
+                    "origin_m": list(risk_map.origin), "extent_m": list(risk_map.extent), "scans_fused": risk_map.scans},
+            "layers": layers_stats, "lethal_cells": lethal_cells(risk_map),
+            "robot": mapper.robot.to_dict(), "config": mapper.config.to_dict(),
+        })
+        if plots:
+            from subterra.terrain.cli import _write_figures
+
+            figures = _write_figures(mapper, risk_map, world_from_body, out)
+    summary["figures"] = figures
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False), encoding="utf-8")
+    if error is not None:
+        raise error
+    return summary
+
+
+# ---------------------------------------------------------------------- CLI
+
+
+def _goal(text: str) -> tuple[float, float, float]:
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected x,y,z in metres, got {text!r}") from exc
+    return x, y, z
+
+
+def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Adds the ``replay`` subcommand to ``subparsers``; its handler is ``args.handler``."""
+    p = subparsers.add_parser(
+        "replay", help="run the depth or terrain pipeline over a ROS 1/2 bag or an MCAP file (no topics: list them)",
+    )
+    p.add_argument("recording", help="ROS 1 .bag, ROS 2 bag (folder or .db3) or .mcap file")
+    p.add_argument("--pipeline", choices=PIPELINES, default=None, help="depth (APF-PF) or terrain (risk map); default from the topics")
+    p.add_argument("--depth-topic", default=None, help="sensor_msgs/Image depth topic (16UC1/mono16 or 32FC1)")
+    p.add_argument("--info-topic", default=None, help="sensor_msgs/CameraInfo topic of the depth camera")
+    p.add_argument("--cloud-topic", default=None, help="sensor_msgs/PointCloud2 topic (terrain)")
+    p.add_argument("--odom-topic", default=None, help="nav_msgs/Odometry topic: poses world_from_body")
+    p.add_argument("--goal", type=_goal, default=None,
+                   help="depth: goal x,y,z [m], in the odometry's world frame with --odom-topic, else in the body frame (default 5 m ahead)")
+    p.add_argument("--preset", default="flight", help="depth: perception preset (default flight)")
+    p.add_argument("--config", default=None, help="depth: perception config TOML; terrain: terrain config TOML")
+    p.add_argument("--scale", type=float, default=None, help="depth: metres per unit of 16UC1/mono16 images (default 0.001)")
+    p.add_argument("--seed", type=int, default=0, help="depth: particle filter seed (default 0)")
+    p.add_argument("--sensor-height", type=float, default=None, help="terrain: lidar height above the ground when tf lacks it [m]")
+    p.add_argument("--world-frame", default=None, help="world frame id (default: the odometry's frame_id, else odom)")
+    p.add_argument("--body-frame", default=None, help="body frame id (default: the odometry's child_frame_id, else base_link)")
+    p.add_argument("--layers", default=",".join(DEFAULT_LAYERS),
+                   help="terrain: map layers written as images to replay.mcap: comma-separated, 'all' or 'none'")
+    p.add_argument("--max-messages", type=int, default=None, help="stop after this many images / clouds")
+    p.add_argument("--no-rerun", action="store_true", help="depth: no replay.rrd even if rerun-sdk is installed")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--out", default=None, help="run folder (default runs/replay-<recording>-<pipeline>)")
+    p.set_defaults(handler=run_cli)
+    return p
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Handler of ``subterra replay``."""
+    from subterra.io.recordings import open_recording
+
+    if args.depth_topic is None and args.info_topic is None and args.cloud_topic is None:
+        with open_recording(args.recording) as rec:
+            print(f"{rec.path}: {rec.format}{f' ({rec.profile})' if rec.profile else ''}, {rec.message_count} messages")
+            print(rec.describe_topics())
+            if rec.damage:
+                print(f"warning: the file is incomplete: {rec.damage}")
+            hints = {
+                "depth": (rec.topics_of_type(_IMAGE), rec.topics_of_type(_INFO)),
+                "terrain": (rec.topics_of_type(_CLOUD),),
+            }
+            if hints["depth"][0] and hints["depth"][1]:
+                print(f"depth pipeline: --depth-topic {hints['depth'][0][0]} --info-topic {hints['depth'][1][0]}")
+            if hints["terrain"][0]:
+                print(f"terrain pipeline: --cloud-topic {hints['terrain'][0][0]}")
+        return 0
+    pipeline = _pipeline(args.pipeline, args.depth_topic, args.info_topic, args.cloud_topic)
+    out = Path(args.out or f"runs/replay-{Path(args.recording).stem}-{pipeline}")
+    if args.layers == "all":
+        layers = None
+    elif args.layers in ("none", ""):
+        layers = ()
+    else:
+        layers = tuple(s.strip() for s in args.layers.split(",") if s.strip())
+    config = terrain_config = None
+    if args.config:
+        if pipeline == "depth":
+            from subterra import load_config
+
+            config = load_config(args.config)
+        else:
+            terrain_config = args.config
+    summary = replay(
+        args.recording, out, pipeline=pipeline, depth_topic=args.depth_topic, info_topic=args.info_topic,
+        cloud_topic=args.cloud_topic, odom_topic=args.odom_topic, goal=args.goal, preset=args.preset, config=config,
+        terrain_config=terrain_config, scale=args.scale, seed=args.seed, world_frame=args.world_frame,
+        body_frame=args.body_frame, sensor_height=args.sensor_height, layers=layers, max_messages=args.max_messages,
+        rerun=False if args.no_rerun else None, plots=not args.no_plots, progress=not args.no_progress,
+    )
+    t = summary["replay_timing"]
+    n = len(summary["records"]) if pipeline == "depth" else len(summary["scans"])
+    unit = "images" if pipeline == "depth" else "clouds"
+    line = f"{n} {unit} from {args.recording}: pipeline median {t['pipeline_ms_median']:.2f} ms"
+    if t.get("read_decode_percent_of_pipeline") is not None:
+        line += f", read + decode {t['read_decode_ms_median']:.2f} ms ({t['read_decode_percent_of_pipeline']:.0f}% of the pipeline)"
+    print(line)
+    counts = ", ".join(f"{k} x{v}" for k, v in sorted(summary["output_counts"].items()))
+    print(f"wrote {out / 'summary.json'}, {summary['output_mcap']} ({counts}) and {len(summary['figures'])} figures")
+    if summary.get("rerun"):
+        print(f"wrote {summary['rerun']}")
+    return 0

@@ -1,0 +1,90 @@
+"""The closed-loop ground robot: simulated lidar -> Navigator (mapper, risk-aware A*, MPC,
+recovery) -> ground robot, and the recovery behaviours forced by hand-made worlds."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import subterra
+from subterra.drive import drive
+from subterra.errors import ConfigError, InputError
+from subterra.scenarios.ground import RECOVERY_SCENARIOS, recovery_scenario
+
+
+def _behaviours(result) -> list[str]:
+    return [e["to"] for e in result.events if e["from"] != e["to"]]
+
+
+def test_mine_drive_reaches_the_goal_and_writes_its_run_folder(tmp_path):
+    result = drive("mine", seed=0, time_limit_s=60)
+    m = result.metrics
+    assert m["success"], (m["failure"], result.events[-3:])
+    assert m["failure"] is None and m["collisions"] == 0
+    assert np.linalg.norm(result.steps["position"][-1, :2] - result.goal) < 1.5
+    # The MPC drove (not the backup stop), below the risk-limited speed, and on the plan.
+    assert set(result.steps["mpc_status"][result.steps["mpc_status"] != ""]) <= {"solved", "solved_inexact"}
+    assert np.all(result.steps["command"][:, 0] <= result.steps["speed_limit_m_s"] + 1e-6)
+    assert m["max_tilt_deg"] < 25.0
+    written = result.save(tmp_path / "run")
+    for key in ("trajectory", "metrics", "map_plot", "speed_plot", "compute_plot"):
+        assert written[key].stat().st_size > 200, key
+    assert written["events"].read_text().startswith("time_s,from,to,reason")  # no recovery needed here
+    summary = json.loads(written["metrics"].read_text())
+    assert summary["success"] and summary["planner"] == "risk-aware" and summary["steps"] == len(result.steps["time_s"])
+
+
+def test_dead_end_climbs_the_ladder_backs_out_and_goes_home():
+    sc = recovery_scenario("dead-end")
+    result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=150)
+    used = _behaviours(result)
+    for behaviour in sc.expect:
+        assert behaviour in used, (behaviour, used)
+    # In the order of the ladder: clear, rotate, raise, back out, then home.
+    first = [used.index(b) for b in ("clear_map", "rotate", "raise_thresholds", "back_out", "home")]
+    assert first == sorted(first)
+    assert result.metrics["failure"] == "returned_home" and result.metrics["collisions"] == 0
+    assert np.linalg.norm(result.steps["position"][-1, :2] - sc.home) < 1.0
+    assert any("giving up the goal" in e["reason"] for e in result.events)
+    raised = [e for e in result.events if e["to"] == "raise_thresholds"]
+    assert raised[-1]["r_inst"] == pytest.approx(0.9) and raised[-1]["r_total"] == pytest.approx(0.95)
+
+
+def test_blocked_return_stops_safely_after_the_ladder_ran_twice():
+    sc = recovery_scenario("blocked-return")
+    result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=240)
+    used = _behaviours(result)
+    assert result.metrics["failure"] == "gave_up", (result.metrics["failure"], used[-6:])
+    assert result.metrics["collisions"] == 0 and used[-1] == "failed"
+    assert used.count("back_out") == 2  # once on the way to the goal, once on the way home
+    assert any("every behaviour tried on the way home" in e["reason"] for e in result.events)
+
+
+def test_recovery_scenarios_are_valid_worlds():
+    for name in RECOVERY_SCENARIOS:
+        sc = recovery_scenario(name)
+        world = sc.world()
+        assert world.ground_height(*sc.start) is not None and world.ground_height(*sc.goal) is not None
+    with pytest.raises(InputError, match="`name`"):
+        recovery_scenario("cave-in")
+
+
+def test_navigator_bad_inputs_name_the_argument():
+    with pytest.raises(InputError, match="`goal`"):
+        subterra.Navigator(goal=(np.nan, 1.0))
+    with pytest.raises(ConfigError, match="nope"):
+        subterra.Navigator(goal=(1.0, 1.0), config={"navigator": {"nope": 1}})
+    with pytest.raises(ConfigError, match="navigator.replan_period_s"):
+        subterra.Navigator(goal=(1.0, 1.0), config={"navigator": {"replan_period_s": -1.0}})
+    nav = subterra.Navigator(goal=(5.0, 0.0))
+    with pytest.raises(InputError, match="world_from_body"):
+        nav.step(None, stamp=0.0, world_from_body=np.full((4, 4), np.nan))
+    with pytest.raises(InputError, match="points"):
+        nav.step(np.zeros((0, 3), np.float32), stamp=0.0, world_from_body=np.eye(4))
+    # Before any scan: stop and wait.
+    out = nav.step(None, stamp=0.0, world_from_body=np.eye(4))
+    assert out.command == (0.0, 0.0) and nav.risk_map is None
+    with pytest.raises(InputError, match="planner"):
+        drive("mine", planner="dijkstra")
