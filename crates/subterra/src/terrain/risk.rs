@@ -122,6 +122,8 @@ struct CellAccumulator {
     min_z: f32,
     max_z: f32,
     min_age: f32,
+    /// Void samples of the scan(s) in the cell: the floor was found missing there.
+    void_n: u32,
 }
 
 impl CellAccumulator {
@@ -145,7 +147,7 @@ impl CellAccumulator {
         }
     }
 
-    const EMPTY: Self = Self { count: 0, ground_n: 0, collision_n: 0, ground_sum: 0.0, min_z: f32::INFINITY, max_z: f32::NEG_INFINITY, min_age: f32::INFINITY };
+    const EMPTY: Self = Self { count: 0, ground_n: 0, collision_n: 0, ground_sum: 0.0, min_z: f32::INFINITY, max_z: f32::NEG_INFINITY, min_age: f32::INFINITY, void_n: 0 };
 }
 
 /// Builds maps of one geometry with reusable buffers.
@@ -214,8 +216,9 @@ impl MapBuilder {
     /// The map centred on `body_world` from `sources`, with the newest scan's polar ground.
     /// Bins one scan's points once, into the global cells around `origin_world` (the scan's
     /// sensor, world frame): `out` gets the non-empty cells. `sensor_above_body_m` lifts the
-    /// sensor-centred heights to the scan's body origin.
-    pub fn bin_scan(&mut self, points: &[[f32; 3]], heights: &[f32], origin_world: DVec3, sensor_above_body_m: f64, out: &mut Vec<BinnedCell>) {
+    /// sensor-centred heights to the scan's body origin. `voids`: the scan's void samples
+    /// (sensor-centred `(x, y)`, [`GroundSegmenter::void_samples`]), counted per cell.
+    pub fn bin_scan(&mut self, points: &[[f32; 3]], heights: &[f32], voids: &[[f32; 2]], origin_world: DVec3, sensor_above_body_m: f64, out: &mut Vec<BinnedCell>) {
         let g = GridGeometry::centred_on(&self.scratch_map, origin_world.x, origin_world.y);
         let n = g.cells();
         if self.scratch.len() != n {
@@ -257,10 +260,22 @@ impl MapBuilder {
             };
             let c = (iy * nx + ix) as usize;
             let cell = &mut scratch[c];
-            if cell.count == 0 {
+            if cell.count == 0 && cell.void_n == 0 {
                 touched.push(c as u32);
             }
             cell.add(p[2] + dz, h, thr, lo, hi);
+        }
+        for v in voids {
+            let (ix, iy) = (floor_i64((v[0] as f64 + origin_world.x) / res) - g.origin_cell.0, floor_i64((v[1] as f64 + origin_world.y) / res) - g.origin_cell.1);
+            if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
+                continue;
+            }
+            let c = (iy * nx + ix) as usize;
+            let cell = &mut scratch[c];
+            if cell.count == 0 && cell.void_n == 0 {
+                touched.push(c as u32);
+            }
+            cell.void_n += 1;
         }
         // The non-empty cells in the order they were first hit (each global cell once, so
         // the order does not change any sum the map makes of them).
@@ -352,6 +367,7 @@ impl MapBuilder {
                 cell.min_z = cell.min_z.min(a.min_z + dz);
                 cell.max_z = cell.max_z.max(a.max_z + dz);
                 cell.min_age = cell.min_age.min(src.age_s);
+                cell.void_n += a.void_n;
             }
         }
         points
@@ -375,6 +391,11 @@ impl MapBuilder {
             if cell.count > 0 {
                 observed[c] = 1.0;
             }
+            if cell.void_n > 0 && cell.ground_n == 0 {
+                // The floor was found missing and no scan of the window saw ground here.
+                observed[c] = 1.0;
+                depth[c] = f32::INFINITY;
+            }
         }
         if let Some(polar) = polar {
             let s = polar.sensor_level;
@@ -387,6 +408,11 @@ impl MapBuilder {
                 let row = iy * g.nx;
                 polar.segmenter.query_row(&self.xs, y, |ix, bin| {
                     let c = row + ix;
+                    if cells[c].ground_n == 0 && (bin.void || cells[c].void_n > 0) {
+                        observed[c] = 1.0;
+                        depth[c] = f32::INFINITY;
+                        return;
+                    }
                     if bin.covered {
                         observed[c] = 1.0;
                         if cells[c].ground_n == 0 {
