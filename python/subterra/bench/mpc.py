@@ -164,7 +164,7 @@ def _closed_loop(risk: np.ndarray, repeats: int, at: list[int] | None = None) ->
     path = bench_path()
     tracker = subterra.MpcTracker()
     dt = tracker.dt
-    wall, core, qps, ipm, statuses = [], [], [], [], {}
+    wall, core, qps, ipm, statuses, slack = [], [], [], [], {}, 0.0
     captured = []
     for run in range(repeats + 1):  # run 0 warms up (not timed)
         tracker.reset()
@@ -180,6 +180,7 @@ def _closed_loop(risk: np.ndarray, repeats: int, at: list[int] | None = None) ->
                 qps.append(out.iterations)
                 ipm.append(out.qp_iterations)
                 statuses[out.status] = statuses.get(out.status, 0) + 1
+                slack = max(slack, out.max_speed_slack)
             if run == 1 and at is not None and k in at:
                 nominal = None if last is None else np.vstack([last.inputs[1:], last.inputs[-1:]])
                 captured.append({"step": k, "state": state.copy(), "result": out,
@@ -192,6 +193,7 @@ def _closed_loop(risk: np.ndarray, repeats: int, at: list[int] | None = None) ->
         "qps_per_solve_mean": float(np.mean(qps)),
         "interior_point_iterations_per_solve_mean": float(np.mean(ipm)),
         "statuses": statuses,
+        "max_speed_slack_m_s": slack,
     }
     return report, captured
 
