@@ -200,7 +200,7 @@ class _Grid:
 @dataclass
 class MpcProblem:
     """The optimal control problem of one solve with its targets held fixed: everything the
-    cost and constraints need. Built by :meth:`targets_from`."""
+    cost and constraints need. Built by ``_problem`` from a trajectory; :func:`solve` holds one fixed per pass."""
 
     state: np.ndarray
     dt: float
