@@ -1,5 +1,5 @@
-"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py [terrain|replay|plan]`
-(with `terrain`, `replay` or `plan`, only those figures)."""
+"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py [terrain|replay|plan|drive]`
+(with `terrain`, `replay`, `plan` or `drive`, only those figures)."""
 
 from __future__ import annotations
 
@@ -131,9 +131,23 @@ def plan_figures() -> None:
     plt.close(fig)
 
 
+def drive_figures() -> None:
+    """docs/drive.md: the ground robot across the mine (seed 0), and the dead end that runs the recovery ladder."""
+    from subterra.drive import drive
+    from subterra.scenarios.ground import recovery_scenario
+    from subterra.viz.drive import plot_drive_map, plot_speed_risk
+
+    mine = drive("mine", seed=0)
+    plot_drive_map(mine, FIGURES / "drive-mine.png")
+    plot_speed_risk(mine, FIGURES / "drive-mine-speed.png")
+    sc = recovery_scenario("dead-end")
+    dead_end = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=150)
+    plot_drive_map(dead_end, FIGURES / "drive-dead-end.png")
+
+
 def main() -> None:
     FIGURES.mkdir(exist_ok=True)
-    only = {"terrain": terrain_figures, "replay": replay_figures, "plan": plan_figures}
+    only = {"terrain": terrain_figures, "replay": replay_figures, "plan": plan_figures, "drive": drive_figures}
     if sys.argv[1:2] and sys.argv[1] in only:
         only[sys.argv[1]]()
         return

@@ -444,6 +444,94 @@ class MpcTracker:
     @property
     def dt(self) -> float: ...
 
+class NavigatorOutput:
+    """What one ``Navigator.step`` decided."""
+
+    @property
+    def command(self) -> tuple[float, float]:
+        """``(v, ω)``: forward speed [m/s] and yaw rate [rad/s] to command."""
+    @property
+    def behaviour(self) -> str:
+        """``track``, ``clear_map``, ``rotate``, ``raise_thresholds``, ``back_out``, ``goal_reached``, ``home`` or ``failed``."""
+    @property
+    def target(self) -> str:
+        """``goal``, or ``home`` after the goal was given up."""
+    @property
+    def plan_status(self) -> str | None:
+        """Status of the plan made this step (``found``, ``no_path``, ``budget_exceeded``, ...), or None."""
+    @property
+    def path_world(self) -> npt.NDArray[np.float64]:
+        """The path being tracked, ``(N, 2)`` world [m] (empty without one)."""
+    @property
+    def mpc_status(self) -> str | None:
+        """``solved``, ``solved_inexact``, ``infeasible_backup``, ``solver_failed_backup``, or None when the MPC did not run."""
+    @property
+    def predicted(self) -> npt.NDArray[np.float64] | None:
+        """The MPC's predicted states ``(N + 1, 4)`` ``[x, y, θ, v]``, or None."""
+    @property
+    def local_risk(self) -> float:
+        """Risk under the robot [0-1]."""
+    @property
+    def speed_limit_m_s(self) -> float:
+        """``v_max·(1 - local_risk)`` [m/s]."""
+    @property
+    def thresholds(self) -> tuple[float, float]:
+        """``(R_inst, R_total)`` in force."""
+    @property
+    def transitions(self) -> list[dict[str, Any]]:
+        """The recovery machine's transitions during this step (``time_s``, ``from``, ``to``, ``reason``, ``r_inst``, ``r_total``)."""
+    @property
+    def timings(self) -> dict[str, float]:
+        """Wall time per stage [s]: ``map_s``, ``plan_s``, ``track_s``, ``total_s``."""
+
+class Navigator:
+    """The ground robot's navigation stack (DESIGN §3): terrain mapper, risk-aware A*, MPC
+    tracker and recovery behaviours, one ``step`` per control tick.
+
+    ``goal``, ``home``: world (x, y) [m]; ``home`` defaults to the robot's position at the
+    first step. ``robot``: None (Husky), a dict or a ``RobotConfig``. ``terrain``: None, a
+    dict, a ``TerrainConfig`` or a TOML path. ``config``: a (partial) dict with sections
+    ``planner``, ``tracker``, ``recovery``, ``navigator`` laid over the defaults.
+    """
+
+    def __init__(
+        self,
+        goal: Sequence[float],
+        *,
+        home: Sequence[float] | None = None,
+        robot: RobotConfig | dict[str, Any] | None = None,
+        terrain: TerrainConfig | dict[str, Any] | str | os.PathLike[str] | None = None,
+        config: dict[str, Any] | None = None,
+    ) -> None: ...
+    def step(
+        self,
+        points: npt.ArrayLike | None,
+        *,
+        stamp: float | None = None,
+        world_from_body: npt.ArrayLike,
+        body_from_sensor: npt.ArrayLike | None = None,
+        confidence: float = 1.0,
+        speed: float = 0.0,
+    ) -> NavigatorOutput:
+        """One control tick: ``points`` a new scan ``(N, 3)`` in the sensor frame [m] or None;
+        ``stamp`` [s] (default 0.1 s after the previous step); ``world_from_body`` the 4x4
+        odometry pose; ``speed`` the measured forward speed [m/s]. Releases the GIL."""
+    @property
+    def risk_map(self) -> RiskMap | None:
+        """The last coarse risk map (None before the first scan)."""
+    @property
+    def robot(self) -> RobotConfig: ...
+    @property
+    def config(self) -> dict[str, Any]:
+        """Sections ``planner``, ``tracker``, ``recovery``, ``navigator``."""
+    @property
+    def transitions(self) -> list[dict[str, Any]]:
+        """Every transition of the recovery machine so far, oldest first."""
+    @property
+    def goal(self) -> tuple[float, float]: ...
+    @property
+    def home(self) -> tuple[float, float]: ...
+
 class _SimModule(ModuleType):
     """The simulator (``subterra.sim`` re-exports it with its docs)."""
 

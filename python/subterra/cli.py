@@ -105,6 +105,10 @@ def _parser() -> argparse.ArgumentParser:
 
     register_replay(sub)
 
+    from subterra.drive.cli import register_cli as register_drive
+
+    register_drive(sub)
+
     demo = sub.add_parser("demo", help="the main job: simulated flights, the cable test and a small batch, with a report")
     demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
     demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")

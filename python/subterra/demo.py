@@ -1,7 +1,8 @@
 """`subterra demo` (what `make demo` runs): closed-loop flights in the simulator with APF-PF
-and the raw-APF baseline, the thin-cable test, a small randomized batch, APF-PF on real
+and the raw-APF baseline, the thin-cable test, a small randomized batch, the ground robot
+driving the mine with the risk-aware planner and the additive-cost baseline, APF-PF on real
 RealSense frames when `../shared/data` is there, and pictures of the built-in scenes. It
-prints a summary table and writes a report folder with an index linking every plot."""
+prints summary tables and writes a report folder with an index linking every plot."""
 
 from __future__ import annotations
 
@@ -21,6 +22,8 @@ REALSENSE = "realsense-d435-room"
 DEMO_ROUTE = "A-B"
 DEMO_NOISE = "d435-phantom"
 DEMO_SEED = 1
+#: The mine the ground robot drives in the demo.
+DRIVE_SEED = 0
 
 
 def _default_data() -> Path | None:
@@ -62,7 +65,7 @@ def _real_data(data_dir: Path, report: Path) -> tuple[str, list[str]] | None:
 
 def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = False) -> int:
     """Runs the demo; returns the exit code. ``quick`` shortens everything (for tests):
-    20 s flights, 30 cable-test frames, a batch of one route."""
+    20 s flights, 30 cable-test frames, a batch of one route, 10 s drives."""
     started = time.perf_counter()
     stamp = time.strftime("%Y%m%d-%H%M%S")
     report = Path(out or f"runs/demo-{stamp}")
@@ -71,7 +74,7 @@ def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = F
     summary: dict[str, Any] = {"quick": quick}
 
     # 1. One highbay route flown by each controller, same world, seed and noise.
-    print(f"[1/4] highbay {DEMO_ROUTE}, noise {DEMO_NOISE}, seed {DEMO_SEED}: APF-PF and the raw-APF baseline")
+    print(f"[1/5] highbay {DEMO_ROUTE}, noise {DEMO_NOISE}, seed {DEMO_SEED}: APF-PF and the raw-APF baseline")
     flights = []
     for controller in ("apf-pf", "raw-apf"):
         result = fly("highbay", DEMO_ROUTE, controller=controller, noise=DEMO_NOISE, seed=DEMO_SEED, progress=True,
@@ -98,7 +101,7 @@ def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = F
                   f"[{d}/metrics.json]({d}/metrics.json)", ""]
 
     # 2. The thin-cable test (paper §V-A).
-    print("[2/4] cable test: a static robot facing an 8 mm cable, four noise conditions")
+    print("[2/5] cable test: a static robot facing an 8 mm cable, four noise conditions")
     cable = cable_test(report / "cable-test", frames=30 if quick else 150, seed=0, progress=True)
     cable_rows = [(c["name"], f"{c['detection_rate']:.2f}", f"{c['mean_confidence']:.3f}", f"{c['mean_cable_belief']:.3f}",
                    f"{c['mean_p_free']:.2f}") for c in cable["conditions"]]
@@ -114,7 +117,7 @@ def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = F
     # 3. A small randomized batch.
     routes = DEMO_ROUTE if quick else "all"
     seeds = [2] if quick else [2, 3]
-    print(f"[3/4] fly-batch: highbay routes {routes}, seeds {seeds}, APF-PF and raw APF, noise {DEMO_NOISE}")
+    print(f"[3/5] fly-batch: highbay routes {routes}, seeds {seeds}, APF-PF and raw APF, noise {DEMO_NOISE}")
     batch = fly_batch("highbay", routes, seeds, noises=(DEMO_NOISE,), time_limit_s=20.0 if quick else None)
     batch_files = batch.save(report / "batch")
     totals = [t for t in batch.table if t["route"] == "all"]
@@ -130,8 +133,36 @@ def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = F
     index += [f"![batch paths](batch/{p.name})" for k, p in batch_files.items() if k.startswith("paths_")]
     index.append("")
 
-    # 4. Real data and the scenes.
-    print("[4/4] APF-PF on real frames (if ../shared/data is there) and pictures of the built-in scenes")
+    # 4. The ground robot: the mine, risk-aware planner and the additive baseline.
+    print(f"[4/5] ground robot: mine seed {DRIVE_SEED}, risk-aware planner and the additive-cost baseline")
+    from subterra.drive import drive
+
+    drives = []
+    for planner in ("risk-aware", "additive"):
+        result = drive("mine", planner=planner, seed=DRIVE_SEED, progress=True, time_limit_s=10.0 if quick else None)
+        result.save(report / f"drive-{planner}")
+        drives.append(result)
+    drive_rows = []
+    for r in drives:
+        m = r.summary()
+        drive_rows.append((r.planner, "goal" if m["success"] else m["failure"], f"{m['time_s']:.1f}", m["collisions"],
+                           f"{m['max_tilt_deg']:.1f}", f"{m['accumulated_true_risk']:.3f}", m["recoveries"],
+                           f"{m['compute_ms_median']:.1f}"))
+    drive_table = _table(("planner", "outcome", "time [s]", "collisions", "max tilt [deg]", "accumulated true risk",
+                          "recoveries", "compute median [ms]"), drive_rows)
+    summary["drives"] = [r.summary() for r in drives]
+    index += ["## Ground robot: risk-aware planning in the mine", "",
+              f"`mine` seed {DRIVE_SEED}: simulated OS1-64 lidar -> terrain risk map -> risk-aware A* (or the additive-cost "
+              "baseline) -> MPC with risk-limited speed -> recovery behaviours -> the simulated ground robot. The 100-seed "
+              "comparison is `subterra drive-batch --scenario mine --seeds 100`.", "", "```", drive_table, "```", ""]
+    for r in drives:
+        d = f"drive-{r.planner}"
+        index += [f"### {r.planner}", "", f"![map]({d}/map.png)", "", f"![speed and risk]({d}/speed-risk.png)", "",
+                  f"Data: [{d}/trajectory.csv]({d}/trajectory.csv), [{d}/events.csv]({d}/events.csv), "
+                  f"[{d}/metrics.json]({d}/metrics.json)", ""]
+
+    # 5. Real data and the scenes.
+    print("[5/5] APF-PF on real frames (if ../shared/data is there) and pictures of the built-in scenes")
     data_dir = Path(data) if data else _default_data()
     real = None
     if data_dir is not None and (data_dir / REALSENSE).is_dir():
@@ -159,6 +190,8 @@ def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = F
         print(statement)
     print(f"\nrandomized batch (highbay, seeds {seeds}, routes {routes})\n")
     print(batch_table)
+    print(f"\nground robot (mine, seed {DRIVE_SEED})\n")
+    print(drive_table)
     if real is not None:
         print(f"\nreal data: {real[0]}")
     print(f"\nreport: {report / 'index.md'}  ({summary['wall_s']:.0f} s)")

@@ -21,7 +21,7 @@ and writes to ``--out``: the figures of the simulated runs (depth: ``perception.
 terrain: the layer PNGs, ``risk.png``, ``overview.png``, ...), ``summary.json`` (what was
 used, per-message timings: read, decode, pipeline, write) and ``replay.mcap``
 (:mod:`subterra.viz.foxglove`: commands, belief markers, risk grids, layer images, path,
-tf), plus ``replay.rrd`` for the depth pipeline when ``rerun-sdk`` is installed.
+tf), plus ``replay.rrd`` when ``rerun-sdk`` is installed.
 
 The MCAP is written as the replay goes and closed in a ``finally``: when the recording
 turns out to be corrupt half-way (or a message is bad), the error is raised after the MCAP
@@ -66,6 +66,8 @@ DEFAULT_LAYERS = (
 POSE_TOLERANCE_NS = 500_000_000
 #: Depth images written to the Rerun file: one in this many.
 RERUN_DEPTH_EVERY = 5
+#: The terrain pipeline logs the risk map into replay.rrd every n-th scan (40k cells each).
+RERUN_RISK_EVERY = 5
 
 _IMAGE = "sensor_msgs/msg/Image"
 _INFO = "sensor_msgs/msg/CameraInfo"
@@ -224,7 +226,7 @@ def replay(
 
     ``pipeline`` None is inferred from the topics given. ``layers``: terrain layers
     written as images (None: all). ``max_messages``: stop after that many images or
-    clouds. ``rerun``: write ``replay.rrd`` (depth only; None = when ``rerun-sdk`` is
+    clouds. ``rerun``: write ``replay.rrd`` (None = when ``rerun-sdk`` is
     installed).
 
     Raises:
@@ -248,7 +250,7 @@ def replay(
             return _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, config, scale, seed,
                                  world_frame, body_frame, max_messages, rerun, plots, progress)
         return _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_frame, body_frame, sensor_height,
-                               layers, max_messages, plots, progress)
+                               layers, max_messages, rerun, plots, progress)
 
 
 def _pipeline(pipeline: str | None, depth_topic: str | None, info_topic: str | None, cloud_topic: str | None) -> str:
@@ -425,6 +427,7 @@ def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, c
 
 
 def _rerun_recorder(out: Path, rerun: bool | None):
+    """The run's ``replay.rrd`` recorder, or None (``rerun`` False, or None without rerun-sdk)."""
     if rerun is False:
         return None
     from subterra.viz.rerun import RerunRecorder, rerun_available
@@ -452,8 +455,16 @@ def _rerun_frame(recorder, time_s, depth, camera, centres_body, probs, pose, bod
 # ---------------------------------------------------------------------- terrain
 
 
+def _rerun_scan(recorder, time_s, points_sensor, world_from_sensor, world_from_body, risk_map) -> None:
+    """One scan into ``replay.rrd``: the cloud in the world frame, the robot's position and,
+    when given, the risk map's observed cells."""
+    points = points_sensor @ world_from_sensor[:3, :3].T.astype(np.float32) + world_from_sensor[:3, 3].astype(np.float32)
+    recorder.log_cloud(time_s, points)
+    recorder.log_drive_step(time_s, position=world_from_body[:3, 3], risk_map=risk_map)
+
+
 def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_frame, body_frame, sensor_height,
-                    layers, max_messages, plots, progress) -> dict[str, Any]:
+                    layers, max_messages, rerun, plots, progress) -> dict[str, Any]:
     from subterra import TerrainMapper
     from subterra.io.ros import decode_pointcloud2
     from subterra.terrain import estimate_sensor_height, lethal_cells, translation
@@ -477,6 +488,7 @@ def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_fra
     mapper = TerrainMapper(config=terrain_config)
     out.mkdir(parents=True, exist_ok=True)
     writer = FoxgloveWriter(out / "replay.mcap", world_frame=world, body_frame=body, layers=layers)
+    recorder = _rerun_recorder(out, rerun)
     scans: list[dict[str, Any]] = []
     read_s: list[float] = []
     decode_s: list[float] = []
@@ -537,6 +549,9 @@ def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_fra
             writer.risk_map(log_ns, stamp, risk_map)
             if mapper.last_fine is not None:
                 writer.risk_map(log_ns, stamp, mapper.last_fine, topic="/subterra/risk_fine", with_layers=False)
+            if recorder is not None:
+                _rerun_scan(recorder, (stamp - first_stamp) / 1e9, cloud.points, world_from_body @ body_from_sensor,
+                            world_from_body, risk_map if len(scans) % RERUN_RISK_EVERY == 0 else None)
             t4 = time.perf_counter()
             dropped_total += cloud.dropped
             scans.append({
@@ -556,6 +571,8 @@ def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_fra
     finally:
         bar.close()
         writer.close()
+        if recorder is not None:
+            recorder.close()
 
     summary: dict[str, Any] = {
         "recording": str(rec.path), "format": rec.format, "profile": rec.profile, "pipeline": "terrain",
@@ -567,6 +584,7 @@ def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_fra
         "body_from_sensor_source": mount_source,
         "dropped_non_finite": dropped_total,
         "output_mcap": str(writer.path), "output_counts": writer.counts,
+        "rerun": str(recorder.path) if recorder is not None else None,
         "replay_timing": _timing(read_s, decode_s, pipeline_s, write_s),
         "scans": scans,
     }
@@ -631,7 +649,7 @@ def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPar
     p.add_argument("--layers", default=",".join(DEFAULT_LAYERS),
                    help="terrain: map layers written as images to replay.mcap: comma-separated, 'all' or 'none'")
     p.add_argument("--max-messages", type=int, default=None, help="stop after this many images / clouds")
-    p.add_argument("--no-rerun", action="store_true", help="depth: no replay.rrd even if rerun-sdk is installed")
+    p.add_argument("--no-rerun", action="store_true", help="no replay.rrd even if rerun-sdk is installed")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--out", default=None, help="run folder (default runs/replay-<recording>-<pipeline>)")

@@ -97,13 +97,17 @@ def test_demo_writes_an_index_and_a_table(tmp_path, capsys):
     for rel in linked:
         assert (out / rel).is_file(), f"index links a missing file: {rel}"
     for expected in ("flight-paths.png", "fly-apf-pf/depth-trace.png", "fly-raw-apf/compute-time.png",
-                     "cable-test/cable-test.png", "batch/results.md", "highbay-depth.png", "mine-map.png"):
+                     "cable-test/cable-test.png", "batch/results.md", "highbay-depth.png", "mine-map.png",
+                     "drive-risk-aware/map.png", "drive-additive/speed-risk.png"):
         assert expected in linked, expected
     printed = capsys.readouterr().out
     assert "raw-apf" in printed and "apf-pf" in printed and "detection rate" in printed
     summary = json.loads((out / "summary.json").read_text())
     assert {f["controller"] for f in summary["flights"]} == {"apf-pf", "raw-apf"}
     assert summary["flights"][0]["collisions"] == 0
+    assert [d["planner"] for d in summary["drives"]] == ["risk-aware", "additive"]
+    assert all(d["collisions"] == 0 and d["scenario"] == "mine" for d in summary["drives"])
+    assert "ground robot (mine" in printed
 
 
 def test_bench_terrain_writes_a_report(tmp_path):
@@ -112,3 +116,25 @@ def test_bench_terrain_writes_a_report(tmp_path):
     report = json.loads(out.read_text())
     assert report["points"] > 0
     assert {"single_scan", "fused_window", "segment_ground", "numpy_reference"} <= set(report)
+
+
+def test_drive_cli_runs_a_recovery_world_and_refuses_bad_arguments(tmp_path, capsys):
+    out = tmp_path / "drive"
+    assert main(["drive", "--scenario", "dead-end", "--time-limit", "3", "--no-plots", "--no-rerun", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("dead-end with the risk-aware planner, seed 0: failed: timeout after 3.0 s")
+    assert "recovery behaviours: none;" in printed
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["scenario"] == "dead-end" and metrics["start"] == [2.0, 5.0] and metrics["goal"] == [22.0, 5.0]
+    assert (out / "trajectory.csv").read_text().count("\n") == metrics["steps"] + 1
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[planner\n")
+    assert main(["drive", "--config", str(bad), "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: argument --config:") and "is not valid TOML" in err
+    assert main(["drive", "--scenario", "atlantis", "--out", str(tmp_path / "y")]) == 2
+    assert "atlantis" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["drive", "--goal", "3"])
+    assert main(["drive-batch", "--seeds", "0"]) == 2
+    assert "--seeds must be >= 1" in capsys.readouterr().err

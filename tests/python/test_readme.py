@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
 import subprocess
@@ -73,3 +74,5 @@ def test_cli_examples_run(tmp_path):
     assert (tmp_path / "cable" / "cable-test.json").is_file()
     assert (tmp_path / "terrain" / "summary.json").is_file() and (tmp_path / "terrain" / "risk.png").is_file()
     assert (tmp_path / "replay-os1" / "replay.mcap").is_file() and (tmp_path / "replay-os1" / "overview.png").is_file()
+    metrics = json.loads((tmp_path / "drive-mine" / "metrics.json").read_text())
+    assert metrics["success"] and metrics["collisions"] == 0 and (tmp_path / "drive-mine" / "map.png").is_file()

@@ -198,6 +198,24 @@ def test_depth_image_rejects_unknown_encodings_and_short_data() -> None:
         ros.decode_depth_image(ros.image_message(np.zeros((2, 2), np.float32), stamp_ns=0, frame_id="c"), scale=0.001)
 
 
+def test_depth_image_from_a_payload_at_an_odd_byte_and_the_checks_the_fast_path_keeps() -> None:
+    values = np.arange(12, dtype="<u2").reshape(3, 4) * 250
+    payload = np.frombuffer(b"\x00" + values.tobytes(), np.uint8)[1:]  # starts at an odd address, as in a ROS 1 bag
+    msg = SimpleNamespace(header=_header(), height=3, width=4, encoding="16UC1", is_bigendian=0, step=8, data=payload)
+    depth = ros.decode_depth_image(msg, where="/depth at 2")
+    assert depth.data.flags.aligned and depth.data.flags.c_contiguous and depth.data.dtype == np.uint16
+    np.testing.assert_array_equal(depth.data, values)
+    assert depth.scale_m_per_unit == 0.001 and depth.path == "/depth at 2"
+    # A caller's scale is still checked, and an empty image is still refused.
+    with pytest.raises(errors.ConfigError, match="scale_m_per_unit: expected a finite number > 0"):
+        ros.decode_depth_image(msg, scale=-1.0)
+    empty = SimpleNamespace(header=_header(), height=0, width=4, encoding="16UC1", is_bigendian=0, step=8, data=b"")
+    with pytest.raises(errors.InputError, match="non-empty"):
+        ros.decode_depth_image(empty)
+    floats = ros.decode_depth_image(ros.image_message(np.full((2, 3), 1.5, np.float32), stamp_ns=0, frame_id="c"))
+    assert floats.scale_m_per_unit == 1.0 and floats.to_metres()[1, 2] == 1.5
+
+
 def test_camera_info_to_intrinsics_and_camera() -> None:
     intr = Intrinsics(617.25, 617.549, 317.392, 245.98, 640, 480)
     msg = ros.camera_info_message(intr, stamp_ns=T0, frame_id="cam")

@@ -458,6 +458,33 @@ def test_rerun_file_when_rerun_is_installed(tmp_path: Path) -> None:
     summary = replay(path, tmp_path / "run", depth_topic=DEPTH_TOPIC, info_topic=INFO_TOPIC, progress=False)
     assert summary["rerun"] and (tmp_path / "run" / "replay.rrd").stat().st_size > 1000
     shutil.rmtree(tmp_path / "run")
+    # The terrain pipeline: scans, robot, risk map (every RERUN_RISK_EVERY-th scan) in the world frame.
+    items, _, _ = _terrain_items(np.random.default_rng(5))
+    bag = write_bag(tmp_path / "bag", items, storage="mcap")
+    summary = replay(bag, tmp_path / "run", cloud_topic=CLOUD_TOPIC, odom_topic=ODOM_TOPIC, progress=False, plots=False)
+    rrd = tmp_path / "run" / "replay.rrd"
+    assert summary["rerun"] == str(rrd)
+    data = rrd.read_bytes()
+    for entity in (b"world/cloud", b"world/risk", b"world/robot", b"world/path"):
+        assert entity in data, entity
+    assert replay(bag, tmp_path / "run2", cloud_topic=CLOUD_TOPIC, rerun=False, progress=False, plots=False)["rerun"] is None
+    assert not (tmp_path / "run2" / "replay.rrd").exists()
+
+
+def test_rerun_log_cloud_refuses_bad_input(tmp_path: Path) -> None:
+    from subterra.viz.rerun import RerunRecorder, rerun_available
+
+    if not rerun_available():
+        pytest.skip("rerun-sdk is not installed (pip install 'subterra[viz]')")
+    with RerunRecorder(tmp_path / "c.rrd") as rec:
+        rec.log_cloud(0.0, np.zeros((0, 3)))  # an empty scan is logged as no points
+        rec.log_cloud(0.1, np.random.default_rng(0).normal(size=(50_000, 3)), max_points=1000)
+        with pytest.raises(errors.InputError, match=r"points_world.*\(N, 3\)"):
+            rec.log_cloud(0.2, np.zeros((4, 2)))
+        with pytest.raises(errors.InputError, match="max_points"):
+            rec.log_cloud(0.2, np.zeros((4, 3)), max_points=0)
+        with pytest.raises(errors.InputError, match="time_s"):
+            rec.log_cloud(float("nan"), np.zeros((4, 3)))
 
 
 def test_bench_replay_reports_every_container(tmp_path: Path) -> None:

@@ -127,6 +127,18 @@ class DepthImage:
         object.__setattr__(self, "scale_m_per_unit", scale)
         object.__setattr__(self, "path", os.fspath(self.path))
 
+    @classmethod
+    def _trusted(cls, data: np.ndarray, scale_m_per_unit: float, path: str) -> DepthImage:
+        """Builds the image without the checks, for decoders that have made them already
+        (a non-empty, C-contiguous, native ``(H, W)`` ``uint16`` array with a positive
+        finite scale, or ``float32`` with 1.0): per message, the checks cost more than the
+        decode itself."""
+        image = object.__new__(cls)
+        object.__setattr__(image, "data", data)
+        object.__setattr__(image, "scale_m_per_unit", scale_m_per_unit)
+        object.__setattr__(image, "path", path)
+        return image
+
     @property
     def height(self) -> int:
         """Number of rows [px]."""

@@ -103,6 +103,8 @@ IMAGE_ENCODINGS: dict[str, tuple[str, int]] = {
 #: (``16UC1``, ``mono16``; the REP 118 depth image is ``16UC1`` millimetres) or
 #: ``float32`` metres (``32FC1``).
 DEPTH_ENCODINGS: tuple[str, ...] = ("16UC1", "mono16", "32FC1")
+# (type code, big-endian) -> dtype, built once: np.dtype() per image costs more than the view.
+_IMAGE_DTYPES = {(code, big): np.dtype((">" if big else "<") + code) for code, _ in IMAGE_ENCODINGS.values() for big in (False, True)}
 
 #: ``sensor_msgs/PointField`` datatype -> NumPy type code (without byte order).
 POINTFIELD_DATATYPES: dict[int, str] = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -155,7 +157,7 @@ def _bytes_of(data: Any, where: str, kind: str) -> np.ndarray:
     if isinstance(data, np.ndarray):
         if data.dtype != np.uint8:
             data = np.ascontiguousarray(data).view(np.uint8)
-        return data.reshape(-1)
+        return data if data.ndim == 1 else data.reshape(-1)
     if isinstance(data, (bytes, bytearray, memoryview)):
         return np.frombuffer(data, dtype=np.uint8)
     try:
@@ -231,8 +233,7 @@ def decode_image(msg: Any, *, where: str = "") -> np.ndarray:
         )
     code, channels = IMAGE_ENCODINGS[encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    order = ">" if int(getattr(msg, "is_bigendian", 0) or 0) else "<"
-    dtype = np.dtype(order + code)
+    dtype = _IMAGE_DTYPES[code, bool(getattr(msg, "is_bigendian", 0))]
     row_bytes = width * channels * dtype.itemsize
     raw = _bytes_of(msg.data, where, "image")
     if step < row_bytes:
@@ -252,9 +253,9 @@ def decode_image(msg: Any, *, where: str = "") -> np.ndarray:
     else:  # padded rows: take the first row_bytes of each
         rows = np.lib.stride_tricks.as_strided(raw, shape=(height, row_bytes), strides=(step, 1))
         pixels = np.ascontiguousarray(rows).reshape(-1)
-    if pixels.ctypes.data % dtype.alignment:
-        pixels = pixels.copy()
     image = pixels.view(dtype)
+    if not image.flags.aligned:  # a ROS 1 or MCAP payload can start at any byte
+        image = pixels.copy().view(dtype)
     image = image.reshape((height, width) if channels == 1 else (height, width, channels))
     if not dtype.isnative:
         image = image.astype(dtype.newbyteorder("="))
@@ -282,8 +283,15 @@ def decode_depth_image(msg: Any, *, scale: float | None = None, where: str = "")
     if data.dtype == np.float32:
         if scale is not None:
             raise InputError(f"scale: a 32FC1 depth image is in metres, got scale {scale!r}{_where(where)}")
-        return DepthImage(np.ascontiguousarray(data), 1.0, where)
-    return DepthImage(np.ascontiguousarray(data), DEFAULT_UINT16_SCALE_M_PER_UNIT if scale is None else scale, where)
+        scale = 1.0
+    elif scale is None:
+        scale = DEFAULT_UINT16_SCALE_M_PER_UNIT
+    else:
+        return DepthImage(data, scale, where)  # the scale is the caller's: check it
+    if data.size == 0 or not data.flags.c_contiguous:
+        return DepthImage(data, scale, where)  # refuses the empty image, copies a strided one
+    # decode_image gave a native (H, W) uint16 / float32 array: the replay's per-message path.
+    return DepthImage._trusted(data, scale, where)
 
 
 def decode_camera_info(msg: Any, *, where: str = "") -> Intrinsics:

@@ -21,6 +21,10 @@ Entities (world frame ENU, z up, metres; time on the ``sim_time`` timeline [s]):
   by weight); ``world/robot``: the robot's position; ``world/path`` (static, written
   by :meth:`RerunRecorder.close`): the whole flown path.
 * ``robot/command/{v_x,v_y,v_z,yaw_rate}`` and ``perception/p_free``: time series.
+* Ground robot and terrain (:meth:`RerunRecorder.log_drive_step`,
+  :meth:`RerunRecorder.log_cloud`): ``world/plan`` (the planned path),
+  ``world/risk`` (the risk map's observed cells, green to red), ``world/cloud`` (the
+  lidar scan, coloured by height) and ``robot/command/{v,yaw_rate}``.
 """
 
 from __future__ import annotations
@@ -54,6 +58,11 @@ FRUSTUM_DEPTH_M = 0.5
 #: Radius of the robot's position marker and of the flown path's line [m].
 ROBOT_RADIUS_M = 0.08
 PATH_LINE_RADIUS_M = 0.02
+#: A scan logged with :meth:`RerunRecorder.log_cloud` keeps at most this many points (an
+#: even stride through the cloud): 20k points are ~0.3 MB in the file.
+CLOUD_MAX_POINTS = 20_000
+#: Radius of a logged lidar point [m].
+CLOUD_POINT_RADIUS_M = 0.02
 #: A plane is drawn as a square of this half-size [m] when the world has no bounded extent.
 DEFAULT_PLANE_HALF_SIZE_M = 10.0
 
@@ -412,6 +421,30 @@ class RerunRecorder:
             r = np.clip(risk[iy, ix], 0.0, 1.0)
             colours = np.c_[220 * r, 200 * (1 - r), np.zeros_like(r)].astype(np.uint8)
             rec.log("world/risk", rr.Points3D(pts, radii=0.45 * risk_map.resolution, colors=colours))
+
+
+    def log_cloud(self, time_s: float, points_world: np.ndarray, *, max_points: int = CLOUD_MAX_POINTS) -> None:
+        """Logs a lidar scan at ``time_s`` [s] as ``world/cloud``: ``points_world`` (N, 3)
+        [m, world frame], coloured by height; clouds larger than ``max_points`` are thinned
+        by an even stride (deterministic, every part of the scan kept)."""
+        self._check_open()
+        t = _finite_float(time_s, "time_s")
+        if isinstance(max_points, bool) or not isinstance(max_points, (int, np.integer)) or max_points < 1:
+            raise InputError(f"argument `max_points` must be an integer >= 1, got {max_points!r}")
+        pts = np.asarray(points_world, dtype=np.float32)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise InputError(f"argument `points_world` must have shape (N, 3), got {pts.shape}")
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if len(pts) > max_points:
+            pts = pts[:: -(-len(pts) // max_points)]
+        self._rec.set_time(TIMELINE, duration=t)
+        if len(pts):
+            z = pts[:, 2]
+            lo, hi = np.percentile(z, [2, 98])
+            colours = _heat(np.clip((z - lo) / max(hi - lo, 1e-6), 0.0, 1.0))
+        else:
+            colours = None
+        self._rec.log("world/cloud", self._rr.Points3D(pts, radii=CLOUD_POINT_RADIUS_M, colors=colours))
 
 
 # -------------------------------------------------------------------- helpers

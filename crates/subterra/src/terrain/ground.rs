@@ -354,7 +354,12 @@ impl GroundSegmenter {
         // registers.
         self.point_bin.clear();
         self.point_bin.resize(points.len(), NO_BIN);
-        let (acc, edges) = (&mut self.acc[..], &self.sector_edges[..]);
+        let edges = &self.sector_edges[..];
+        // Two passes: first each point's bin, then the prototypes. Interleaved, each point's
+        // read-modify-write of its bin waits on the long sqrt-divide chain that finds the bin,
+        // and a mispredicted "lower?" test (frequent on real scans) throws away the work of
+        // the points behind it; apart, the first pass is pure arithmetic and the second has
+        // its addresses at hand.
         // The previous point's sector: scans come ring by ring or column by column, so the
         // next point is usually in it or beside it.
         let mut last = usize::MAX;
@@ -371,17 +376,25 @@ impl GroundSegmenter {
             last = s;
             // r / bin_m is in [0, bins]: `as i64` truncates as `as usize` would.
             let k = ((r / bin_m) as i64 as usize).min(bins - 1);
-            let sb = s * bins + k;
-            let acc = &mut acc[sb];
-            if p[2] < acc.proto_z {
-                acc.proto_z = p[2];
-                acc.proto_r = r;
+            *bin = (s * bins + k) as u32;
+        }
+        let acc = &mut self.acc[..];
+        for (&sb, p) in self.point_bin.iter().zip(points) {
+            if sb == NO_BIN {
+                continue;
             }
+            // The same r as above. Selects, not a branch: whether a point is its bin's lowest
+            // so far depends on the data.
+            let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
+            let r = (x * x + y * y).sqrt();
+            let acc = &mut acc[sb as usize];
+            let lower = p[2] < acc.proto_z;
+            acc.proto_z = if lower { p[2] } else { acc.proto_z };
+            acc.proto_r = if lower { r } else { acc.proto_r };
             if r > 0.0 {
                 acc.top_slope = acc.top_slope.max((z / r) as f32);
                 acc.low_slope = acc.low_slope.min((z / r) as f32);
             }
-            *bin = sb as u32;
         }
         // Per bin: the steepest ray to any point of a farther bin of the sector.
         for s in 0..sectors {

@@ -130,21 +130,21 @@ impl CellAccumulator {
     /// Adds a point at height `z` [m] whose height above its ground line is `h` [m].
     #[inline]
     fn add(&mut self, z: f32, h: f32, ground_threshold: f32, collision_lo: f32, collision_hi: f32) {
+        // Every field is written with a select instead of behind a branch: whether a point is
+        // ground, or the cell's lowest, depends on the data (real scans mix ground and
+        // obstacles point by point), so branches here are mispredicted often.
         self.count += 1;
         // `min_z`/`max_z` are never NaN (they start infinite and only take points' z), so these
         // are `min`/`max` without the NaN handling.
-        if z < self.min_z {
-            self.min_z = z;
-        }
-        if z > self.max_z {
-            self.max_z = z;
-        }
-        if h.abs() <= ground_threshold {
-            self.ground_n += 1;
-            self.ground_sum += z;
-        } else if h > collision_lo && h <= collision_hi {
-            self.collision_n += 1;
-        }
+        self.min_z = if z < self.min_z { z } else { self.min_z };
+        self.max_z = if z > self.max_z { z } else { self.max_z };
+        let ground = h.abs() <= ground_threshold;
+        let collision = !ground && h > collision_lo && h <= collision_hi;
+        self.ground_n += ground as u32;
+        // The sum is formed either way and kept only for ground: exactly `+= z` or nothing.
+        let ground_sum = self.ground_sum + z;
+        self.ground_sum = if ground { ground_sum } else { self.ground_sum };
+        self.collision_n += collision as u32;
     }
 
     const EMPTY: Self = Self { count: 0, ground_n: 0, collision_n: 0, ground_sum: 0.0, min_z: f32::INFINITY, max_z: f32::NEG_INFINITY, min_age: f32::INFINITY, void_n: 0 };
@@ -176,7 +176,8 @@ pub(crate) struct MapBuilder {
     integral: Vec<[f64; 10]>,
     /// Cell-centre x relative to the newest sensor, by column [m].
     xs: Vec<f64>,
-    /// Scratch cells [`bin_scan`](Self::bin_scan) has hit, in order of the first hit.
+    /// Scratch cells [`bin_scan`](Self::bin_scan) has hit, in order of the first hit (its
+    /// first entries; the rest is room to write one more without a test).
     touched: Vec<u32>,
 }
 
@@ -231,15 +232,22 @@ impl MapBuilder {
         let lo = self.robot.ground_clearance_m as f32;
         let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
         let dz = sensor_above_body_m as f32;
-        let touched = &mut self.touched;
-        touched.clear();
+        // Each point writes its cell to `touched[hits]` and counts it only if the cell was
+        // empty: no branch on "first hit", which real scans mispredict often. At most
+        // min(points + voids, cells) distinct cells, plus the slot the last write may use.
+        let room = (points.len() + voids.len()).min(n) + 1;
+        if self.touched.len() < room {
+            self.touched.resize(room, 0);
+        }
+        let touched = &mut self.touched[..room];
+        let mut hits = 0;
         // The cells are [origin, origin + n) along each axis: floor(q) - origin is in [0, n)
         // iff q is in [origin, origin + n) (integer bounds), tested on q itself; then
         // floor_small gives floor(q) exactly. Points are finite (prefiltered), so q is too.
         let (x_lo, y_lo) = (g.origin_cell.0 as f64, g.origin_cell.1 as f64);
         let (x_hi, y_hi) = ((g.origin_cell.0 + nx) as f64, (g.origin_cell.1 + ny) as f64);
         let small = [x_lo, x_hi, y_lo, y_hi].iter().all(|b| b.abs() < FLOOR_SMALL_LIMIT);
-        // A local slice: its pointer and length stay in registers (the pushes to `touched`
+        // A local slice: its pointer and length stay in registers (the writes to `touched`
         // could otherwise alias `self.scratch`).
         let scratch = &mut self.scratch[..n];
         for (p, &h) in points.iter().zip(heights) {
@@ -260,9 +268,8 @@ impl MapBuilder {
             };
             let c = (iy * nx + ix) as usize;
             let cell = &mut scratch[c];
-            if cell.count == 0 && cell.void_n == 0 {
-                touched.push(c as u32);
-            }
+            touched[hits] = c as u32;
+            hits += (cell.count == 0) as usize;
             cell.add(p[2] + dz, h, thr, lo, hi);
         }
         for v in voids {
@@ -272,14 +279,14 @@ impl MapBuilder {
             }
             let c = (iy * nx + ix) as usize;
             let cell = &mut scratch[c];
-            if cell.count == 0 && cell.void_n == 0 {
-                touched.push(c as u32);
-            }
+            touched[hits] = c as u32;
+            hits += (cell.count == 0 && cell.void_n == 0) as usize;
             cell.void_n += 1;
         }
         // The non-empty cells in the order they were first hit (each global cell once, so
         // the order does not change any sum the map makes of them).
         out.clear();
+        let touched = &touched[..hits];
         out.reserve(touched.len());
         let scratch = &mut self.scratch[..n];
         for &c in touched.iter() {
@@ -781,16 +788,20 @@ impl HeadingKernel {
         let (s0, s1, s2, s3) = (corner(self.offsets[0]), corner(self.offsets[1]), corner(self.offsets[2]), corner(self.offsets[3]));
         let has = &has[..len];
         if let [Some(t0), Some(t1), Some(t2), Some(t3)] = self.tri {
+            // `t0`, `t1` lift corners 1, 2 (the body on FL-RR), `t2`, `t3` lift 0, 3 (on FR-RL).
+            // Both diagonals' poses are computed and the result selected, with no branch:
+            // which diagonal bears the body, and which cells have ground, vary cell by cell
+            // on real terrain, and those branches were mispredicted often. The selected
+            // values are the ones the branches would have computed.
             for i in 0..len {
-                if !has[i].is_finite() {
-                    continue;
-                }
                 let h = [s0[i], s1[i], s2[i], s3[i]];
-                if let Some(tan2) = settle_pair(&h, &t0, &t1, &t2, &t3) {
-                    if tan2 > worst[i] {
-                        worst[i] = tan2;
-                    }
-                }
+                // Finite iff all four corners are (f32 values: the sum cannot overflow).
+                let d = h[0] + h[3] - h[1] - h[2];
+                let on_main = support(&t1, h[0], h[1], h[3], support(&t0, h[0], h[2], h[3], -1.0));
+                let on_cross = support(&t3, h[0], h[1], h[2], support(&t2, h[1], h[2], h[3], -1.0));
+                let tan2 = if d >= 0.0 { on_main } else { on_cross };
+                let counts = has[i].is_finite() & d.is_finite() & (tan2 > worst[i]);
+                worst[i] = if counts { tan2 } else { worst[i] };
             }
         } else {
             for i in 0..len {
@@ -816,24 +827,6 @@ impl HeadingKernel {
             }
         }
     }
-}
-
-/// [`settle_tan2`] with all four triangles present (`t0`, `t1`: lifting corners 1, 2; `t2`,
-/// `t3`: lifting 0, 3); `None` if a corner has no ground.
-#[inline(always)]
-fn settle_pair(h: &[f64; 4], t0: &[[f64; 2]; 2], t1: &[[f64; 2]; 2], t2: &[[f64; 2]; 2], t3: &[[f64; 2]; 2]) -> Option<f64> {
-    // Finite iff all four corners are (f32 values: the sum cannot overflow).
-    let d = h[0] + h[3] - h[1] - h[2];
-    if !d.is_finite() {
-        return None;
-    }
-    Some(if d >= 0.0 {
-        let w = support(t0, h[0], h[2], h[3], -1.0);
-        support(t1, h[0], h[1], h[3], w)
-    } else {
-        let w = support(t2, h[1], h[2], h[3], -1.0);
-        support(t3, h[0], h[1], h[2], w)
-    })
 }
 
 /// One settling pose of [`settle_tan2`]: the body on corners `i, j, k` (heights `hi, hj,

@@ -1,0 +1,135 @@
+"""`subterra drive` and `subterra drive-batch`: the ground robot in the simulator.
+
+``drive`` runs one closed-loop drive (simulated lidar -> terrain map -> risk-aware A* ->
+MPC -> recovery -> ground robot) on a built-in scenario (``mine``), on one of the worlds
+that force a recovery behaviour (``dead-end``, ``risky-slope``, ``blocked-return``) or on a
+world file, and writes its run folder. ``drive-batch`` drives many seeds with the
+risk-aware planner and the additive-cost baseline side by side.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from subterra.errors import ConfigError, InputError
+
+__all__ = ["register_cli"]
+
+
+def _xy(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected x,y in metres, got {text!r}") from exc
+    return x, y
+
+
+def _navigator_config(path: str | None) -> dict[str, Any] | None:
+    """The ``--config`` TOML as a dict of sections (``planner``, ``tracker``, ``recovery``,
+    ``navigator``); the navigator checks the keys."""
+    if path is None:
+        return None
+    p = Path(path)
+    try:
+        config = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"argument --config: cannot read {p}: {exc.strerror or exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"argument --config: {p} is not valid TOML: {exc}") from exc
+    return config
+
+
+def register_cli(subparsers: argparse._SubParsersAction) -> None:
+    """Adds ``drive`` and ``drive-batch`` to ``subparsers``; their handlers are ``args.handler``."""
+    from subterra.drive.run import PLANNERS
+    from subterra.scenarios.ground import RECOVERY_SCENARIOS
+    from subterra.sim import LIDAR_NOISE_PRESETS
+
+    scenarios = ", ".join(("mine", *RECOVERY_SCENARIOS))
+    p = subparsers.add_parser("drive", help="one closed-loop drive of the ground robot (lidar -> risk map -> A* -> MPC)")
+    p.add_argument("--scenario", default="mine", help=f"{scenarios} (default mine)")
+    p.add_argument("--world", default=None, help="drive in this world file (TOML, docs/world-format.md) instead")
+    p.add_argument("--planner", default="risk-aware", choices=PLANNERS, help="risk-aware (DESIGN §3, default) or additive (the baseline)")
+    p.add_argument("--seed", type=int, default=0, help="world layout and lidar noise seed (default 0)")
+    p.add_argument("--start", type=_xy, default=None, help="start x,y [m] (default: the world's start region)")
+    p.add_argument("--goal", type=_xy, default=None, help="goal x,y [m] (default: the world's goal region)")
+    p.add_argument("--noise", default="os1_64", choices=LIDAR_NOISE_PRESETS, help="lidar noise (default os1_64)")
+    p.add_argument("--config", default=None, help="navigator TOML: sections [planner], [tracker], [recovery], [navigator]")
+    p.add_argument("--rate", type=float, default=10.0, help="lidar and control rate [Hz] (default 10)")
+    p.add_argument("--time-limit", type=float, default=None, help="seconds of simulated time (default: 4x the straight-line time at half speed, >= 90)")
+    p.add_argument("--no-rerun", action="store_true", help="do not write drive.rrd even if rerun-sdk is installed")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--out", default=None, help="run folder (default runs/drive-<scenario>-<planner>-s<seed>)")
+    p.set_defaults(handler=_drive)
+
+    b = subparsers.add_parser("drive-batch", help="many randomized drives, risk-aware planner and additive baseline side by side")
+    b.add_argument("--scenario", default="mine", help="built-in scenario (default mine)")
+    b.add_argument("--seeds", type=int, default=100, help="seeds 0..N-1 from --first-seed, one world each (default 100)")
+    b.add_argument("--first-seed", type=int, default=0, help="start the seeds here (default 0)")
+    b.add_argument("--planners", default=",".join(PLANNERS), help=f"comma-separated (default {','.join(PLANNERS)})")
+    b.add_argument("--time-limit", type=float, default=None, help="seconds of simulated time per drive (default as drive)")
+    b.add_argument("--workers", type=int, default=None, help="parallel drives (default: CPU count)")
+    b.add_argument("--no-plots", action="store_true", help="skip the maps of the first seed")
+    b.add_argument("--out", default=None, help="output folder (default runs/drive-batch-<scenario>-<time>)")
+    b.set_defaults(handler=_drive_batch)
+
+
+def _drive(args: argparse.Namespace) -> int:
+    from subterra.drive.run import drive
+    from subterra.scenarios.ground import RECOVERY_SCENARIOS, recovery_scenario
+    from subterra.sim import load_world
+    from subterra.viz.rerun import rerun_available
+
+    kwargs: dict[str, Any] = {}
+    if args.world is not None:
+        world = load_world(args.world)
+        name = world.name or Path(args.world).stem
+    elif args.scenario in RECOVERY_SCENARIOS:
+        sc = recovery_scenario(args.scenario)
+        world, name = sc.world(), sc.name
+        kwargs = {"start": sc.start, "yaw": sc.yaw, "goal": sc.goal, "home": sc.home}
+    else:
+        world, name = None, args.scenario
+    if args.start is not None:
+        kwargs["start"], kwargs["yaw"] = args.start, None
+    if args.goal is not None:
+        kwargs["goal"] = args.goal
+    out = Path(args.out or f"runs/drive-{name}-{args.planner}-s{args.seed}")
+    rerun = None if args.no_rerun or not rerun_available() else out / "drive.rrd"
+    result = drive(name, planner=args.planner, seed=args.seed, world=world, noise=args.noise,
+                   navigator_config=_navigator_config(args.config), rate_hz=args.rate, time_limit_s=args.time_limit,
+                   progress=True, rerun_path=rerun, **kwargs)
+    paths = result.save(out, plots=not args.no_plots)
+    m = result.summary()
+    outcome = "reached the goal" if m["success"] else f"failed: {m['failure']}"
+    behaviours = ", ".join(b for b in m["behaviours_used"] if b != "track") or "none"
+    print(f"{result.scenario} with the {args.planner} planner, seed {args.seed}: {outcome} after {m['time_s']:.1f} s; "
+          f"collisions {m['collisions']}, max tilt {m['max_tilt_deg']:.1f} deg, accumulated true risk "
+          f"{m['accumulated_true_risk']:.3f}; recovery behaviours: {behaviours}; compute median {m['compute_ms_median']:.1f} ms/step")
+    for kind, path in paths.items():
+        print(f"  {kind}: {path}")
+    if rerun is None and not args.no_rerun:
+        print("  (no drive.rrd: pip install 'subterra[viz]' for a Rerun recording)")
+    return 0
+
+
+def _drive_batch(args: argparse.Namespace) -> int:
+    from subterra.drive.batch import drive_batch
+
+    if args.seeds < 1 or args.first_seed < 0:
+        raise InputError(f"arguments --seeds must be >= 1 and --first-seed >= 0, got {args.seeds} and {args.first_seed}")
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    planners = [p.strip() for p in args.planners.split(",") if p.strip()]
+    out = Path(args.out or f"runs/drive-batch-{args.scenario}-{time.strftime('%Y%m%d-%H%M%S')}")
+    result = drive_batch(args.scenario, seeds, planners=planners, time_limit_s=args.time_limit, workers=args.workers,
+                         log_path=out / "drives.jsonl")
+    paths = result.save(out, plots=not args.no_plots)
+    print(result.markdown())
+    print(f"{len(result.rows)} drives in {result.wall_s:.0f} s")
+    for kind, path in paths.items():
+        print(f"  {kind}: {path}")
+    return 0
