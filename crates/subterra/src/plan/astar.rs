@@ -60,8 +60,6 @@
 //!
 //! [`RiskMap`]: crate::terrain::RiskMap
 
-use std::cmp::Ordering;
-use std::collections::BinaryHeap;
 use std::time::Instant;
 
 use glam::DVec2;
@@ -443,47 +441,219 @@ struct Node {
 /// all three).
 const CLOSED: f64 = f64::NEG_INFINITY;
 
-/// An open-list entry: the key `f.to_bits() << 64 | (h as f32).to_bits() << 32 | iy << 16 | ix`
-/// as one integer, ordered so that `BinaryHeap` pops the smallest. `f, h >= 0`, so their bits
-/// order as their values, and `(iy, ix)` orders as the flat index `iy·nx + ix`: entries pop in
-/// the order of `(f, h, flat index)`. Sides are at most [`MAX_SIDE`] cells.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Open(u128);
+/// The open-list key of cell `(x, y)`: `f.to_bits() << 64 | (h as f32).to_bits() << 32 | y << 16 | x`
+/// as one integer. `f, h >= 0`, so their bits order as their values, and `(y, x)` orders as the
+/// flat index `y·nx + x`: the smallest key is the entry of smallest `(f, h, flat index)`. Sides
+/// are at most [`MAX_SIDE`] cells.
+#[inline]
+fn open_key(f: f64, h: f64, x: usize, y: usize) -> u128 {
+    let tie = (((h as f32).to_bits() as u64) << 32) | ((y as u64) << 16) | x as u64;
+    ((f.to_bits() as u128) << 64) | tie as u128
+}
 
-impl Open {
-    #[inline]
-    fn new(f: f64, h: f64, x: usize, y: usize) -> Self {
-        let tie = (((h as f32).to_bits() as u64) << 32) | ((y as u64) << 16) | x as u64;
-        Self(((f.to_bits() as u128) << 64) | tie as u128)
+/// The cell `(x, y)` of an open-list key.
+#[inline]
+fn key_cell(key: u128) -> (usize, usize) {
+    ((key & 0xffff) as usize, ((key >> 16) & 0xffff) as usize)
+}
+
+/// The open list: a binary min-heap of [`open_key`]s (the children of slot `i` are the slots
+/// `2i + 1` and `2i + 2`). Equal keys are equal entries (same cell, same `f`), so the order of
+/// the pops depends only on the keys pushed, not on the heap's shape.
+#[derive(Debug, Clone, Default)]
+struct OpenList {
+    keys: Vec<u128>,
+}
+
+impl OpenList {
+    fn clear(&mut self) {
+        self.keys.clear();
     }
 
-    /// `(ix, iy)`.
     #[inline]
-    fn cell(self) -> (usize, usize) {
-        ((self.0 & 0xffff) as usize, ((self.0 >> 16) & 0xffff) as usize)
+    fn push(&mut self, key: u128) {
+        let mut hole = self.keys.len();
+        self.keys.push(key);
+        let keys = &mut self.keys[..];
+        while hole > 0 {
+            let parent = (hole - 1) / 2;
+            let above = keys[parent];
+            if above <= key {
+                break;
+            }
+            keys[hole] = above;
+            hole = parent;
+        }
+        keys[hole] = key;
+    }
+
+    /// The smallest key, removed. Floyd's deletion: the root's hole moves down along the smaller
+    /// children to the bottom, then the last key sifts up from there (it usually belongs near
+    /// the bottom: one comparison per level on the way down instead of two).
+    #[inline]
+    fn pop(&mut self) -> Option<u128> {
+        let last = self.keys.pop()?;
+        let keys = &mut self.keys[..];
+        let Some(&top) = keys.first() else {
+            return Some(last);
+        };
+        let n = keys.len();
+        let mut hole = 0;
+        let mut child = 1;
+        while child + 1 < n {
+            child += (keys[child + 1] < keys[child]) as usize;
+            keys[hole] = keys[child];
+            hole = child;
+            child = 2 * hole + 1;
+        }
+        if child + 1 == n {
+            keys[hole] = keys[child];
+            hole = child;
+        }
+        while hole > 0 {
+            let parent = (hole - 1) / 2;
+            let above = keys[parent];
+            if above <= last {
+                break;
+            }
+            keys[hole] = above;
+            hole = parent;
+        }
+        keys[hole] = last;
+        Some(top)
     }
 }
 
-impl Ord for Open {
-    #[inline]
-    fn cmp(&self, other: &Self) -> Ordering {
-        other.0.cmp(&self.0)
-    }
+/// One search: the node array, the open list and what every expansion reads.
+struct Search<'a> {
+    nodes: &'a mut [Node],
+    open: &'a mut OpenList,
+    risk: &'a [f32],
+    config: &'a RiskAStarConfig,
+    stamp: u32,
+    /// Move lengths [m]: orthogonal, diagonal.
+    step: [f64; 2],
+    /// The goal cell `(x, y)`.
+    goal: (usize, usize),
+    /// `λ·res` (or `res` with the additive model): the heuristic per cell of octile distance.
+    h_scale: f64,
 }
 
-impl PartialOrd for Open {
-    #[inline]
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
+impl Search<'_> {
+    /// The node of cell `i`, initialised (cost computed, not reached, open) on first touch.
+    #[inline(always)]
+    fn touch(&mut self, i: usize) -> &mut Node {
+        let node = &mut self.nodes[i];
+        if node.stamp != self.stamp {
+            *node = Node { g: f64::INFINITY, cost: self.config.cell_cost(self.risk[i]), stamp: self.stamp, parent: NO_PARENT };
+        }
+        node
+    }
+
+    /// `h` of cell `(x, y)`: `h_scale·octile`, from integer distances (exact in `f64`).
+    #[inline(always)]
+    fn heuristic(&self, x: usize, y: usize) -> f64 {
+        let (dx, dy) = (x.abs_diff(self.goal.0), y.abs_diff(self.goal.1));
+        self.h_scale * (dx.max(dy) as f64 + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy) as f64)
+    }
+
+    /// Tries move `k` from a cell of cost `g_a` and cell cost `cost_a` to cell `b` = `(bx, by)`
+    /// (inside the grid): improves `b` and pushes it if the move lowers its `g`. Returns whether
+    /// `b` is traversable.
+    #[inline(always)]
+    fn relax(&mut self, g_a: f64, cost_a: f64, k: usize, b: usize, bx: usize, by: usize) -> bool {
+        let step = self.step[(k >= 4) as usize];
+        let node = self.touch(b);
+        let cost_b = node.cost;
+        // `+inf` for an untraversable `b`; never below a closed `b`'s CLOSED.
+        let g = g_a + step * (cost_a + cost_b) * 0.5;
+        if g < node.g {
+            node.g = g;
+            node.parent = k as u8;
+            let h = self.heuristic(bx, by);
+            self.open.push(open_key(g + h, h, bx, by));
+        }
+        cost_b < f64::INFINITY
+    }
+
+    /// A* until the goal is popped or the open list empties; `CUT`: corner cutting allowed.
+    fn run<const CUT: bool>(&mut self, nx: usize, ny: usize) -> (PlanStatus, usize) {
+        let goal = self.goal.1 * nx + self.goal.0;
+        let mut expanded = 0;
+        while let Some(key) = self.open.pop() {
+            let (ax, ay) = key_cell(key);
+            let a = ay * nx + ax;
+            let node = &mut self.nodes[a];
+            let (g_a, cost_a) = (node.g, node.cost);
+            if g_a == CLOSED {
+                continue; // stale entry
+            }
+            expanded += 1;
+            if a == goal {
+                return (PlanStatus::Found, expanded);
+            }
+            node.g = CLOSED;
+            if ax > 0 && ay > 0 && ax + 1 < nx && ay + 1 < ny {
+                self.expand_interior::<CUT>(g_a, cost_a, a, ax, ay, nx);
+            } else {
+                self.expand_border::<CUT>(g_a, cost_a, ax, ay, nx, ny);
+            }
+        }
+        (PlanStatus::NoPath, expanded)
+    }
+
+    /// Expands cell `a` = `(ax, ay)` away from the border (every neighbour inside the grid): the
+    /// moves of [`MOVES`] in order, unrolled.
+    #[inline(always)]
+    fn expand_interior<const CUT: bool>(&mut self, g_a: f64, cost_a: f64, a: usize, ax: usize, ay: usize, nx: usize) {
+        let e = self.relax(g_a, cost_a, 0, a + 1, ax + 1, ay);
+        let n = self.relax(g_a, cost_a, 1, a + nx, ax, ay + 1);
+        let w = self.relax(g_a, cost_a, 2, a - 1, ax - 1, ay);
+        let s = self.relax(g_a, cost_a, 3, a - nx, ax, ay - 1);
+        if CUT || (e && n) {
+            self.relax(g_a, cost_a, 4, a + nx + 1, ax + 1, ay + 1);
+        }
+        if CUT || (w && n) {
+            self.relax(g_a, cost_a, 5, a + nx - 1, ax - 1, ay + 1);
+        }
+        if CUT || (w && s) {
+            self.relax(g_a, cost_a, 6, a - nx - 1, ax - 1, ay - 1);
+        }
+        if CUT || (e && s) {
+            self.relax(g_a, cost_a, 7, a - nx + 1, ax + 1, ay - 1);
+        }
+    }
+
+    /// Expands cell `(ax, ay)` on the border: the moves of [`MOVES`] in order, those leaving
+    /// the grid skipped.
+    #[inline(never)]
+    fn expand_border<const CUT: bool>(&mut self, g_a: f64, cost_a: f64, ax: usize, ay: usize, nx: usize, ny: usize) {
+        let mut orthogonal_open = [false; 4];
+        for (k, &(dx, dy)) in MOVES.iter().enumerate() {
+            let (bx, by) = (ax.wrapping_add_signed(dx as isize), ay.wrapping_add_signed(dy as isize));
+            // Off the grid, a coordinate wraps to a huge value.
+            if bx >= nx || by >= ny {
+                continue;
+            }
+            if k >= 4 && !CUT {
+                let (p, q) = CORNERS[k - 4];
+                if !(orthogonal_open[p] && orthogonal_open[q]) {
+                    continue;
+                }
+            }
+            let traversable = self.relax(g_a, cost_a, k, by * nx + bx, bx, by);
+            if k < 4 {
+                orthogonal_open[k] = traversable;
+            }
+        }
     }
 }
-
 /// The risk-aware A* planner (see the module docs for the exact algorithm).
 #[derive(Debug, Clone)]
 pub struct RiskAStar {
     config: RiskAStarConfig,
     nodes: Vec<Node>,
-    open: BinaryHeap<Open>,
+    open: OpenList,
     stamp: u32,
 }
 
@@ -491,7 +661,7 @@ impl RiskAStar {
     /// A planner; fails if the config is invalid.
     pub fn new(config: RiskAStarConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self { config, nodes: Vec::new(), open: BinaryHeap::new(), stamp: 0 })
+        Ok(Self { config, nodes: Vec::new(), open: OpenList::default(), stamp: 0 })
     }
 
     /// The config.
@@ -544,95 +714,38 @@ impl RiskAStar {
         self.open.clear();
     }
 
-    /// The node of cell `i`, initialised (cost computed, not reached, open) on first touch.
-    #[inline]
-    fn touch(nodes: &mut [Node], stamp: u32, config: &RiskAStarConfig, risk: &[f32], i: usize) -> Node {
-        let node = &mut nodes[i];
-        if node.stamp != stamp {
-            *node = Node { g: f64::INFINITY, cost: config.cell_cost(risk[i]), stamp, parent: NO_PARENT };
-        }
-        *node
-    }
-
     /// A* from `start` to `goal` (flat indices). Returns `Found` (the goal's `g` and parents are
     /// set; the budget is checked by the caller), `StartBlocked`, `GoalBlocked` or `NoPath`, and
     /// the number of expanded cells.
     fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize) -> (PlanStatus, usize) {
         let (nx, ny) = (grid.nx, grid.ny);
         self.begin(nx * ny);
-        let stamp = self.stamp;
-        let config = self.config;
-        let risk = grid.risk;
-        let nodes = &mut self.nodes[..];
-        if Self::touch(nodes, stamp, &config, risk, start).cost.is_infinite() {
+        let res = grid.resolution_m;
+        let mut search = Search {
+            nodes: &mut self.nodes[..nx * ny],
+            open: &mut self.open,
+            risk: grid.risk,
+            config: &self.config,
+            stamp: self.stamp,
+            step: [res, res * std::f64::consts::SQRT_2],
+            goal: (goal % nx, goal / nx),
+            h_scale: self.config.min_cell_cost() * res,
+        };
+        if search.touch(start).cost.is_infinite() {
             return (PlanStatus::StartBlocked, 0);
         }
-        if Self::touch(nodes, stamp, &config, risk, goal).cost.is_infinite() {
+        if search.touch(goal).cost.is_infinite() {
             return (PlanStatus::GoalBlocked, 0);
         }
-        let res = grid.resolution_m;
-        let step = [res, res * std::f64::consts::SQRT_2];
-        let (gx, gy) = ((goal % nx) as f64, (goal / nx) as f64);
-        let h_scale = config.min_cell_cost() * res;
-        let heuristic = |x: usize, y: usize| {
-            let (dx, dy) = ((x as f64 - gx).abs(), (y as f64 - gy).abs());
-            h_scale * (dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy))
-        };
-        // Flat offsets of MOVES.
-        let w = nx as isize;
-        let offsets: [isize; 8] = [1, w, -1, -w, w + 1, w - 1, -w - 1, -w + 1];
-        nodes[start].g = 0.0;
+        search.nodes[start].g = 0.0;
         let (sx, sy) = (start % nx, start / nx);
-        let h0 = heuristic(sx, sy);
-        self.open.push(Open::new(h0, h0, sx, sy));
-        let mut expanded = 0;
-        while let Some(top) = self.open.pop() {
-            let (ax, ay) = top.cell();
-            let a = ay * nx + ax;
-            let node_a = &mut nodes[a];
-            let (g_a, cost_a) = (node_a.g, node_a.cost);
-            if g_a == CLOSED {
-                continue; // stale entry
-            }
-            expanded += 1;
-            if a == goal {
-                return (PlanStatus::Found, expanded);
-            }
-            node_a.g = CLOSED;
-            // Away from the border every move stays inside the grid.
-            let interior = ax > 0 && ay > 0 && ax + 1 < nx && ay + 1 < ny;
-            let mut orthogonal_open = [false; 4];
-            for k in 0..8 {
-                let (dx, dy) = MOVES[k];
-                let (bx, by) = (ax.wrapping_add_signed(dx as isize), ay.wrapping_add_signed(dy as isize));
-                // Off the grid, a coordinate wraps to a huge value.
-                if !interior && (bx >= nx || by >= ny) {
-                    continue;
-                }
-                let diagonal = k >= 4;
-                if diagonal && !config.allow_corner_cutting {
-                    let (p, q) = CORNERS[k - 4];
-                    if !(orthogonal_open[p] && orthogonal_open[q]) {
-                        continue;
-                    }
-                }
-                let b = a.wrapping_add_signed(offsets[k]);
-                let node_b = Self::touch(nodes, stamp, &config, risk, b);
-                if !diagonal {
-                    orthogonal_open[k] = node_b.cost < f64::INFINITY;
-                }
-                // `+inf` for an untraversable `b`; never below a closed `b`'s CLOSED.
-                let g = g_a + step[diagonal as usize] * (cost_a + node_b.cost) * 0.5;
-                if g < node_b.g {
-                    let node = &mut nodes[b];
-                    node.g = g;
-                    node.parent = k as u8;
-                    let h = heuristic(bx, by);
-                    self.open.push(Open::new(g + h, h, bx, by));
-                }
-            }
+        let h0 = search.heuristic(sx, sy);
+        search.open.push(open_key(h0, h0, sx, sy));
+        if self.config.allow_corner_cutting {
+            search.run::<true>(nx, ny)
+        } else {
+            search.run::<false>(nx, ny)
         }
-        (PlanStatus::NoPath, expanded)
     }
 
     /// The path to `goal` through the parents of the last search, with its cost, length, risk
