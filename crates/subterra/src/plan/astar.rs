@@ -38,11 +38,13 @@
 //! optimal cost, and a closed cell is never reopened. It is never smaller than DESIGN's
 //! `λ·euclid` bound (a better-informed heuristic: up to ties, A* with it expands a subset of
 //! the cells it would expand with `λ·euclid`). An expanded cell's `g` is set to `-inf`, so one
-//! comparison `g_new < g` skips closed and untraversable neighbours. The open list is a binary heap ordered by
-//! `f = g + h`, ties broken by the smaller `h` (as `f32`) and then the smaller flat index
-//! `iy·nx + ix`, with stale entries skipped when popped, so a plan is deterministic. A cell's
-//! `g` improves only when strictly smaller, so among equal-cost predecessors the first one
-//! found is kept. Moves are tried in the order E, N, W, S, NE, NW, SW, SE.
+//! comparison `g_new < g` skips closed and untraversable neighbours. The open list is an
+//! indexed binary heap holding each open cell once, ordered by `f = g + h`, ties broken by the
+//! smaller `h` (as `f32`) and then the smaller flat index `iy·nx + ix` (a total order: the pops
+//! do not depend on the heap's shape), so a plan is deterministic; an improved cell's key is
+//! lowered in place. A cell's `g` improves only when strictly smaller, so among equal-cost
+//! predecessors the first one found is kept. Moves are tried in the order E, N, W, S, NE, NW,
+//! SW, SE (unrolled away from the grid's border).
 //!
 //! # Outcome
 //!
@@ -55,8 +57,8 @@
 //! would fit the budget is not searched for (that is a constrained shortest-path problem).
 //!
 //! The planner holds its search buffers between calls: a node array indexed by cell, reused
-//! through a per-call stamp (no clearing), and the heap's storage. A cell's cost is computed the
-//! first time the search touches it.
+//! through a per-call stamp (no clearing), and the heap's storage with its slot per cell. A
+//! cell's cost is computed the first time the search touches it.
 //!
 //! [`RiskMap`]: crate::terrain::RiskMap
 
@@ -71,7 +73,7 @@ use crate::terrain::{CellIndex, GridGeometry, Layer, RiskMap};
 /// Largest risk used in `-ln(1 - r)`: `1 - 2^-24`, the largest `f32` below 1. Keeps the hazard
 /// finite (at most `24·ln 2 = 16.64` per metre).
 pub const MAX_RISK: f64 = 1.0 - 1.0 / 16_777_216.0;
-/// Most cells of a grid (2^24 = 4096 x 4096; the search state takes 24 bytes per cell).
+/// Most cells of a grid (2^24 = 4096 x 4096; the search state takes 28 bytes per cell).
 pub const MAX_GRID_CELLS: usize = 1 << 24;
 /// Most cells along one side of a grid (2^16).
 pub const MAX_SIDE: usize = 1 << 16;
@@ -457,34 +459,67 @@ fn key_cell(key: u128) -> (usize, usize) {
     ((key & 0xffff) as usize, ((key >> 16) & 0xffff) as usize)
 }
 
-/// The open list: a binary min-heap of [`open_key`]s (the children of slot `i` are the slots
-/// `2i + 1` and `2i + 2`). Equal keys are equal entries (same cell, same `f`), so the order of
-/// the pops depends only on the keys pushed, not on the heap's shape.
+/// The open list: an indexed binary min-heap of [`open_key`]s, one per open cell (the children
+/// of slot `i` are the slots `2i + 1` and `2i + 2`). Each open cell's slot is recorded, so an
+/// improved cell's key is lowered in place: no stale entries.
 #[derive(Debug, Clone, Default)]
 struct OpenList {
     keys: Vec<u128>,
+    /// The slot of each open cell's key, by flat index (meaningless for other cells).
+    slots: Vec<u32>,
+    /// Cells along x: a key's flat index is `y·nx + x`.
+    nx: usize,
 }
 
 impl OpenList {
-    fn clear(&mut self) {
+    /// Empties the list for a search over `cells` cells, `nx` along x.
+    fn begin(&mut self, cells: usize, nx: usize) {
         self.keys.clear();
+        if self.slots.len() < cells {
+            self.slots.resize(cells, 0);
+        }
+        self.nx = nx;
     }
 
-    #[inline]
-    fn push(&mut self, key: u128) {
-        let mut hole = self.keys.len();
-        self.keys.push(key);
-        let keys = &mut self.keys[..];
+    /// Puts `key` into slot `i` and records the slot.
+    #[inline(always)]
+    fn place(&mut self, i: usize, key: u128) {
+        self.keys[i] = key;
+        let (x, y) = key_cell(key);
+        self.slots[y * self.nx + x] = i as u32;
+    }
+
+    /// Moves the hole at slot `hole` up while its parent's key is above `key`, then puts `key`
+    /// there.
+    #[inline(always)]
+    fn sift_up(&mut self, mut hole: usize, key: u128) {
         while hole > 0 {
             let parent = (hole - 1) / 2;
-            let above = keys[parent];
-            if above <= key {
+            let above = self.keys[parent];
+            if above < key {
                 break;
             }
-            keys[hole] = above;
+            self.place(hole, above);
             hole = parent;
         }
-        keys[hole] = key;
+        self.place(hole, key);
+    }
+
+    /// Adds the key of a cell not in the list.
+    #[inline]
+    fn push(&mut self, key: u128) {
+        let hole = self.keys.len();
+        self.keys.push(key);
+        self.sift_up(hole, key);
+    }
+
+    /// Lowers the key of a cell in the list to `key` (at most its old key: same cell and `h`,
+    /// `f` not larger).
+    #[inline]
+    fn decrease(&mut self, key: u128) {
+        let (x, y) = key_cell(key);
+        let hole = self.slots[y * self.nx + x] as usize;
+        self.sift_up(hole, key);
     }
 
     /// The smallest key, removed. Floyd's deletion: the root's hole moves down along the smaller
@@ -493,33 +528,22 @@ impl OpenList {
     #[inline]
     fn pop(&mut self) -> Option<u128> {
         let last = self.keys.pop()?;
-        let keys = &mut self.keys[..];
-        let Some(&top) = keys.first() else {
+        let Some(&top) = self.keys.first() else {
             return Some(last);
         };
-        let n = keys.len();
         let mut hole = 0;
         let mut child = 1;
-        while child + 1 < n {
-            child += (keys[child + 1] < keys[child]) as usize;
-            keys[hole] = keys[child];
-            hole = child;
+        while let Some(pair) = self.keys.get(child..child + 2) {
+            let smaller = child + (pair[1] < pair[0]) as usize;
+            self.place(hole, self.keys[smaller]);
+            hole = smaller;
             child = 2 * hole + 1;
         }
-        if child + 1 == n {
-            keys[hole] = keys[child];
+        if let Some(&key) = self.keys.get(child) {
+            self.place(hole, key);
             hole = child;
         }
-        while hole > 0 {
-            let parent = (hole - 1) / 2;
-            let above = keys[parent];
-            if above <= last {
-                break;
-            }
-            keys[hole] = above;
-            hole = parent;
-        }
-        keys[hole] = last;
+        self.sift_up(hole, last);
         Some(top)
     }
 }
@@ -558,7 +582,8 @@ impl Search<'_> {
     }
 
     /// Tries move `k` from a cell of cost `g_a` and cell cost `cost_a` to cell `b` = `(bx, by)`
-    /// (inside the grid): improves `b` and pushes it if the move lowers its `g`. Returns whether
+    /// (inside the grid): if the move lowers `b`'s `g`, improves `b` and adds its key to the open
+    /// list or lowers the key there. Returns whether
     /// `b` is traversable.
     #[inline(always)]
     fn relax(&mut self, g_a: f64, cost_a: f64, k: usize, b: usize, bx: usize, by: usize) -> bool {
@@ -568,10 +593,16 @@ impl Search<'_> {
         // `+inf` for an untraversable `b`; never below a closed `b`'s CLOSED.
         let g = g_a + step * (cost_a + cost_b) * 0.5;
         if g < node.g {
+            let open = node.g < f64::INFINITY;
             node.g = g;
             node.parent = k as u8;
             let h = self.heuristic(bx, by);
-            self.open.push(open_key(g + h, h, bx, by));
+            let key = open_key(g + h, h, bx, by);
+            if open {
+                self.open.decrease(key);
+            } else {
+                self.open.push(key);
+            }
         }
         cost_b < f64::INFINITY
     }
@@ -585,9 +616,6 @@ impl Search<'_> {
             let a = ay * nx + ax;
             let node = &mut self.nodes[a];
             let (g_a, cost_a) = (node.g, node.cost);
-            if g_a == CLOSED {
-                continue; // stale entry
-            }
             expanded += 1;
             if a == goal {
                 return (PlanStatus::Found, expanded);
@@ -648,6 +676,7 @@ impl Search<'_> {
         }
     }
 }
+
 /// The risk-aware A* planner (see the module docs for the exact algorithm).
 #[derive(Debug, Clone)]
 pub struct RiskAStar {
@@ -700,8 +729,9 @@ impl RiskAStar {
         Ok(PlanOutcome { status, path, carrot_world, start_cell: start, goal_cell: goal, expanded, time_s: started.elapsed().as_secs_f64() })
     }
 
-    /// Starts a new search over `cells` cells: grows the node array and moves to a fresh stamp.
-    fn begin(&mut self, cells: usize) {
+    /// Starts a new search over `cells` cells, `nx` along x: grows the node array, moves to a
+    /// fresh stamp and empties the open list.
+    fn begin(&mut self, cells: usize, nx: usize) {
         if self.nodes.len() < cells {
             self.nodes.resize(cells, Node::default());
         }
@@ -711,7 +741,7 @@ impl RiskAStar {
             self.nodes.iter_mut().for_each(|n| n.stamp = 0);
             self.stamp = 1;
         }
-        self.open.clear();
+        self.open.begin(cells, nx);
     }
 
     /// A* from `start` to `goal` (flat indices). Returns `Found` (the goal's `g` and parents are
@@ -719,7 +749,7 @@ impl RiskAStar {
     /// the number of expanded cells.
     fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize) -> (PlanStatus, usize) {
         let (nx, ny) = (grid.nx, grid.ny);
-        self.begin(nx * ny);
+        self.begin(nx * ny, nx);
         let res = grid.resolution_m;
         let mut search = Search {
             nodes: &mut self.nodes[..nx * ny],
