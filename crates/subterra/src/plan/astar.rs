@@ -443,20 +443,19 @@ struct Node {
 /// all three).
 const CLOSED: f64 = f64::NEG_INFINITY;
 
-/// The open-list key of cell `(x, y)`: `f.to_bits() << 64 | (h as f32).to_bits() << 32 | y << 16 | x`
-/// as one integer. `f, h >= 0`, so their bits order as their values, and `(y, x)` orders as the
-/// flat index `y·nx + x`: the smallest key is the entry of smallest `(f, h, flat index)`. Sides
-/// are at most [`MAX_SIDE`] cells.
+/// The open-list key of the cell of flat index `flat`: `f.to_bits() << 64 | (h as f32).to_bits() << 32 | flat`
+/// as one integer. `f, h >= 0`, so their bits order as their values: the smallest key is the
+/// entry of smallest `(f, h, flat index)`. Grids have at most [`MAX_GRID_CELLS`] `<= 2^32` cells.
 #[inline]
-fn open_key(f: f64, h: f64, x: usize, y: usize) -> u128 {
-    let tie = (((h as f32).to_bits() as u64) << 32) | ((y as u64) << 16) | x as u64;
+fn open_key(f: f64, h: f64, flat: usize) -> u128 {
+    let tie = (((h as f32).to_bits() as u64) << 32) | flat as u64;
     ((f.to_bits() as u128) << 64) | tie as u128
 }
 
-/// The cell `(x, y)` of an open-list key.
+/// The flat index of an open-list key's cell.
 #[inline]
-fn key_cell(key: u128) -> (usize, usize) {
-    ((key & 0xffff) as usize, ((key >> 16) & 0xffff) as usize)
+fn key_flat(key: u128) -> usize {
+    key as u32 as usize
 }
 
 /// The open list: an indexed binary min-heap of [`open_key`]s, one per open cell (the children
@@ -467,26 +466,22 @@ struct OpenList {
     keys: Vec<u128>,
     /// The slot of each open cell's key, by flat index (meaningless for other cells).
     slots: Vec<u32>,
-    /// Cells along x: a key's flat index is `y·nx + x`.
-    nx: usize,
 }
 
 impl OpenList {
-    /// Empties the list for a search over `cells` cells, `nx` along x.
-    fn begin(&mut self, cells: usize, nx: usize) {
+    /// Empties the list for a search over `cells` cells.
+    fn begin(&mut self, cells: usize) {
         self.keys.clear();
         if self.slots.len() < cells {
             self.slots.resize(cells, 0);
         }
-        self.nx = nx;
     }
 
     /// Puts `key` into slot `i` and records the slot.
     #[inline(always)]
     fn place(&mut self, i: usize, key: u128) {
         self.keys[i] = key;
-        let (x, y) = key_cell(key);
-        self.slots[y * self.nx + x] = i as u32;
+        self.slots[key_flat(key)] = i as u32;
     }
 
     /// Moves the hole at slot `hole` up while its parent's key is above `key`, then puts `key`
@@ -517,8 +512,7 @@ impl OpenList {
     /// `f` not larger).
     #[inline]
     fn decrease(&mut self, key: u128) {
-        let (x, y) = key_cell(key);
-        let hole = self.slots[y * self.nx + x] as usize;
+        let hole = self.slots[key_flat(key)] as usize;
         self.sift_up(hole, key);
     }
 
@@ -577,8 +571,9 @@ impl Search<'_> {
     /// `h` of cell `(x, y)`: `h_scale·octile`, from integer distances (exact in `f64`).
     #[inline(always)]
     fn heuristic(&self, x: usize, y: usize) -> f64 {
-        let (dx, dy) = (x.abs_diff(self.goal.0), y.abs_diff(self.goal.1));
-        self.h_scale * (dx.max(dy) as f64 + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy) as f64)
+        // Sides are at most MAX_SIDE = 2^16 cells: the distances fit a u32.
+        let (dx, dy) = (x.abs_diff(self.goal.0) as u32, y.abs_diff(self.goal.1) as u32);
+        self.h_scale * (f64::from(dx.max(dy)) + (std::f64::consts::SQRT_2 - 1.0) * f64::from(dx.min(dy)))
     }
 
     /// Tries move `k` from a cell of cost `g_a` and cell cost `cost_a` to cell `b` = `(bx, by)`
@@ -597,7 +592,7 @@ impl Search<'_> {
             node.g = g;
             node.parent = k as u8;
             let h = self.heuristic(bx, by);
-            let key = open_key(g + h, h, bx, by);
+            let key = open_key(g + h, h, b);
             if open {
                 self.open.decrease(key);
             } else {
@@ -612,8 +607,9 @@ impl Search<'_> {
         let goal = self.goal.1 * nx + self.goal.0;
         let mut expanded = 0;
         while let Some(key) = self.open.pop() {
-            let (ax, ay) = key_cell(key);
-            let a = ay * nx + ax;
+            let a = key_flat(key);
+            // u32 division: cells fit a u32 (MAX_GRID_CELLS).
+            let (ax, ay) = ((a as u32 % nx as u32) as usize, (a as u32 / nx as u32) as usize);
             let node = &mut self.nodes[a];
             let (g_a, cost_a) = (node.g, node.cost);
             expanded += 1;
@@ -729,9 +725,9 @@ impl RiskAStar {
         Ok(PlanOutcome { status, path, carrot_world, start_cell: start, goal_cell: goal, expanded, time_s: started.elapsed().as_secs_f64() })
     }
 
-    /// Starts a new search over `cells` cells, `nx` along x: grows the node array, moves to a
-    /// fresh stamp and empties the open list.
-    fn begin(&mut self, cells: usize, nx: usize) {
+    /// Starts a new search over `cells` cells: grows the node array, moves to a fresh stamp and
+    /// empties the open list.
+    fn begin(&mut self, cells: usize) {
         if self.nodes.len() < cells {
             self.nodes.resize(cells, Node::default());
         }
@@ -741,7 +737,7 @@ impl RiskAStar {
             self.nodes.iter_mut().for_each(|n| n.stamp = 0);
             self.stamp = 1;
         }
-        self.open.begin(cells, nx);
+        self.open.begin(cells);
     }
 
     /// A* from `start` to `goal` (flat indices). Returns `Found` (the goal's `g` and parents are
@@ -749,7 +745,7 @@ impl RiskAStar {
     /// the number of expanded cells.
     fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize) -> (PlanStatus, usize) {
         let (nx, ny) = (grid.nx, grid.ny);
-        self.begin(nx * ny, nx);
+        self.begin(nx * ny);
         let res = grid.resolution_m;
         let mut search = Search {
             nodes: &mut self.nodes[..nx * ny],
@@ -770,7 +766,7 @@ impl RiskAStar {
         search.nodes[start].g = 0.0;
         let (sx, sy) = (start % nx, start / nx);
         let h0 = search.heuristic(sx, sy);
-        search.open.push(open_key(h0, h0, sx, sy));
+        search.open.push(open_key(h0, h0, start));
         if self.config.allow_corner_cutting {
             search.run::<true>(nx, ny)
         } else {
