@@ -54,11 +54,16 @@ def test_dead_end_climbs_the_ladder_backs_out_and_goes_home():
 
 def test_blocked_return_stops_safely_after_the_ladder_ran_twice():
     sc = recovery_scenario("blocked-return")
-    result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=240)
+    result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=360)
     used = _behaviours(result)
     assert result.metrics["failure"] == "gave_up", (result.metrics["failure"], used[-6:])
     assert result.metrics["collisions"] == 0 and used[-1] == "failed"
-    assert used.count("back_out") == 2  # once on the way to the goal, once on the way home
+    # The whole ladder, back-out included, on the way to the goal and again on the way home
+    # (there it may run more than once: a ladder starts again when the robot gets closer to home).
+    events = [e for e in result.events if e["from"] != e["to"] or "giving up" in e["reason"]]
+    gave_up = next(i for i, e in enumerate(events) if "giving up the goal" in e["reason"])
+    assert any(e["to"] == "back_out" for e in events[:gave_up])
+    assert any(e["to"] == "back_out" for e in events[gave_up:])
     assert any("every behaviour tried on the way home" in e["reason"] for e in result.events)
 
 

@@ -241,6 +241,7 @@ def test_same_calls_give_the_same_bits():
     [
         ({"state": [0, 0, np.nan, 0]}, InputError, "`state`"),
         ({"state": [0, 0, 0]}, InputError, "`state`"),
+        ({"state": [0, 0, 0, 1e9]}, InputError, "`state`"),
         ({"state": "fast"}, InputError, "`state`"),
         ({"reference_path": [[0, 0]]}, InputError, "`reference_path`"),
         ({"reference_path": [[0, 0], [0, 0]]}, InputError, "`reference_path`"),

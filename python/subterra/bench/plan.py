@@ -12,9 +12,11 @@ almost everywhere (about 1% of cells are exactly 0), so the heuristic ``lam * oc
 and A* expands about half the grid: a hard case. A terrain map is easier: the last case plans
 on the coarse map of a simulated ``mine`` scan, to 8 goals 8 m around the robot.
 
-Other planning benchmarks plug in through :data:`EXTRA_CASES` (the MPC solve benchmark is
-meant to land there): each is a callable ``(repeats, seed) -> dict`` whose JSON-ready result
-appears under ``report["extra"][name]``.
+Other planning benchmarks plug in through :data:`EXTRA_CASES`: each is a callable
+``(repeats, seed) -> dict`` whose JSON-ready result appears under ``report["extra"][name]``.
+The MPC solve benchmark (:func:`subterra.bench.mpc.mpc_case`: ``MpcTracker.solve`` in a
+closed loop against the SLSQP reference of :mod:`subterra.bench.reference.mpc`) is
+registered there as ``mpc_h20_200x200``.
 """
 
 from __future__ import annotations
@@ -42,6 +44,15 @@ OBSTACLES = 30
 #: Hook for more planning benchmarks: name -> ``callable(repeats, seed) -> JSON-ready dict``.
 #: ``bench_plan`` runs each after the A* cases and reports it under ``report["extra"][name]``.
 EXTRA_CASES: dict[str, Callable[[int, int], dict[str, Any]]] = {}
+
+
+def _mpc_case(repeats: int, seed: int) -> dict[str, Any]:
+    from subterra.bench.mpc import mpc_case
+
+    return mpc_case(repeats, seed)
+
+
+EXTRA_CASES["mpc_h20_200x200"] = _mpc_case
 
 
 class SplitMix64:
@@ -274,7 +285,8 @@ def bench_plan(sizes: tuple[int, ...] | None = None, repeats: int = 20, seed: in
         "subterra_version": subterra.__version__,
         "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count()},
         "load_average_before": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-        "targets_ms": {"astar_200x200": 2.0, "astar_1000x1000": 100.0},
+        "targets_ms": {"astar_200x200": 2.0, "astar_1000x1000": 100.0, "mpc_solve_h20": 2.0},
+        "blas_threads_env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")},
     }
     for n in sizes:
         report[f"astar_{n}x{n}"] = _astar_case(n, repeats, seed)

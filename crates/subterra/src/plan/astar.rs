@@ -38,11 +38,13 @@
 //! optimal cost, and a closed cell is never reopened. It is never smaller than DESIGN's
 //! `λ·euclid` bound (a better-informed heuristic: up to ties, A* with it expands a subset of
 //! the cells it would expand with `λ·euclid`). An expanded cell's `g` is set to `-inf`, so one
-//! comparison `g_new < g` skips closed and untraversable neighbours. The open list is a binary heap ordered by
-//! `f = g + h`, ties broken by the smaller `h` (as `f32`) and then the smaller flat index
-//! `iy·nx + ix`, with stale entries skipped when popped, so a plan is deterministic. A cell's
-//! `g` improves only when strictly smaller, so among equal-cost predecessors the first one
-//! found is kept. Moves are tried in the order E, N, W, S, NE, NW, SW, SE.
+//! comparison `g_new < g` skips closed and untraversable neighbours. The open list is an
+//! indexed binary heap holding each open cell once, ordered by `f = g + h`, ties broken by the
+//! smaller `h` (as `f32`) and then the smaller flat index `iy·nx + ix` (a total order: the pops
+//! do not depend on the heap's shape), so a plan is deterministic; an improved cell's key is
+//! lowered in place. A cell's `g` improves only when strictly smaller, so among equal-cost
+//! predecessors the first one found is kept. Moves are tried in the order E, N, W, S, NE, NW,
+//! SW, SE (unrolled away from the grid's border).
 //!
 //! # Outcome
 //!
@@ -55,13 +57,11 @@
 //! would fit the budget is not searched for (that is a constrained shortest-path problem).
 //!
 //! The planner holds its search buffers between calls: a node array indexed by cell, reused
-//! through a per-call stamp (no clearing), and the heap's storage. A cell's cost is computed the
-//! first time the search touches it.
+//! through a per-call stamp (no clearing), and the heap's storage with its slot per cell. A
+//! cell's cost is computed the first time the search touches it.
 //!
 //! [`RiskMap`]: crate::terrain::RiskMap
 
-use std::cmp::Ordering;
-use std::collections::BinaryHeap;
 use std::time::Instant;
 
 use glam::DVec2;
@@ -73,7 +73,7 @@ use crate::terrain::{CellIndex, GridGeometry, Layer, RiskMap};
 /// Largest risk used in `-ln(1 - r)`: `1 - 2^-24`, the largest `f32` below 1. Keeps the hazard
 /// finite (at most `24·ln 2 = 16.64` per metre).
 pub const MAX_RISK: f64 = 1.0 - 1.0 / 16_777_216.0;
-/// Most cells of a grid (2^24 = 4096 x 4096; the search state takes 24 bytes per cell).
+/// Most cells of a grid (2^24 = 4096 x 4096; the search state takes 28 bytes per cell).
 pub const MAX_GRID_CELLS: usize = 1 << 24;
 /// Most cells along one side of a grid (2^16).
 pub const MAX_SIDE: usize = 1 << 16;
@@ -443,38 +443,233 @@ struct Node {
 /// all three).
 const CLOSED: f64 = f64::NEG_INFINITY;
 
-/// An open-list entry: the key `f.to_bits() << 64 | (h as f32).to_bits() << 32 | iy << 16 | ix`
-/// as one integer, ordered so that `BinaryHeap` pops the smallest. `f, h >= 0`, so their bits
-/// order as their values, and `(iy, ix)` orders as the flat index `iy·nx + ix`: entries pop in
-/// the order of `(f, h, flat index)`. Sides are at most [`MAX_SIDE`] cells.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Open(u128);
+/// The open-list key of the cell of flat index `flat`: `f.to_bits() << 64 | (h as f32).to_bits() << 32 | flat`
+/// as one integer. `f, h >= 0`, so their bits order as their values: the smallest key is the
+/// entry of smallest `(f, h, flat index)`. Grids have at most [`MAX_GRID_CELLS`] `<= 2^32` cells.
+#[inline]
+fn open_key(f: f64, h: f64, flat: usize) -> u128 {
+    let tie = (((h as f32).to_bits() as u64) << 32) | flat as u64;
+    ((f.to_bits() as u128) << 64) | tie as u128
+}
 
-impl Open {
-    #[inline]
-    fn new(f: f64, h: f64, x: usize, y: usize) -> Self {
-        let tie = (((h as f32).to_bits() as u64) << 32) | ((y as u64) << 16) | x as u64;
-        Self(((f.to_bits() as u128) << 64) | tie as u128)
+/// The flat index of an open-list key's cell.
+#[inline]
+fn key_flat(key: u128) -> usize {
+    key as u32 as usize
+}
+
+/// The open list: an indexed binary min-heap of [`open_key`]s, one per open cell (the children
+/// of slot `i` are the slots `2i + 1` and `2i + 2`). Each open cell's slot is recorded, so an
+/// improved cell's key is lowered in place: no stale entries.
+#[derive(Debug, Clone, Default)]
+struct OpenList {
+    keys: Vec<u128>,
+    /// The slot of each open cell's key, by flat index (meaningless for other cells).
+    slots: Vec<u32>,
+}
+
+impl OpenList {
+    /// Empties the list for a search over `cells` cells.
+    fn begin(&mut self, cells: usize) {
+        self.keys.clear();
+        if self.slots.len() < cells {
+            self.slots.resize(cells, 0);
+        }
     }
 
-    /// `(ix, iy)`.
+    /// Puts `key` into slot `i` and records the slot.
+    #[inline(always)]
+    fn place(&mut self, i: usize, key: u128) {
+        self.keys[i] = key;
+        self.slots[key_flat(key)] = i as u32;
+    }
+
+    /// Moves the hole at slot `hole` up while its parent's key is above `key`, then puts `key`
+    /// there.
+    #[inline(always)]
+    fn sift_up(&mut self, mut hole: usize, key: u128) {
+        while hole > 0 {
+            let parent = (hole - 1) / 2;
+            let above = self.keys[parent];
+            if above < key {
+                break;
+            }
+            self.place(hole, above);
+            hole = parent;
+        }
+        self.place(hole, key);
+    }
+
+    /// Adds the key of a cell not in the list.
     #[inline]
-    fn cell(self) -> (usize, usize) {
-        ((self.0 & 0xffff) as usize, ((self.0 >> 16) & 0xffff) as usize)
+    fn push(&mut self, key: u128) {
+        let hole = self.keys.len();
+        self.keys.push(key);
+        self.sift_up(hole, key);
+    }
+
+    /// Lowers the key of a cell in the list to `key` (at most its old key: same cell and `h`,
+    /// `f` not larger).
+    #[inline]
+    fn decrease(&mut self, key: u128) {
+        let hole = self.slots[key_flat(key)] as usize;
+        self.sift_up(hole, key);
+    }
+
+    /// The smallest key, removed. Floyd's deletion: the root's hole moves down along the smaller
+    /// children to the bottom, then the last key sifts up from there (it usually belongs near
+    /// the bottom: one comparison per level on the way down instead of two).
+    #[inline]
+    fn pop(&mut self) -> Option<u128> {
+        let last = self.keys.pop()?;
+        let Some(&top) = self.keys.first() else {
+            return Some(last);
+        };
+        let mut hole = 0;
+        let mut child = 1;
+        while let Some(pair) = self.keys.get(child..child + 2) {
+            let smaller = child + (pair[1] < pair[0]) as usize;
+            self.place(hole, self.keys[smaller]);
+            hole = smaller;
+            child = 2 * hole + 1;
+        }
+        if let Some(&key) = self.keys.get(child) {
+            self.place(hole, key);
+            hole = child;
+        }
+        self.sift_up(hole, last);
+        Some(top)
     }
 }
 
-impl Ord for Open {
-    #[inline]
-    fn cmp(&self, other: &Self) -> Ordering {
-        other.0.cmp(&self.0)
-    }
+/// One search: the node array, the open list and what every expansion reads.
+struct Search<'a> {
+    nodes: &'a mut [Node],
+    open: &'a mut OpenList,
+    risk: &'a [f32],
+    config: &'a RiskAStarConfig,
+    stamp: u32,
+    /// Move lengths [m]: orthogonal, diagonal.
+    step: [f64; 2],
+    /// The goal cell `(x, y)`.
+    goal: (usize, usize),
+    /// `λ·res` (or `res` with the additive model): the heuristic per cell of octile distance.
+    h_scale: f64,
 }
 
-impl PartialOrd for Open {
-    #[inline]
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
+impl Search<'_> {
+    /// The node of cell `i`, initialised (cost computed, not reached, open) on first touch.
+    #[inline(always)]
+    fn touch(&mut self, i: usize) -> &mut Node {
+        let node = &mut self.nodes[i];
+        if node.stamp != self.stamp {
+            *node = Node { g: f64::INFINITY, cost: self.config.cell_cost(self.risk[i]), stamp: self.stamp, parent: NO_PARENT };
+        }
+        node
+    }
+
+    /// `h` of cell `(x, y)`: `h_scale·octile`, from integer distances (exact in `f64`).
+    #[inline(always)]
+    fn heuristic(&self, x: usize, y: usize) -> f64 {
+        // Sides are at most MAX_SIDE = 2^16 cells: the distances fit a u32.
+        let (dx, dy) = (x.abs_diff(self.goal.0) as u32, y.abs_diff(self.goal.1) as u32);
+        self.h_scale * (f64::from(dx.max(dy)) + (std::f64::consts::SQRT_2 - 1.0) * f64::from(dx.min(dy)))
+    }
+
+    /// Tries move `k` from a cell of cost `g_a` and cell cost `cost_a` to cell `b` = `(bx, by)`
+    /// (inside the grid): if the move lowers `b`'s `g`, improves `b` and adds its key to the open
+    /// list or lowers the key there. Returns whether
+    /// `b` is traversable.
+    #[inline(always)]
+    fn relax(&mut self, g_a: f64, cost_a: f64, k: usize, b: usize, bx: usize, by: usize) -> bool {
+        let step = self.step[(k >= 4) as usize];
+        let node = self.touch(b);
+        let cost_b = node.cost;
+        // `+inf` for an untraversable `b`; never below a closed `b`'s CLOSED.
+        let g = g_a + step * (cost_a + cost_b) * 0.5;
+        if g < node.g {
+            let open = node.g < f64::INFINITY;
+            node.g = g;
+            node.parent = k as u8;
+            let h = self.heuristic(bx, by);
+            let key = open_key(g + h, h, b);
+            if open {
+                self.open.decrease(key);
+            } else {
+                self.open.push(key);
+            }
+        }
+        cost_b < f64::INFINITY
+    }
+
+    /// A* until the goal is popped or the open list empties; `CUT`: corner cutting allowed.
+    fn run<const CUT: bool>(&mut self, nx: usize, ny: usize) -> (PlanStatus, usize) {
+        let goal = self.goal.1 * nx + self.goal.0;
+        let mut expanded = 0;
+        while let Some(key) = self.open.pop() {
+            let a = key_flat(key);
+            // u32 division: cells fit a u32 (MAX_GRID_CELLS).
+            let (ax, ay) = ((a as u32 % nx as u32) as usize, (a as u32 / nx as u32) as usize);
+            let node = &mut self.nodes[a];
+            let (g_a, cost_a) = (node.g, node.cost);
+            expanded += 1;
+            if a == goal {
+                return (PlanStatus::Found, expanded);
+            }
+            node.g = CLOSED;
+            if ax > 0 && ay > 0 && ax + 1 < nx && ay + 1 < ny {
+                self.expand_interior::<CUT>(g_a, cost_a, a, ax, ay, nx);
+            } else {
+                self.expand_border::<CUT>(g_a, cost_a, ax, ay, nx, ny);
+            }
+        }
+        (PlanStatus::NoPath, expanded)
+    }
+
+    /// Expands cell `a` = `(ax, ay)` away from the border (every neighbour inside the grid): the
+    /// moves of [`MOVES`] in order, unrolled.
+    #[inline(always)]
+    fn expand_interior<const CUT: bool>(&mut self, g_a: f64, cost_a: f64, a: usize, ax: usize, ay: usize, nx: usize) {
+        let e = self.relax(g_a, cost_a, 0, a + 1, ax + 1, ay);
+        let n = self.relax(g_a, cost_a, 1, a + nx, ax, ay + 1);
+        let w = self.relax(g_a, cost_a, 2, a - 1, ax - 1, ay);
+        let s = self.relax(g_a, cost_a, 3, a - nx, ax, ay - 1);
+        if CUT || (e && n) {
+            self.relax(g_a, cost_a, 4, a + nx + 1, ax + 1, ay + 1);
+        }
+        if CUT || (w && n) {
+            self.relax(g_a, cost_a, 5, a + nx - 1, ax - 1, ay + 1);
+        }
+        if CUT || (w && s) {
+            self.relax(g_a, cost_a, 6, a - nx - 1, ax - 1, ay - 1);
+        }
+        if CUT || (e && s) {
+            self.relax(g_a, cost_a, 7, a - nx + 1, ax + 1, ay - 1);
+        }
+    }
+
+    /// Expands cell `(ax, ay)` on the border: the moves of [`MOVES`] in order, those leaving
+    /// the grid skipped.
+    #[inline(never)]
+    fn expand_border<const CUT: bool>(&mut self, g_a: f64, cost_a: f64, ax: usize, ay: usize, nx: usize, ny: usize) {
+        let mut orthogonal_open = [false; 4];
+        for (k, &(dx, dy)) in MOVES.iter().enumerate() {
+            let (bx, by) = (ax.wrapping_add_signed(dx as isize), ay.wrapping_add_signed(dy as isize));
+            // Off the grid, a coordinate wraps to a huge value.
+            if bx >= nx || by >= ny {
+                continue;
+            }
+            if k >= 4 && !CUT {
+                let (p, q) = CORNERS[k - 4];
+                if !(orthogonal_open[p] && orthogonal_open[q]) {
+                    continue;
+                }
+            }
+            let traversable = self.relax(g_a, cost_a, k, by * nx + bx, bx, by);
+            if k < 4 {
+                orthogonal_open[k] = traversable;
+            }
+        }
     }
 }
 
@@ -483,7 +678,7 @@ impl PartialOrd for Open {
 pub struct RiskAStar {
     config: RiskAStarConfig,
     nodes: Vec<Node>,
-    open: BinaryHeap<Open>,
+    open: OpenList,
     stamp: u32,
 }
 
@@ -491,7 +686,7 @@ impl RiskAStar {
     /// A planner; fails if the config is invalid.
     pub fn new(config: RiskAStarConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self { config, nodes: Vec::new(), open: BinaryHeap::new(), stamp: 0 })
+        Ok(Self { config, nodes: Vec::new(), open: OpenList::default(), stamp: 0 })
     }
 
     /// The config.
@@ -530,7 +725,8 @@ impl RiskAStar {
         Ok(PlanOutcome { status, path, carrot_world, start_cell: start, goal_cell: goal, expanded, time_s: started.elapsed().as_secs_f64() })
     }
 
-    /// Starts a new search over `cells` cells: grows the node array and moves to a fresh stamp.
+    /// Starts a new search over `cells` cells: grows the node array, moves to a fresh stamp and
+    /// empties the open list.
     fn begin(&mut self, cells: usize) {
         if self.nodes.len() < cells {
             self.nodes.resize(cells, Node::default());
@@ -541,17 +737,7 @@ impl RiskAStar {
             self.nodes.iter_mut().for_each(|n| n.stamp = 0);
             self.stamp = 1;
         }
-        self.open.clear();
-    }
-
-    /// The node of cell `i`, initialised (cost computed, not reached, open) on first touch.
-    #[inline]
-    fn touch(nodes: &mut [Node], stamp: u32, config: &RiskAStarConfig, risk: &[f32], i: usize) -> Node {
-        let node = &mut nodes[i];
-        if node.stamp != stamp {
-            *node = Node { g: f64::INFINITY, cost: config.cell_cost(risk[i]), stamp, parent: NO_PARENT };
-        }
-        *node
+        self.open.begin(cells);
     }
 
     /// A* from `start` to `goal` (flat indices). Returns `Found` (the goal's `g` and parents are
@@ -560,79 +746,32 @@ impl RiskAStar {
     fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize) -> (PlanStatus, usize) {
         let (nx, ny) = (grid.nx, grid.ny);
         self.begin(nx * ny);
-        let stamp = self.stamp;
-        let config = self.config;
-        let risk = grid.risk;
-        let nodes = &mut self.nodes[..];
-        if Self::touch(nodes, stamp, &config, risk, start).cost.is_infinite() {
+        let res = grid.resolution_m;
+        let mut search = Search {
+            nodes: &mut self.nodes[..nx * ny],
+            open: &mut self.open,
+            risk: grid.risk,
+            config: &self.config,
+            stamp: self.stamp,
+            step: [res, res * std::f64::consts::SQRT_2],
+            goal: (goal % nx, goal / nx),
+            h_scale: self.config.min_cell_cost() * res,
+        };
+        if search.touch(start).cost.is_infinite() {
             return (PlanStatus::StartBlocked, 0);
         }
-        if Self::touch(nodes, stamp, &config, risk, goal).cost.is_infinite() {
+        if search.touch(goal).cost.is_infinite() {
             return (PlanStatus::GoalBlocked, 0);
         }
-        let res = grid.resolution_m;
-        let step = [res, res * std::f64::consts::SQRT_2];
-        let (gx, gy) = ((goal % nx) as f64, (goal / nx) as f64);
-        let h_scale = config.min_cell_cost() * res;
-        let heuristic = |x: usize, y: usize| {
-            let (dx, dy) = ((x as f64 - gx).abs(), (y as f64 - gy).abs());
-            h_scale * (dx.max(dy) + (std::f64::consts::SQRT_2 - 1.0) * dx.min(dy))
-        };
-        // Flat offsets of MOVES.
-        let w = nx as isize;
-        let offsets: [isize; 8] = [1, w, -1, -w, w + 1, w - 1, -w - 1, -w + 1];
-        nodes[start].g = 0.0;
+        search.nodes[start].g = 0.0;
         let (sx, sy) = (start % nx, start / nx);
-        let h0 = heuristic(sx, sy);
-        self.open.push(Open::new(h0, h0, sx, sy));
-        let mut expanded = 0;
-        while let Some(top) = self.open.pop() {
-            let (ax, ay) = top.cell();
-            let a = ay * nx + ax;
-            let node_a = &mut nodes[a];
-            let (g_a, cost_a) = (node_a.g, node_a.cost);
-            if g_a == CLOSED {
-                continue; // stale entry
-            }
-            expanded += 1;
-            if a == goal {
-                return (PlanStatus::Found, expanded);
-            }
-            node_a.g = CLOSED;
-            // Away from the border every move stays inside the grid.
-            let interior = ax > 0 && ay > 0 && ax + 1 < nx && ay + 1 < ny;
-            let mut orthogonal_open = [false; 4];
-            for k in 0..8 {
-                let (dx, dy) = MOVES[k];
-                let (bx, by) = (ax.wrapping_add_signed(dx as isize), ay.wrapping_add_signed(dy as isize));
-                // Off the grid, a coordinate wraps to a huge value.
-                if !interior && (bx >= nx || by >= ny) {
-                    continue;
-                }
-                let diagonal = k >= 4;
-                if diagonal && !config.allow_corner_cutting {
-                    let (p, q) = CORNERS[k - 4];
-                    if !(orthogonal_open[p] && orthogonal_open[q]) {
-                        continue;
-                    }
-                }
-                let b = a.wrapping_add_signed(offsets[k]);
-                let node_b = Self::touch(nodes, stamp, &config, risk, b);
-                if !diagonal {
-                    orthogonal_open[k] = node_b.cost < f64::INFINITY;
-                }
-                // `+inf` for an untraversable `b`; never below a closed `b`'s CLOSED.
-                let g = g_a + step[diagonal as usize] * (cost_a + node_b.cost) * 0.5;
-                if g < node_b.g {
-                    let node = &mut nodes[b];
-                    node.g = g;
-                    node.parent = k as u8;
-                    let h = heuristic(bx, by);
-                    self.open.push(Open::new(g + h, h, bx, by));
-                }
-            }
+        let h0 = search.heuristic(sx, sy);
+        search.open.push(open_key(h0, h0, start));
+        if self.config.allow_corner_cutting {
+            search.run::<true>(nx, ny)
+        } else {
+            search.run::<false>(nx, ny)
         }
-        (PlanStatus::NoPath, expanded)
     }
 
     /// The path to `goal` through the parents of the last search, with its cost, length, risk

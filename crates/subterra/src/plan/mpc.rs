@@ -23,26 +23,33 @@
 //!    input limits. `x̄` = its exact rollout from `x0`, with the Jacobians `A_k, B_k`.
 //! 2. **Targets** (fixed for the iteration). `s0` = arc length of the path point closest
 //!    to `x0`; stage `k = 1..N` gets the path point at `s_k = clamp(s0 + Σ_{j<k}
-//!    ½(v̄_j + v̄_{j+1})·T, 0, L)` — spaced by the nominal's predicted travel — with unit
-//!    tangent `t_k` (the chord over `±tangent_half_window_m`, so corners turn smoothly),
-//!    heading `θr_k = atan2(t_k)` unwrapped to within π of `θ̄_k`, and speed
-//!    `vr_k = min(v_des, sqrt(2·d_end·(L - s_k)))` (stops at the end). The point is moved
-//!    sideways, `r_k = path(s_k) + o(s_k)·perp(t_k)`: the path is sampled every 0.1 m from
-//!    `s0 - ramp` to `s0 + N·T·max(v_max, |v0|) + ramp`; at each sample the footprint (with
-//!    the path's heading) is pushed along the path normal until it clears every polygon
-//!    beside the path by `path_clearance_m` (polygons ahead, whose normal is within 73° of
-//!    the path, are left to the obstacle rows; a push over `max_path_shift_m` or one that
-//!    does not clear is dropped); `o(s)` is the largest of those offsets scaled by the tent
-//!    `1 - |s - s_i|/ramp` (`ramp = path_shift_ramp_m`). So the robot starts to steer
-//!    around an obstacle that reaches into its path before it is there, instead of
-//!    stopping in front of it. Speed bounds: `r_k` = the largest risk met along the nominal
-//!    from `p̄_{k-1}` through `p̄_k` to `p̄_{k+1}` (sampled every half cell, ends included;
-//!    NaN and outside the grid = `unknown_risk`; no grid = 0), `vhi_k = v_max·(1 - r_k)`,
-//!    `vlo_k = max(v_min, -vhi_k)`: the risk limit `|v_k| <= v_max·(1 - r(p_k))` taken
-//!    constant from the nominal's positions, conservative by a step either side so a risky
-//!    band thinner than a step is not jumped over; then widened to what braking at `a_max`
-//!    from `v0` can reach, `vhi'_k = max(vhi_k, v0 - a_max·k·T + 10⁻³)`,
-//!    `vlo'_k = min(vlo_k, v0 + a_max·k·T - 10⁻³)`, so the speed rows are always feasible.
+//!    ½(v̄_j + v̄_{j+1})·T, 0, L)` — spaced by the nominal's predicted travel — and the speed
+//!    `vr_k = min(v_des, sqrt(2·d_end·(L - s_k)))` (stops at the end). The path's direction
+//!    `t(s)` is the chord over `±tangent_half_window_m` (corners of a grid path turn
+//!    smoothly). **Moving the path around obstacles:** the path is sampled every 0.1 m from
+//!    `s0 - ramp` to `s0 + N·T·max(v_max, |v0|) + ramp` (`ramp = path_shift_ramp_m`); at each
+//!    sample, each polygon forbids the interval of sideways offsets `o` (along `perp(t)`) at
+//!    which the footprint, with the path's heading, is within `path_clearance_m` of it (the
+//!    line of centres against the polygon grown by the rectangle and the clearance — exact up
+//!    to corners taken square), and the nearest free offsets on the right (`o <= 0`) and
+//!    left (`o >= 0`) within `max_path_shift_m` are kept. Each run of samples where `o = 0`
+//!    is not free goes round on one side — the side whose largest offset over the run is
+//!    smaller (right on a tie); a run blocked on both sides keeps 0 and is left to the
+//!    obstacle rows (the robot stops in front of it). `o(s)` is the largest-magnitude sample
+//!    offset scaled by the tent `1 - |s - s_i|/ramp`, so the moved path leaves the path
+//!    before an obstacle and comes back after it. The target is `r_k = path(s_k) +
+//!    o(s_k)·perp(t)`, with the moved path's unit tangent `t_k = (t + o'·perp(t))/|...|`
+//!    (`o'` by central differences over 0.1 m) and heading `θr_k = atan2(t_k)` unwrapped to
+//!    within π of `θ̄_k`. So the robot steers around an obstacle that reaches into its path
+//!    before it gets there, instead of stopping in front of it. **Speed bounds:** `r_k` =
+//!    the largest risk met along the nominal from `p̄_{k-1}` through `p̄_k` to `p̄_{k+1}`
+//!    (sampled every half cell, ends included; NaN and outside the grid = `unknown_risk`;
+//!    no grid = 0), `vhi_k = v_max·(1 - r_k)`, `vlo_k = max(v_min, -vhi_k)`: the risk limit
+//!    `|v_k| <= v_max·(1 - r(p_k))` taken constant from the nominal's positions,
+//!    conservative by a step either side so a risky band thinner than a step is not jumped
+//!    over; then widened to what braking at `a_max` from `v0` can reach,
+//!    `vhi'_k = max(vhi_k, v0 - a_max·k·T + 10⁻³)`, `vlo'_k = min(vlo_k, v0 + a_max·k·T -
+//!    10⁻³)`, so the speed rows are always feasible.
 //! 3. **Obstacle rows.** For each stage, the polygons whose exact signed distance `d̄` to the
 //!    footprint rectangle at `(p̄_k, θ̄_k)` is below `margin + activation_m`, nearest first, at
 //!    most `max_per_stage`; each gives two rows, one per robot corner `c` of the two deepest
@@ -76,11 +83,17 @@
 //!    widened bounds recomputed along the rollout and `σo_k = max(0, margin - min over all
 //!    polygons of the exact distance)`. Steps `α = 1, ½, ¼, ...` (`line_search_steps` tries)
 //!    until `φ(ū + αδu) <= φ(ū) + 10⁻⁴·α·Δm` (`Δm < 0` the QP's predicted change) and the
-//!    largest speed excess has not grown by more than 10⁻⁴ m/s (a filter: a step that carries
-//!    a predicted state into cells riskier than the nominal saw is refused, whatever it
-//!    gains elsewhere); the first acceptable step updates `ū`. The loop re-linearises (step
-//!    1 with the new `ū`) up to `sqp_iterations` times and stops early when the accepted
-//!    step is below `step_tolerance` in every input or no step is acceptable.
+//!    violation `max(largest σv_k [m/s], largest σo_k [m])` has not grown by more than 10⁻⁴
+//!    (a filter: a step that carries a predicted state into cells riskier than the nominal
+//!    saw, or closer to an obstacle than the rows promised, is refused whatever it gains in
+//!    tracking, so a plan that starts within its limits stays within them; one violation may
+//!    shrink at the price of a smaller other); the first acceptable step updates `ū`. The
+//!    loop re-linearises (step 1 with the new `ū`) up to `sqp_iterations` QPs in all, and
+//!    stops early when the accepted step is below `step_tolerance` in every input or the QP
+//!    predicts no decrease. When no step is acceptable, the next QP starts from the same
+//!    nominal with each stage's speed bounds tightened to those along the refused full
+//!    step's rollout too (the step had carried states into cells riskier than the nominal
+//!    saw); when that one is refused as well, the loop stops.
 //! 6. **Check and backup.** On the final exact rollout, `c_k` = the smallest signed distance
 //!    from the footprint to any polygon. The plan is unsafe when some `c_k <
 //!    min(margin, c_0) - clearance_tolerance_m`: it would bring the robot closer to a lethal
@@ -110,26 +123,24 @@ pub use geometry::{ConvexPolygon, RiskGrid};
 pub use unicycle::{step, step_with_jacobians, StepJacobians, UnicycleInput, UnicycleState};
 
 use crate::error::{Error, Result};
-use geometry::{lethal_polygons, separation, supporting_corners, Footprint, PolygonScratch};
+use geometry::{blocked_offsets, lethal_polygons, separation, supporting_corners, Footprint, PolygonScratch};
 use qp::{CscBuilder, QpOutcome, QpProblem, QpSolver};
 use reference::Reference;
 
 /// Spacing of the path samples whose sideways offsets are worked out [m].
 const PATH_SAMPLE_M: f64 = 0.1;
-/// [`clear_reference`] is done when every shortfall is below this [m] (rounding).
+/// A state's speed beyond this is a broken estimate, not a robot [m/s].
+const MAX_STATE_SPEED_M_S: f64 = 100.0;
+/// [`free_offsets`] steps this far past the end of a blocked interval [m] (rounding).
 const PUSH_TOLERANCE_M: f64 = 1e-6;
-/// Passes of [`clear_reference`] over the polygons.
-const REFERENCE_PUSH_PASSES: usize = 3;
-/// A polygon whose normal is within acos(0.3) ≈ 73° of the path direction is ahead of the
-/// robot, not beside it: moving the reference sideways does not get around it.
-const MIN_PUSH_COSINE: f64 = 0.3;
 /// QP variables per stage: `[a_k, ω_k, x, y, θ, v (of state k+1), σo_{k+1}]`.
 const STAGE_VARS: usize = 7;
 /// The braking envelope of the speed bounds is widened by this [m/s], so that braking at
 /// exactly `a_max` is inside the feasible set rather than on its edge.
 const ENVELOPE_SLACK_M_S: f64 = 1e-3;
-/// A line-search step may not raise the largest speed-limit excess by more than this [m/s].
-const SPEED_FILTER_M_S: f64 = 1e-4;
+/// A line-search step may not raise `max(largest speed-limit excess [m/s], largest intrusion
+/// into an obstacle margin [m])` by more than this.
+const FILTER_M: f64 = 1e-4;
 /// Right-hand side of an unused obstacle row, `-σo <= this` [m]: never binding.
 const UNUSED_ROW_RHS_M: f64 = 1e3;
 /// Sufficient-decrease fraction of the line search (Armijo).
@@ -261,6 +272,9 @@ struct Workspace {
     /// Sideways offsets of the path at arc lengths `path_offsets_start + i·PATH_SAMPLE_M`.
     path_offsets: Vec<f64>,
     path_offsets_start: f64,
+    intervals: Vec<(f64, f64)>,
+    /// Per path sample: the nearest free offsets `(right, left)`.
+    side_offsets: Vec<SideOffsets>,
     /// The diagonal of `P` and its off-diagonal entries per stage (see [`build_qp`]).
     p_diag: Vec<f64>,
     p_off: Vec<[f64; 3]>,
@@ -312,6 +326,9 @@ impl MpcTracker {
         if !state.is_finite() {
             return Err(Error::input("state", format!("must be 4 finite numbers [x, y, θ, v], got {:?}", state.to_array())));
         }
+        if state.speed_m_s.abs() > MAX_STATE_SPEED_M_S {
+            return Err(Error::input("state", format!("speed {} m/s is beyond any ground robot (|v| <= {MAX_STATE_SPEED_M_S} m/s)", state.speed_m_s)));
+        }
         let desired = desired_speed_m_s.unwrap_or(c.tracking.desired_speed_m_s);
         if !(desired.is_finite() && desired >= 0.0 && desired <= c.limits.max_speed_m_s) {
             return Err(Error::input("desired_speed", format!("must be in [0, max_speed_m_s = {}] m/s, got {desired}", c.limits.max_speed_m_s)));
@@ -350,8 +367,12 @@ impl MpcTracker {
         let mut status = MpcStatus::Solved;
         let mut sqp_iterations = 0;
         let mut qp_iterations = 0;
+        // Whether the QP is to be solved again from the same nominal with tightened bounds.
+        let mut tightened = false;
         for _ in 0..c.solver.sqp_iterations {
-            linearise(&c, ws, state, s0, desired, risk);
+            if !tightened {
+                linearise(&c, ws, state, s0, desired, risk);
+            }
             build_qp(&c, ws, previous_input);
             let (outcome, iterations) = self.solver.solve(&ws.qp, &mut ws.z);
             qp_iterations += iterations;
@@ -368,8 +389,13 @@ impl MpcTracker {
                 QpOutcome::Solved => {}
             }
             sqp_iterations += 1;
-            if !line_search(&c, ws, state, risk, previous_input) {
-                break;
+            match line_search(&c, ws, state, risk, previous_input) {
+                Step::Accepted { go_on: true } => tightened = false,
+                Step::Refused if !tightened => {
+                    tighten_speed_bounds(&c, ws, state, risk);
+                    tightened = true;
+                }
+                _ => break,
             }
         }
 
@@ -476,41 +502,53 @@ fn obstacle_slack(c: &MpcConfig, polygons: &[ConvexPolygon], s: &UnicycleState) 
     worst
 }
 
-/// Moves a reference point sideways (along the path normal) until the footprint at it, with
-/// the path's heading, clears every polygon by `path_clearance_m` (module notes, step 2):
-/// up to three passes over the polygons, each moving the point by the shortfall over the
-/// cosine between the polygon's normal and the path normal. Polygons straight ahead (cosine
-/// below [`MIN_PUSH_COSINE`]) are left to the obstacle rows. The point is kept where it was
-/// when the passes do not clear the sideways polygons or the move exceeds `max_path_shift_m`.
-fn clear_reference(c: &MpcConfig, polygons: &[ConvexPolygon], point: DVec2, tangent: DVec2) -> f64 {
+/// The nearest free sideways offsets of a path sample, `(right <= 0, left >= 0)` [m].
+type SideOffsets = (Option<f64>, Option<f64>);
+
+/// The sideways offsets (along the path normal) of a reference point nearest to zero on
+/// either side, `(right <= 0, left >= 0)`, at which the footprint, with the path's heading,
+/// clears every polygon by `path_clearance_m` (module notes, step 2): each polygon forbids an
+/// interval of offsets ([`blocked_offsets`]), and the candidates are 0 and the points just
+/// past each interval's ends. `None` on a side with no free offset within `max_path_shift_m`.
+fn free_offsets(c: &MpcConfig, intervals: &mut Vec<(f64, f64)>, polygons: &[ConvexPolygon], point: DVec2, tangent: DVec2) -> SideOffsets {
     let half_diagonal = 0.5 * c.footprint.length_m.hypot(c.footprint.width_m);
     let want = c.obstacles.path_clearance_m;
-    let heading = tangent.y.atan2(tangent.x);
+    let max_shift = c.obstacles.max_path_shift_m;
+    let robot = Footprint::at(DVec2::ZERO, tangent.y.atan2(tangent.x), c.footprint.length_m, c.footprint.width_m);
     let normal = tangent.perp();
-    let mut moved = point;
-    for _ in 0..REFERENCE_PUSH_PASSES {
-        let mut clear = true;
-        for p in polygons {
-            if moved.distance(p.centre) - half_diagonal - p.radius_m >= want {
-                continue;
+    intervals.clear();
+    for p in polygons {
+        if point.distance(p.centre) - half_diagonal - p.radius_m < want + max_shift {
+            if let Some(interval) = blocked_offsets(&robot, p, point, normal, want) {
+                intervals.push(interval);
             }
-            let fp = Footprint::at(moved, heading, c.footprint.length_m, c.footprint.width_m);
-            let sep = separation(&fp, p);
-            let cosine = sep.normal.dot(normal);
-            if sep.distance_m < want - PUSH_TOLERANCE_M && cosine.abs() >= MIN_PUSH_COSINE {
-                moved += normal * ((want - sep.distance_m) / cosine);
-                clear = false;
-            }
-        }
-        if clear {
-            let offset = (moved - point).dot(normal);
-            return if offset.abs() <= c.obstacles.max_path_shift_m { offset } else { 0.0 };
         }
     }
-    0.0
+    let free = |o: f64| o.abs() <= max_shift && intervals.iter().all(|&(lo, hi)| o <= lo || o >= hi);
+    if free(0.0) {
+        return (Some(0.0), Some(0.0));
+    }
+    let (mut right, mut left): (Option<f64>, Option<f64>) = (None, None);
+    for &(lo, hi) in intervals.iter() {
+        for o in [lo - PUSH_TOLERANCE_M, hi + PUSH_TOLERANCE_M] {
+            if !free(o) {
+                continue;
+            }
+            if o < 0.0 && right.is_none_or(|r| o > r) {
+                right = Some(o);
+            }
+            if o > 0.0 && left.is_none_or(|l| o < l) {
+                left = Some(o);
+            }
+        }
+    }
+    (right, left)
 }
 
-/// The sideways offsets of the path samples around the robot (module notes, step 2).
+/// The sideways offsets of the path samples around the robot (module notes, step 2): each
+/// run of consecutive samples where the path itself is blocked goes round on one side, the
+/// one whose largest offset over the run is smaller (right on a tie); a run blocked on both
+/// sides keeps offset 0 (the obstacle rows stop the robot).
 fn path_offsets(c: &MpcConfig, ws: &mut Workspace, s0: f64, reach_m: f64) {
     let ramp = c.obstacles.path_shift_ramp_m;
     ws.path_offsets.clear();
@@ -519,9 +557,35 @@ fn path_offsets(c: &MpcConfig, ws: &mut Workspace, s0: f64, reach_m: f64) {
         return;
     }
     let samples = ((reach_m + 2.0 * ramp) / PATH_SAMPLE_M).ceil() as usize + 1;
+    ws.side_offsets.clear();
     for i in 0..samples {
         let at = ws.reference.at_smoothed(ws.path_offsets_start + i as f64 * PATH_SAMPLE_M, c.tracking.tangent_half_window_m);
-        ws.path_offsets.push(clear_reference(c, &ws.polygons, at.position, at.tangent));
+        let sides = free_offsets(c, &mut ws.intervals, &ws.polygons, at.position, at.tangent);
+        ws.side_offsets.push(sides);
+    }
+    let mut i = 0;
+    while i < samples {
+        let blocked = |(r, l): SideOffsets| !(r == Some(0.0) && l == Some(0.0));
+        if !blocked(ws.side_offsets[i]) {
+            ws.path_offsets.push(0.0);
+            i += 1;
+            continue;
+        }
+        let end = i + ws.side_offsets[i..].iter().take_while(|&&o| blocked(o)).count();
+        let run = &ws.side_offsets[i..end];
+        let worst = |side: fn(&SideOffsets) -> Option<f64>| run.iter().map(side).try_fold(0.0f64, |acc, o| o.map(|o| acc.max(o.abs())));
+        let (right, left) = (worst(|o| o.0), worst(|o| o.1));
+        let use_left = match (right, left) {
+            (Some(r), Some(l)) => l < r,
+            (None, Some(_)) => true,
+            _ => false,
+        };
+        let both_blocked = right.is_none() && left.is_none();
+        for o in run {
+            let offset = if both_blocked { 0.0 } else if use_left { o.1.unwrap_or(0.0) } else { o.0.unwrap_or(0.0) };
+            ws.path_offsets.push(offset);
+        }
+        i = end;
     }
 }
 
@@ -546,17 +610,6 @@ fn offset_at(c: &MpcConfig, ws: &Workspace, s: f64) -> f64 {
 fn reachable_bounds(c: &MpcConfig, v0: f64, k: usize, (hi, lo): (f64, f64)) -> (f64, f64) {
     let change = c.limits.max_accel_m_s2 * c.dt_s * k as f64;
     (hi.max(v0 - change + ENVELOPE_SLACK_M_S), lo.min(v0 + change - ENVELOPE_SLACK_M_S))
-}
-
-/// Largest excess of the speeds `x[1..]` over their risk and speed limits along `x`,
-/// widened by [`reachable_bounds`] [m/s].
-fn speed_violation(c: &MpcConfig, x: &[UnicycleState], risk: Option<&RiskGrid<'_>>) -> f64 {
-    let v0 = x[0].speed_m_s;
-    (1..x.len()).fold(0.0f64, |worst, k| {
-        let (hi, lo) = reachable_bounds(c, v0, k, speed_bounds(c, x, k, risk));
-        let v = x[k].speed_m_s;
-        worst.max(v - hi).max(lo - v)
-    })
 }
 
 /// `(vhi_k, vlo_k)` from the risk along `x[k-1] -> x[k] -> x[k+1]` (module notes, step 2).
@@ -604,14 +657,17 @@ fn linearise(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, s0: f64, 
         travel += 0.5 * (ws.x[k - 1].speed_m_s + ws.x[k].speed_m_s) * t;
         let s = (s0 + travel).clamp(0.0, length);
         let at = ws.reference.at_smoothed(s, c.tracking.tangent_half_window_m);
-        let path_heading = at.tangent.y.atan2(at.tangent.x);
-        let turns = ((ws.x[k].heading_rad - path_heading) / std::f64::consts::TAU).round();
+        // The moved path: its point, and its direction from the offset's slope.
+        let offset = offset_at(c, ws, s);
+        let slope = (offset_at(c, ws, s + PATH_SAMPLE_M) - offset_at(c, ws, s - PATH_SAMPLE_M)) / (2.0 * PATH_SAMPLE_M);
+        let tangent = (at.tangent + at.tangent.perp() * slope).normalize();
+        let heading = tangent.y.atan2(tangent.x);
+        let turns = ((ws.x[k].heading_rad - heading) / std::f64::consts::TAU).round();
         let (speed_hi, speed_lo) = reachable_bounds(c, state.speed_m_s, k, speed_bounds(c, &ws.x, k, risk));
-        let point = at.position + at.tangent.perp() * offset_at(c, ws, s);
         ws.targets.push(StageTarget {
-            point,
-            tangent: at.tangent,
-            heading_rad: path_heading + turns * std::f64::consts::TAU,
+            point: at.position + at.tangent.perp() * offset,
+            tangent,
+            heading_rad: heading + turns * std::f64::consts::TAU,
             speed_m_s: desired.min((2.0 * c.tracking.end_decel_m_s2 * (length - s)).sqrt()),
             factor: if k == n { c.weights.terminal_factor } else { 1.0 },
             speed_hi,
@@ -830,6 +886,24 @@ fn build_qp(c: &MpcConfig, ws: &mut Workspace, previous_input: Option<UnicycleIn
     a.finish(row, nz, &mut qp.a);
 }
 
+/// The merit of a trajectory (module notes, step 5).
+#[derive(Debug, Clone, Copy)]
+struct Merit {
+    /// `φ`: the cost with the current targets and the exact penalties.
+    cost: f64,
+    /// Largest excess of a speed over its widened bounds [m/s].
+    speed_excess_m_s: f64,
+    /// Largest intrusion of a footprint into an obstacle's margin [m].
+    obstacle_intrusion_m: f64,
+}
+
+impl Merit {
+    /// The filter's measure: `max(speed excess [m/s], margin intrusion [m])`.
+    fn violation(&self) -> f64 {
+        self.speed_excess_m_s.max(self.obstacle_intrusion_m)
+    }
+}
+
 /// Cost of a trajectory with the current targets, slacks at their smallest for the
 /// trajectory's own speed bounds and clearances (module notes, step 5).
 fn merit(
@@ -840,9 +914,10 @@ fn merit(
     x: &[UnicycleState],
     u: &[UnicycleInput],
     previous_input: Option<UnicycleInput>,
-) -> f64 {
+) -> Merit {
     let w = &c.weights;
     let mut cost = 0.0;
+    let (mut speed, mut obstacle) = (0.0f64, 0.0f64);
     for (k, input) in u.iter().enumerate() {
         cost += w.accel * input.accel_m_s2 * input.accel_m_s2 + w.yaw_rate * input.yaw_rate_rad_s * input.yaw_rate_rad_s;
         let before = if k > 0 { Some(u[k - 1]) } else { previous_input };
@@ -861,13 +936,45 @@ fn merit(
         let sv = (s.speed_m_s - hi).max(lo - s.speed_m_s).max(0.0);
         let so = obstacle_slack(c, polygons, s);
         cost += w.slack_linear * (sv + so) + w.slack_quadratic * (sv * sv + so * so);
+        speed = speed.max(sv);
+        obstacle = obstacle.max(so);
     }
-    cost
+    Merit { cost, speed_excess_m_s: speed, obstacle_intrusion_m: obstacle }
+}
+
+/// What the line search did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Step {
+    /// A step was taken; `go_on`: it was not below `step_tolerance`.
+    Accepted { go_on: bool },
+    /// Every trial step was refused.
+    Refused,
+    /// The QP predicts no decrease: the nominal is optimal for it.
+    Converged,
+}
+
+/// After a refused line search: each stage's speed bounds also hold along the full QP
+/// step's rollout (module notes, step 5), for a second QP from the same nominal.
+fn tighten_speed_bounds(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: Option<&RiskGrid<'_>>) {
+    ws.trial_u.clear();
+    for (k, u) in ws.u.iter().enumerate() {
+        ws.trial_u.push(UnicycleInput {
+            accel_m_s2: (u.accel_m_s2 + ws.z[iu(k, 0)]).clamp(-c.limits.max_accel_m_s2, c.limits.max_accel_m_s2),
+            yaw_rate_rad_s: (u.yaw_rate_rad_s + ws.z[iu(k, 1)]).clamp(-c.limits.max_yaw_rate_rad_s, c.limits.max_yaw_rate_rad_s),
+        });
+    }
+    rollout(state, &ws.trial_u, c.dt_s, &mut ws.trial_x);
+    for k in 1..=c.horizon {
+        let (hi, lo) = reachable_bounds(c, state.speed_m_s, k, speed_bounds(c, &ws.trial_x, k, risk));
+        let t = &mut ws.targets[k - 1];
+        t.speed_hi = t.speed_hi.min(hi);
+        t.speed_lo = t.speed_lo.max(lo);
+    }
 }
 
 /// Step 5 of the module notes. Updates `ws.u` (and `ws.x` to its rollout) when a step is
-/// accepted; returns whether the iterations should go on.
-fn line_search(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: Option<&RiskGrid<'_>>, previous_input: Option<UnicycleInput>) -> bool {
+/// accepted.
+fn line_search(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: Option<&RiskGrid<'_>>, previous_input: Option<UnicycleInput>) -> Step {
     let n = c.horizon;
     // Model change from δ = 0 (slacks at their smallest) to the QP's solution.
     let z = &ws.z;
@@ -897,10 +1004,9 @@ fn line_search(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: O
     }
     let predicted = model - model_at_zero;
     if predicted > -MIN_PREDICTED_DECREASE {
-        return false;
+        return Step::Converged;
     }
     let merit0 = merit(c, &ws.targets, &ws.polygons, risk, &ws.x, &ws.u, previous_input);
-    let speed0 = speed_violation(c, &ws.x, risk);
     let mut alpha = 1.0;
     for _ in 0..c.solver.line_search_steps {
         ws.trial_u.clear();
@@ -916,14 +1022,16 @@ fn line_search(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: O
         }
         rollout(state, &ws.trial_u, c.dt_s, &mut ws.trial_x);
         let trial = merit(c, &ws.targets, &ws.polygons, risk, &ws.trial_x, &ws.trial_u, previous_input);
-        if trial <= merit0 + ARMIJO * alpha * predicted && speed_violation(c, &ws.trial_x, risk) <= speed0 + SPEED_FILTER_M_S {
+        let decreases = trial.cost <= merit0.cost + ARMIJO * alpha * predicted;
+        let no_worse = trial.violation() <= merit0.violation() + FILTER_M;
+        if decreases && no_worse {
             std::mem::swap(&mut ws.u, &mut ws.trial_u);
             std::mem::swap(&mut ws.x, &mut ws.trial_x);
-            return largest_step > c.solver.step_tolerance;
+            return Step::Accepted { go_on: largest_step > c.solver.step_tolerance };
         }
         alpha *= 0.5;
     }
-    false
+    Step::Refused
 }
 
 #[cfg(test)]

@@ -194,6 +194,17 @@ pub struct GroundConfig {
     /// A point is ground if its height above its sector's ground line is within ±this [m].
     /// Himmelsbach T_dground; subterra: 0.1.
     pub max_dist_to_line_m: f64,
+    /// Void (missing ground, DESIGN §2 `negative`): the empty bins between two returns of a
+    /// sector are *void* when the rays between them span more than this depression angle
+    /// [deg]: beams must have crossed the expected ground there and none came back (a hole
+    /// with no floor in range). Above the sensor's vertical beam spacing. subterra: 2.5 (the
+    /// coarsest DESIGN lidar, VLP-16, has 2.0°; OS1-64 0.53°).
+    #[serde(default = "default_void_min_gap_deg")]
+    pub void_min_gap_deg: f64,
+}
+
+fn default_void_min_gap_deg() -> f64 {
+    2.5
 }
 
 /// Geometry of one robot-centred, world-axis-aligned map.
@@ -302,6 +313,7 @@ impl Default for GroundConfig {
             max_gap_m: 3.0,
             min_line_points: 3,
             max_dist_to_line_m: 0.1,
+            void_min_gap_deg: default_void_min_gap_deg(),
         }
     }
 }
@@ -375,6 +387,9 @@ impl GroundConfig {
             return Err(Error::config("ground.min_line_points", "must be >= 2 (a line needs two points)", self.min_line_points));
         }
         require_positive("ground.max_dist_to_line_m", self.max_dist_to_line_m)?;
+        if !(self.void_min_gap_deg.is_finite() && self.void_min_gap_deg > 0.0 && self.void_min_gap_deg < 90.0) {
+            return Err(Error::config("ground.void_min_gap_deg", "must be in (0, 90) deg", self.void_min_gap_deg));
+        }
         Ok(())
     }
 }

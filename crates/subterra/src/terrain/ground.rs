@@ -50,6 +50,18 @@
 //! `min(z / r)` over the prototypes of all *farther* bins of the sector: a ray from the
 //! sensor to such a point passed over this bin at height `slope · r`, so the floor here is
 //! at most that high.
+//!
+//! *Void* (missing ground): per sector, visiting its non-empty bins in increasing order, a
+//! run of empty bins between bin `a` and the next non-empty bin `b` is void when the rays
+//! that would meet the run's expected ground (its bins' lines) leave an angular stretch of
+//! more than `void_min_gap_deg` (depression) with no return: of the depressions between
+//! `hi` = min(`a`'s shallowest ray, the expected ground at the run's start) and `lo` =
+//! max(the steepest ray to a farther bin not steeper than `a`'s shallowest, the expected
+//! ground at the run's end), none lies in a bin's ray span `[shallowest, steepest]` (any bin
+//! of the sector) for more than that. Beams must have crossed the expected ground there and
+//! none came back: the floor is missing (a hole, or a drop beyond the sensor's range). Runs
+//! behind an occluder, past a crest, or beyond a partial occluder are not void: the rays
+//! over them came back from farther, or from the occluder.
 
 use super::config::GroundConfig;
 use crate::error::{Error, Result};
@@ -86,6 +98,8 @@ pub struct PolarBin {
     /// Upper bound of the floor at the queried radius: the lower of the bin's lowest point
     /// and the lowest ray that passed over it; `+inf` without evidence [m, sensor-centred].
     pub floor_bound_z: f64,
+    /// Whether the bin is void: beams crossed its expected ground and none returned.
+    pub void: bool,
 }
 
 /// A polar bin's prototype and steepest ray, gathered while binning.
@@ -96,10 +110,16 @@ struct BinAccumulator {
     proto_z: f32,
     /// After the sweep: the smallest prototype `z/r` of the farther bins.
     ray_slope: f32,
+    /// The largest `z/r` of the bin's points (its shallowest ray); `-inf` when empty.
+    top_slope: f32,
+    /// The smallest `z/r` of the bin's points (its steepest ray); `+inf` when empty.
+    low_slope: f32,
+    /// After the sweep: whether the bin is void (module doc).
+    void: bool,
 }
 
 impl BinAccumulator {
-    const EMPTY: Self = Self { proto_r: 0.0, proto_z: f32::INFINITY, ray_slope: f32::INFINITY };
+    const EMPTY: Self = Self { proto_r: 0.0, proto_z: f32::INFINITY, ray_slope: f32::INFINITY, top_slope: f32::NEG_INFINITY, low_slope: f32::INFINITY, void: false };
 }
 
 /// A polar bin's ground line and the radii it covers (empty range if not covered).
@@ -235,6 +255,7 @@ impl GroundSegmenter {
         self.sensor_height_m = sensor_height_m;
         self.bin_points(points);
         self.fit_lines();
+        self.mark_voids();
         heights_out.clear();
         let (bin_line, lines) = (&self.bin_line[..], &self.bin_lines[..]);
         heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
@@ -247,6 +268,29 @@ impl GroundSegmenter {
             (p[2] as f64 - (line.m * r + line.b)) as f32
         }));
         Ok(())
+    }
+
+    /// Two positions `(x, y)` (sensor-centred, level) on the centre ray of every void bin of
+    /// the last segmentation (at a quarter and three quarters of the bin), into `out`: where
+    /// the map records that the floor was found missing.
+    pub fn void_samples(&self, out: &mut Vec<[f32; 2]>) {
+        out.clear();
+        let bins = self.bins;
+        let sectors = self.config.sectors as usize;
+        for s in 0..sectors {
+            let row = &self.acc[s * bins..(s + 1) * bins];
+            if !row.iter().any(|b| b.void) {
+                continue;
+            }
+            let a = -std::f64::consts::PI + (s as f64 + 0.5) * std::f64::consts::TAU / sectors as f64;
+            let (sin, cos) = a.sin_cos();
+            for (k, _) in row.iter().enumerate().filter(|(_, b)| b.void) {
+                for f in [0.25, 0.75] {
+                    let r = (k as f64 + f) * self.config.bin_m;
+                    out.push([(r * cos) as f32, (r * sin) as f32]);
+                }
+            }
+        }
     }
 
     /// Whether a height above ground (from [`segment`](Self::segment)) is ground.
@@ -310,7 +354,7 @@ impl GroundSegmenter {
         // bound is taken only when lower (a NaN ray bound, inf·0, leaves the prototype's z).
         let (proto_z, ray_z) = (acc.proto_z as f64, acc.ray_slope as f64 * r);
         let floor_bound_z = if ray_z < proto_z { ray_z } else { proto_z };
-        PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z }
+        PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z, void: acc.void }
     }
 
     fn bin_points(&mut self, points: &[[f32; 3]]) {
@@ -319,6 +363,7 @@ impl GroundSegmenter {
         let sectors = c.sectors as usize;
         let sector_scale = c.sectors as f64 / std::f64::consts::TAU;
         let (max_r, bin_m) = (c.max_range_m, c.bin_m);
+        self.acc.fill(BinAccumulator::EMPTY);
         // Sized first and filled by a plain loop, so that everything the loop reads stays in
         // registers.
         self.point_bin.clear();
@@ -348,7 +393,7 @@ impl GroundSegmenter {
         // Each bin's lowest point as the smallest key: an integer `min`, without the branch
         // that a "lower?" test compiles to (whether a point is its bin's lowest so far depends
         // on the data, and real scans mispredicted it often).
-        let keys = &mut self.proto_key[..];
+        let (keys, acc) = (&mut self.proto_key[..], &mut self.acc[..]);
         keys.fill(u64::MAX);
         for (i, (&sb, p)) in self.point_bin.iter().zip(points).enumerate() {
             if sb == NO_BIN {
@@ -356,6 +401,14 @@ impl GroundSegmenter {
             }
             let key = &mut keys[sb as usize];
             *key = (*key).min(proto_key(p[2], i));
+            // The same r as above.
+            let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
+            let r = (x * x + y * y).sqrt();
+            if r > 0.0 {
+                let acc = &mut acc[sb as usize];
+                acc.top_slope = acc.top_slope.max((z / r) as f32);
+                acc.low_slope = acc.low_slope.min((z / r) as f32);
+            }
         }
         // Per bin: its prototype, and the steepest ray to any point of a farther bin of the
         // sector.
@@ -363,7 +416,7 @@ impl GroundSegmenter {
             let row = &mut self.acc[s * bins..(s + 1) * bins];
             let mut farther = f32::INFINITY;
             for (bin, &key) in row.iter_mut().zip(&self.proto_key[s * bins..(s + 1) * bins]).rev() {
-                *bin = BinAccumulator { ray_slope: farther, ..BinAccumulator::EMPTY };
+                bin.ray_slope = farther;
                 if key == u64::MAX {
                     // An empty bin's own slope would be +inf: it leaves `farther` as it is.
                     continue;
@@ -375,6 +428,61 @@ impl GroundSegmenter {
                 (bin.proto_r, bin.proto_z) = (r, p[2]);
                 if r > 0.0 {
                     farther = farther.min((p[2] as f64 / r) as f32);
+                }
+            }
+        }
+    }
+
+    /// Marks the void runs of every sector (module doc, *Void*).
+    fn mark_voids(&mut self) {
+        let bins = self.bins;
+        let bin_m = self.config.bin_m;
+        let min_gap = self.config.void_min_gap_deg.to_radians();
+        // Depression angle of a ray of slope z/r [rad].
+        let dep = |slope: f64| (-slope).atan();
+        for s in 0..self.config.sectors as usize {
+            let (row, bin_line) = (&mut self.acc[s * bins..(s + 1) * bins], &self.bin_line[s * bins..(s + 1) * bins]);
+            let lines = |k: usize| &self.bin_lines[bin_line[k] as usize];
+            // Depression of the expected ground (the bin's line) at radius r.
+            let ground = |k: usize, r: f64| dep((lines(k).m * r + lines(k).b) / r);
+            // Each non-empty bin's rays: (shallowest, steepest) depression.
+            let span = |b: &BinAccumulator| (dep(f64::from(b.top_slope)), dep(f64::from(b.low_slope)));
+            let full = |b: &BinAccumulator| b.proto_z.is_finite() && b.proto_r > 0.0;
+            let mut previous: Option<usize> = None;
+            for k in 0..bins {
+                if !full(&row[k]) {
+                    continue;
+                }
+                let Some(a) = previous.replace(k) else { continue };
+                if k <= a + 1 {
+                    continue;
+                }
+                // The rays that would meet the expected ground of the run a+1..k, and did not
+                // come back from `a`, nor (down to the steepest of them) from farther bins.
+                let top = span(&row[a]).0;
+                let hi = top.min(ground(a + 1, (a + 1) as f64 * bin_m));
+                let farther = row[k..].iter().filter(|b| full(b)).flat_map(|b| {
+                    let (x, y) = span(b);
+                    [x, y]
+                });
+                let Some(lo) = farther.filter(|&d| d <= top).reduce(f64::max) else { continue };
+                let lo = lo.max(ground(k - 1, k as f64 * bin_m));
+                if hi - lo <= min_gap {
+                    continue;
+                }
+                // Rays of any bin of the sector inside (lo, hi) are beams that came back: the
+                // void needs an empty stretch of more than `min_gap` between them.
+                let mut cuts: Vec<(f64, f64)> = row.iter().filter(|b| full(b)).map(span).filter(|&(x, y)| y > lo && x < hi).collect();
+                cuts.sort_by(|p, q| p.0.total_cmp(&q.0));
+                let mut from = lo;
+                let mut empty = 0.0f64;
+                for (x, y) in cuts {
+                    empty = empty.max(x - from);
+                    from = from.max(y);
+                }
+                empty = empty.max(hi - from);
+                if empty > min_gap {
+                    row[a + 1..k].iter_mut().for_each(|b| b.void = true);
                 }
             }
         }
@@ -607,6 +715,64 @@ pub(crate) fn fast_atan2(y: f64, x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A level lidar `H` above flat ground: rings every 0.5° of depression from 16.5° to
+    /// 1.5°, a column every 0.25° of azimuth; no return where `void(x, y)` (a hole with no
+    /// floor in range) and, where `wall(x, y)` gives a height, a vertical face up to it.
+    fn ring_scan(h: f64, void: impl Fn(f64, f64) -> bool, wall: impl Fn(f64, f64) -> Option<(f64, f64)>) -> Vec<[f32; 3]> {
+        let mut out = Vec::new();
+        for col in 0..1440 {
+            let az = (col as f64 + 0.5) * 0.25f64.to_radians();
+            let (sin, cos) = az.sin_cos();
+            for ring in 0..31 {
+                let d = (16.5 - 0.5 * ring as f64).to_radians();
+                let r = h / d.tan();
+                if let Some((wall_r, top)) = wall(cos, sin) {
+                    // The face at wall_r blocks rays below its top.
+                    let z = -wall_r * d.tan();
+                    if r >= wall_r && z <= top - h {
+                        out.push([(wall_r * cos) as f32, (wall_r * sin) as f32, z as f32]);
+                        continue;
+                    }
+                }
+                if !void(r * cos, r * sin) {
+                    out.push([(r * cos) as f32, (r * sin) as f32, -h as f32]);
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn hole_with_no_floor_is_void_and_a_rock_shadow_is_not() {
+        // Regression: a bottomless hole (the mine's NaN holes) gave no return and no
+        // negative evidence; the robot drove its wheels over it (mine seed 0, "fall").
+        let h = 0.76;
+        let hole = |x: f64, y: f64| (x - 3.5).hypot(y) < 0.6;
+        // A 0.3 m rock face 3 m away along -x (its top 0.46 m below the sensor).
+        let rock = |cos: f64, sin: f64| (cos < -0.99 && sin.abs() < 0.1).then_some((3.0, 0.3));
+        let points = ring_scan(h, hole, rock);
+        let mut seg = GroundSegmenter::new(GroundConfig::default()).unwrap();
+        let mut heights = Vec::new();
+        seg.segment(&points, h, &mut heights).unwrap();
+        for (x, y) in [(3.5, 0.0), (3.1, 0.1), (3.9, -0.2)] {
+            assert!(seg.query(x, y).unwrap().void, "hole at ({x}, {y}) not void");
+        }
+        // Plain ground beside the hole, beyond it, and opposite it; the rock's shadow.
+        for (x, y) in [(3.5, 1.0), (5.0, 0.0), (-2.0, 0.5), (0.0, 3.0), (-4.0, 0.0), (-3.8, 0.1)] {
+            assert!(!seg.query(x, y).unwrap().void, "ground at ({x}, {y}) taken for void");
+        }
+        let mut samples = Vec::new();
+        seg.void_samples(&mut samples);
+        assert!(!samples.is_empty());
+        assert!(samples.iter().all(|p| (f64::from(p[0]) - 3.5).hypot(f64::from(p[1])) < 0.8), "void samples off the hole");
+        // A coarser sensor: rings 2° apart (VLP-16) over the same ground leave no void.
+        let sparse: Vec<[f32; 3]> = ring_scan(h, |_, _| false, |_, _| None).into_iter().enumerate().filter(|(i, _)| i % 31 % 4 == 0).map(|(_, p)| p).collect();
+        seg.segment(&sparse, h, &mut heights).unwrap();
+        samples.clear();
+        seg.void_samples(&mut samples);
+        assert!(samples.is_empty(), "{} void samples on flat ground seen by 2° rings", samples.len());
+    }
 
     fn flat_ring_cloud(height: f32) -> Vec<f32> {
         let mut flat = Vec::new();

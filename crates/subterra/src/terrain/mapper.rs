@@ -69,6 +69,8 @@ pub struct TerrainMapper {
     fine: Option<MapBuilder>,
     missions: Vec<MissionItem>,
     body_points: Vec<[f32; 3]>,
+    /// Scratch: the newest scan's void samples (missing floor).
+    voids: Vec<[f32; 2]>,
 }
 
 impl TerrainMapper {
@@ -88,6 +90,7 @@ impl TerrainMapper {
             fine: config.fine_enabled.then(|| builder(config.fine)),
             missions: Vec::new(),
             body_points: Vec::new(),
+            voids: Vec::new(),
         })
     }
 
@@ -193,7 +196,8 @@ impl TerrainMapper {
         let t_coarse = Instant::now();
         timings.segment_s = (t_coarse - t_segment).as_secs_f64();
         let mut binned = std::mem::take(&mut scan.binned);
-        self.coarse.bin_scan(&scan.points, &scan.heights, scan.body_world + sensor_level, sensor_level.z, &mut binned);
+        self.segmenter.void_samples(&mut self.voids);
+        self.coarse.bin_scan(&scan.points, &scan.heights, &self.voids, scan.body_world + sensor_level, sensor_level.z, &mut binned);
         scan.binned = binned;
         self.window.push(scan);
 

@@ -124,6 +124,8 @@ struct CellAccumulator {
     min_z: f32,
     max_z: f32,
     min_age: f32,
+    /// Void samples of the scan(s) in the cell: the floor was found missing there.
+    void_n: u32,
 }
 
 impl CellAccumulator {
@@ -147,7 +149,7 @@ impl CellAccumulator {
         self.collision_n += collision as u32;
     }
 
-    const EMPTY: Self = Self { count: 0, ground_n: 0, collision_n: 0, ground_sum: 0.0, min_z: f32::INFINITY, max_z: f32::NEG_INFINITY, min_age: f32::INFINITY };
+    const EMPTY: Self = Self { count: 0, ground_n: 0, collision_n: 0, ground_sum: 0.0, min_z: f32::INFINITY, max_z: f32::NEG_INFINITY, min_age: f32::INFINITY, void_n: 0 };
 }
 
 /// Builds maps of one geometry with reusable buffers.
@@ -222,8 +224,9 @@ impl MapBuilder {
     /// The map centred on `body_world` from `sources`, with the newest scan's polar ground.
     /// Bins one scan's points once, into the global cells around `origin_world` (the scan's
     /// sensor, world frame): `out` gets the non-empty cells. `sensor_above_body_m` lifts the
-    /// sensor-centred heights to the scan's body origin.
-    pub fn bin_scan(&mut self, points: &[[f32; 3]], heights: &[f32], origin_world: DVec3, sensor_above_body_m: f64, out: &mut Vec<BinnedCell>) {
+    /// sensor-centred heights to the scan's body origin. `voids`: the scan's void samples
+    /// (sensor-centred `(x, y)`, [`GroundSegmenter::void_samples`]), counted per cell.
+    pub fn bin_scan(&mut self, points: &[[f32; 3]], heights: &[f32], voids: &[[f32; 2]], origin_world: DVec3, sensor_above_body_m: f64, out: &mut Vec<BinnedCell>) {
         let g = GridGeometry::centred_on(&self.scratch_map, origin_world.x, origin_world.y);
         let n = g.cells();
         if self.scratch.len() != n {
@@ -238,8 +241,8 @@ impl MapBuilder {
         let dz = sensor_above_body_m as f32;
         // Each point writes its cell to `touched[hits]` and counts it only if the cell was
         // empty: no branch on "first hit", which real scans mispredict often. At most
-        // min(points, cells) distinct cells, plus the slot the last write may use.
-        let room = points.len().min(n) + 1;
+        // min(points + voids, cells) distinct cells, plus the slot the last write may use.
+        let room = (points.len() + voids.len()).min(n) + 1;
         if self.touched.len() < room {
             self.touched.resize(room, 0);
         }
@@ -275,6 +278,17 @@ impl MapBuilder {
             touched[hits] = c as u32;
             hits += (cell.count == 0) as usize;
             cell.add(p[2] + dz, h, thr, lo, hi);
+        }
+        for v in voids {
+            let (ix, iy) = (floor_i64((v[0] as f64 + origin_world.x) / res) - g.origin_cell.0, floor_i64((v[1] as f64 + origin_world.y) / res) - g.origin_cell.1);
+            if ix < 0 || iy < 0 || ix >= nx || iy >= ny {
+                continue;
+            }
+            let c = (iy * nx + ix) as usize;
+            let cell = &mut scratch[c];
+            touched[hits] = c as u32;
+            hits += (cell.count == 0 && cell.void_n == 0) as usize;
+            cell.void_n += 1;
         }
         // The non-empty cells in the order they were first hit (each global cell once, so
         // the order does not change any sum the map makes of them).
@@ -370,6 +384,7 @@ impl MapBuilder {
                 cell.min_z = cell.min_z.min(a.min_z + dz);
                 cell.max_z = cell.max_z.max(a.max_z + dz);
                 cell.min_age = cell.min_age.min(src.age_s);
+                cell.void_n += a.void_n;
             }
         }
         points
@@ -384,14 +399,16 @@ impl MapBuilder {
             unreachable!("a RiskMap holds Layer::ALL.len() layers")
         };
         let (depth, observed, height) = (&mut negative_depth[..n], &mut observed[..n], &mut self.height[..n]);
-        // Every cell: its own points' ground and observation, no depth (the polar queries
-        // below add to that). Selects, not branches: real scans mix empty, ground and
-        // obstacle cells unpredictably.
+        // Every cell: its own points' ground and observation, no depth unless the floor was
+        // found missing and no scan of the window saw ground here (the polar queries below
+        // add to that). Selects, not branches: real scans mix empty, ground and obstacle
+        // cells unpredictably.
         for (c, cell) in self.cells[..n].iter().enumerate() {
             let mean = cell.ground_sum / cell.ground_n as f32;
             height[c] = if cell.ground_n > 0 { mean } else { f32::NAN };
-            observed[c] = if cell.count > 0 { 1.0 } else { 0.0 };
-            depth[c] = 0.0;
+            let void = cell.void_n > 0 && cell.ground_n == 0;
+            observed[c] = if cell.count > 0 || void { 1.0 } else { 0.0 };
+            depth[c] = if void { f32::INFINITY } else { 0.0 };
         }
         if let Some(polar) = polar {
             let s = polar.sensor_level;
@@ -404,12 +421,16 @@ impl MapBuilder {
                 let row = iy * g.nx;
                 polar.segmenter.query_row(&self.xs, y, |ix, bin| {
                     let c = row + ix;
-                    // Selects again: coverage and evidence vary cell by cell.
-                    observed[c] = if bin.covered { 1.0 } else { observed[c] };
+                    // Selects again: coverage and evidence vary cell by cell. A void cell
+                    // without ground points is observed, infinitely deep, and keeps no line.
+                    let cell = &cells[c];
+                    let void = cell.ground_n == 0 && (bin.void || cell.void_n > 0);
+                    observed[c] = if bin.covered || void { 1.0 } else { observed[c] };
                     let line_height = (bin.ground_z + s.z) as f32;
-                    height[c] = if bin.covered && cells[c].ground_n == 0 { line_height } else { height[c] };
+                    height[c] = if bin.covered && cell.ground_n == 0 && !void { line_height } else { height[c] };
                     let below = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
-                    depth[c] = if bin.floor_bound_z.is_finite() { below } else { depth[c] };
+                    let below = if bin.floor_bound_z.is_finite() { below } else { depth[c] };
+                    depth[c] = if void { f32::INFINITY } else { below };
                 });
             }
         }

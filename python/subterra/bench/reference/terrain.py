@@ -354,6 +354,8 @@ class PolarTable:
     cover_hi: np.ndarray
     proto_z: np.ndarray
     ray_slope: np.ndarray
+    #: Per polar bin: void (ground.rs ``mark_voids``, :func:`_void_bins`); ``None``: none.
+    void: np.ndarray | None = None
 
 
 @dataclass
@@ -386,6 +388,73 @@ def _ray_slopes(proto_bin: np.ndarray, proto_r: np.ndarray, proto_z: np.ndarray,
     ray = np.full_like(own, np.inf)
     ray[:, :-1] = suffix[:, 1:]
     return ray.reshape(-1)
+
+
+def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, m_bin: np.ndarray, b_bin: np.ndarray, sectors: int,
+               bins: int, bin_m: float, min_gap_deg: float) -> np.ndarray:
+    """ground.rs ``mark_voids``: per polar bin whether it is void. Each non-empty bin's ray
+    span is ``(shallowest, steepest)`` depression ``atan(-slope)`` of its points' ``z/r``
+    (float32, points with ``r > 0``); a run of empty bins between non-empty ``a`` and ``k``
+    is void when, of the depressions between ``hi = min(shallowest of a, expected ground at
+    (a+1)·Δ)`` and ``lo = max(steepest of the farther spans not steeper than a's shallowest,
+    expected ground at k·Δ)``, more than ``min_gap`` is left uncovered by every bin's span
+    (the expected ground's depression at ``r``: ``atan(-(m·r + b)/r)`` with the bin's line)."""
+    void = np.zeros(sectors * bins, dtype=bool)
+    ok = (flat_bin >= 0) & (r > 0.0)
+    slope = (z32[ok].astype(np.float64) / r[ok]).astype(np.float32)
+    top = np.full(sectors * bins, -np.inf, dtype=np.float32)
+    low = np.full(sectors * bins, np.inf, dtype=np.float32)
+    np.maximum.at(top, flat_bin[ok], slope)
+    np.minimum.at(low, flat_bin[ok], slope)
+    min_gap = math.radians(min_gap_deg)
+    full = np.isfinite(top)
+    for s in range(sectors):
+        row = slice(s * bins, (s + 1) * bins)
+        ks = np.nonzero(full[row])[0]
+        if ks.size < 2:
+            continue
+        sh = np.arctan(-top[row].astype(np.float64))
+        st = np.arctan(-low[row].astype(np.float64))
+        m, b = m_bin[row], b_bin[row]
+        ground = lambda k, rr: math.atan(-((m[k] * rr + b[k]) / rr))
+        for j in range(1, ks.size):
+            a, k = int(ks[j - 1]), int(ks[j])
+            if k <= a + 1:
+                continue
+            t = sh[a]
+            hi = min(t, ground(a + 1, (a + 1) * bin_m))
+            far = np.concatenate([sh[ks[j:]], st[ks[j:]]])
+            far = far[far <= t]
+            if far.size == 0:
+                continue
+            lo = max(float(far.max()), ground(k - 1, k * bin_m))
+            if hi - lo <= min_gap:
+                continue
+            spans = sorted((float(x), float(y)) for x, y in zip(sh[ks], st[ks]) if y > lo and x < hi)
+            start, empty = lo, 0.0
+            for x, y in spans:
+                empty = max(empty, x - start)
+                start = max(start, y)
+            empty = max(empty, hi - start)
+            if empty > min_gap:
+                void[s * bins + a + 1:s * bins + k] = True
+    return void
+
+
+def void_samples(polar: PolarTable) -> np.ndarray:
+    """ground.rs ``void_samples``: ``(n, 2)`` float32 sensor-centred positions on the
+    centre ray of every void bin, at a quarter and three quarters of the bin."""
+    if polar.void is None:
+        return np.zeros((0, 2), dtype=np.float32)
+    sb = np.nonzero(polar.void)[0]
+    s, k = sb // polar.bins, sb % polar.bins
+    a = -math.pi + (s + 0.5) * (2.0 * math.pi) / polar.sectors
+    out = []
+    for f in (0.25, 0.75):
+        rr = (k + f) * polar.bin_m
+        out.append(np.stack([rr * np.cos(a), rr * np.sin(a)], axis=1))
+    # Rust pushes (0.25, 0.75) per bin, bin after bin: the order does not change any count.
+    return np.concatenate(out).astype(np.float32) if out else np.zeros((0, 2), dtype=np.float32)
 
 
 def ground_heights(
@@ -424,6 +493,7 @@ def ground_heights(
     polar = PolarTable(
         sectors, bins, float(ground["bin_m"]), float(ground["max_range_m"]), m_bin, b_bin, lo_bin, hi_bin, pz,
         _ray_slopes(proto_bin, proto_r, proto_z, sectors, bins),
+        _void_bins(flat_bin, r, z32, m_bin, b_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 2.5))),
     )
     return GroundSegmentation(h, all_lines, float(ground["max_dist_to_line_m"]), polar)
 
@@ -583,9 +653,12 @@ class CellSums:
     ground_sum: np.ndarray
     min_z: np.ndarray
     max_z: np.ndarray
+    #: Void samples per cell (risk.rs ``void_n``); ``None``: none.
+    void_n: np.ndarray | None = None
 
 
-def bin_cells(scan: LevelScan, heights: np.ndarray, geometry: Geometry, config: dict[str, Any], robot: dict[str, float]) -> CellSums:
+def bin_cells(scan: LevelScan, heights: np.ndarray, geometry: Geometry, config: dict[str, Any], robot: dict[str, float],
+              voids: np.ndarray | None = None) -> CellSums:
     """Bins the points into the map's cells (risk.rs ``bin_scan`` + ``merge_binned`` for
     one scan): the global cell ``floor((x_level + sensor_world_x)/res)`` (float64), ``z`` =
     ``z_level + float32(sensor_level_z)``; a point is ground iff ``|h| <= thr``, else a
@@ -616,9 +689,16 @@ def bin_cells(scan: LevelScan, heights: np.ndarray, geometry: Geometry, config: 
     max_z = np.full(n, -np.inf, dtype=np.float32)
     np.minimum.at(min_z, cell, z)
     np.maximum.at(max_z, cell, z)
+    void_n = np.zeros(n, dtype=np.int64)
+    if voids is not None and len(voids):
+        v = np.asarray(voids, dtype=np.float32)
+        vx = np.floor((v[:, 0].astype(np.float64) + ox) / res).astype(np.int64) - geometry.origin_cell[0]
+        vy = np.floor((v[:, 1].astype(np.float64) + oy) / res).astype(np.int64) - geometry.origin_cell[1]
+        vin = (vx >= 0) & (vx < nx) & (vy >= 0) & (vy < ny)
+        void_n = np.bincount((vy * nx + vx)[vin], minlength=n)
     return CellSums(
         np.bincount(cell, minlength=n), np.bincount(cell[ground], minlength=n), np.bincount(cell[collision], minlength=n),
-        ground_sum, min_z, max_z,
+        ground_sum, min_z, max_z, void_n,
     )
 
 
@@ -650,6 +730,7 @@ class PolarQuery:
     covered: np.ndarray
     ground_z: np.ndarray
     floor_bound_z: np.ndarray
+    void: np.ndarray | None = None
 
 
 def polar_query(polar: PolarTable, x: np.ndarray, y: np.ndarray, *, atan: str = "fast") -> PolarQuery:
@@ -678,7 +759,8 @@ def polar_query(polar: PolarTable, x: np.ndarray, y: np.ndarray, *, atan: str = 
     with np.errstate(invalid="ignore"):
         # f64::min ignores a NaN (inf·0 at r = 0); so does fmin.
         floor_bound = np.fmin(polar.proto_z[sb].astype(np.float64), polar.ray_slope[sb].astype(np.float64) * r)
-    return PolarQuery(inside, covered, ground_z, floor_bound)
+    void = inside & polar.void[sb] if polar.void is not None else np.zeros_like(inside)
+    return PolarQuery(inside, covered, ground_z, floor_bound, void)
 
 
 def polar_fill(
@@ -707,6 +789,13 @@ def polar_fill(
     observed = ((cells.count.reshape(shape) > 0) | q.covered).astype(np.float32)
     with np.errstate(invalid="ignore"):
         depth = np.where(q.inside & np.isfinite(q.floor_bound_z), np.maximum(q.ground_z - q.floor_bound_z, 0.0), 0.0)
+    # Void: the floor found missing (this scan's bin, or a void sample in the cell) and no
+    # ground point in the cell: observed, infinitely deep, no filled height.
+    void_n = cells.void_n.reshape(shape) if cells.void_n is not None else np.zeros(shape, dtype=np.int64)
+    void = (ground_n == 0) & (q.void | (void_n > 0))
+    height = np.where(void, np.float32(np.nan), height)
+    observed = np.where(void, np.float32(1.0), observed)
+    depth = np.where(void, np.inf, depth)
     return height.astype(np.float32), observed, depth.astype(np.float32)
 
 
@@ -954,8 +1043,8 @@ def coarse_map(
     scan = level_scan(points, body_from_sensor=body_from_sensor, world_from_body=world_from_body, config=cfg, robot=robot)
     seg = ground_heights(scan.points, sensor_height=float(scan.sensor_level[2]), config=cfg, boundary_rule=boundary_rule)
     geometry = Geometry.centred_on(cfg["coarse"], float(scan.body_world[0]), float(scan.body_world[1]))
-    cells = bin_cells(scan, seg.heights, geometry, cfg, robot)
     assert seg.polar is not None
+    cells = bin_cells(scan, seg.heights, geometry, cfg, robot, void_samples(seg.polar))
     height, observed, depth = polar_fill(cells, seg.polar, scan, geometry, atan=query_atan)
     res = geometry.resolution_m
     lay = cfg["layers"]

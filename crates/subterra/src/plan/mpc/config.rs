@@ -142,14 +142,15 @@ pub struct MpcObstacles {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MpcSolver {
-    /// Most QPs (re-linearisations) per solve. DESIGN §3: 1-3; subterra: 2 (the next solve
-    /// goes on from this one's plan; on the benchmark run a third QP moves the first input by
-    /// at most about 0.1 m/s² or rad/s and costs a quarter more time).
+    /// Most QPs (re-linearisations) per solve. DESIGN §3: 1-3; subterra: 2 (each solve goes
+    /// on from the previous plan, so the iterations continue across solves; docs/mpc.md has
+    /// what a third QP changes on the benchmark run, and costs).
     pub sqp_iterations: u32,
     /// Most trial step lengths `1, ½, ¼, ...` of the backtracking line search. subterra: 4.
     pub line_search_steps: u32,
     /// The iterations stop once the accepted input step is below this in every component
-    /// [m/s² or rad/s]; the next solve goes on from there. subterra: 0.05.
+    /// [m/s² or rad/s] (0.1 m/s² is 1 cm/s of commanded speed); the next solve goes on from
+    /// there. subterra: 0.1.
     pub step_tolerance: f64,
     /// Interior-point iterations per QP. subterra: 50 (typical QPs take 10-20).
     pub qp_max_iterations: u32,
@@ -212,7 +213,7 @@ impl MpcConfig {
             footprint: MpcFootprint { length_m: robot.length_m, width_m: robot.width_m },
             risk: MpcRisk { unknown_risk: 0.15, lethal_risk: 0.9 },
             obstacles: MpcObstacles { margin_m: 0.1, max_overhang_m: 0.1, activation_m: 0.5, path_clearance_m: 0.15, max_path_shift_m: 1.0, path_shift_ramp_m: 1.0, max_per_stage: 4 },
-            solver: MpcSolver { sqp_iterations: 2, line_search_steps: 4, step_tolerance: 0.05, qp_max_iterations: 50, clearance_tolerance_m: 0.02 },
+            solver: MpcSolver { sqp_iterations: 2, line_search_steps: 4, step_tolerance: 0.1, qp_max_iterations: 50, clearance_tolerance_m: 0.02 },
         }
     }
 

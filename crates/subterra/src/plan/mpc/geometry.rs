@@ -275,6 +275,39 @@ pub(crate) fn separation(robot: &Footprint, polygon: &ConvexPolygon) -> Separati
     Separation { distance_m: d, normal: (best.1 - best.2) / d, witness: best.1 }
 }
 
+/// The interval `(lo, hi)` of offsets `o` for which the footprint `robot` (corners relative
+/// to its centre, i.e. placed at the origin with its heading) centred at `point + o·dir` is
+/// within `inflate` of `polygon`, if any. The centre is that close exactly when it lies in the
+/// configuration-space obstacle `polygon ⊕ (-robot)` grown by `inflate`; that set is taken as
+/// the intersection of the half-planes of its faces (the polygon's edges and the robot's
+/// axes) each pushed out by `inflate`, which is conservative at its corners (a polygon instead
+/// of rounded corners), and a line meets a convex polygon in one interval.
+pub(crate) fn blocked_offsets(robot: &Footprint, polygon: &ConvexPolygon, point: DVec2, dir: DVec2, inflate: f64) -> Option<(f64, f64)> {
+    let p = &polygon.vertices;
+    let axis = (robot.corners[0] - robot.corners[3]).normalize_or_zero();
+    let robot_normals = [axis, -axis, axis.perp(), -axis.perp()];
+    let polygon_normals = (0..p.len()).map(|i| outward(p[i], p[(i + 1) % p.len()]));
+    let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+    for n in polygon_normals.chain(robot_normals) {
+        // Support of the configuration-space obstacle along n, grown by `inflate`.
+        let support_p = p.iter().map(|v| n.dot(*v)).fold(f64::NEG_INFINITY, f64::max);
+        let support_r = robot.corners.iter().map(|c| -n.dot(*c)).fold(f64::NEG_INFINITY, f64::max);
+        let limit = support_p + support_r + inflate - n.dot(point);
+        // Inside this face's half-plane: o·(n·dir) <= limit.
+        let slope = n.dot(dir);
+        if slope.abs() < 1e-12 {
+            if limit < 0.0 {
+                return None;
+            }
+        } else if slope > 0.0 {
+            hi = hi.min(limit / slope);
+        } else {
+            lo = lo.max(limit / slope);
+        }
+    }
+    (lo < hi).then_some((lo, hi))
+}
+
 /// Reusable buffers of [`lethal_polygons`].
 #[derive(Debug, Default, Clone)]
 pub(crate) struct PolygonScratch {
@@ -478,6 +511,21 @@ mod tests {
         let robot = Footprint::at(DVec2::ZERO, std::f64::consts::FRAC_PI_2, 2.0, 1.0);
         let s = separation(&robot, &square(2.5, -0.5, 1.0));
         assert!((s.distance_m - 2.0).abs() < 1e-12, "{s:?}");
+    }
+
+    #[test]
+    fn blocked_offsets_by_hand() {
+        // Robot 2 x 1 facing +x at the origin; a unit square whose near edge is 0.2 m above
+        // the robot's left side (y from 0.7 to 1.7, x from -0.5 to 0.5); offsets along +y.
+        let robot = Footprint::at(DVec2::ZERO, 0.0, 2.0, 1.0);
+        let square = square(-0.5, 0.7, 1.0);
+        // Within 0.1 of it: the centre's y in (0.7 - 0.5 - 0.1, 1.7 + 0.5 + 0.1) = (0.1, 2.3).
+        let (lo, hi) = blocked_offsets(&robot, &square, DVec2::ZERO, DVec2::Y, 0.1).unwrap();
+        assert!((lo - 0.1).abs() < 1e-12 && (hi - 2.3).abs() < 1e-12, "{lo} {hi}");
+        // Sliding along x past it: x in (-0.5 - 1 - 0.3, 0.5 + 1 + 0.3) only if y overlaps.
+        let (lo, hi) = blocked_offsets(&robot, &square, DVec2::new(0.0, 0.5), DVec2::X, 0.3).unwrap();
+        assert!((lo + 1.8).abs() < 1e-12 && (hi - 1.8).abs() < 1e-12, "{lo} {hi}");
+        assert!(blocked_offsets(&robot, &square, DVec2::new(0.0, -1.0), DVec2::X, 0.3).is_none());
     }
 
     #[test]

@@ -241,6 +241,8 @@ fn bad_inputs_name_the_argument_and_leave_the_tracker_alone() {
     let path = straight_path();
     let nan = UnicycleState { x_m: f64::NAN, ..Default::default() };
     assert!(tracker.solve(&nan, &path, None, None).unwrap_err().to_string().contains("`state`"));
+    let absurd = UnicycleState { speed_m_s: 1e9, ..Default::default() };
+    assert!(tracker.solve(&absurd, &path, None, None).unwrap_err().to_string().contains("`state`"));
     let ok = UnicycleState::default();
     assert!(tracker.solve(&ok, &path[..1], None, None).unwrap_err().to_string().contains("`reference_path`"));
     assert!(tracker.solve(&ok, &path, None, Some(5.0)).unwrap_err().to_string().contains("`desired_speed`"));
