@@ -190,6 +190,9 @@ pub struct GroundSegmenter {
     point_bin: Vec<u32>,
     /// Per polar bin: the prototype (lowest point) and the steepest ray.
     acc: Vec<BinAccumulator>,
+    /// One sector's non-empty bins' ray spans in [`mark_voids`](Self::mark_voids), each
+    /// computed when first needed (NaN: not yet).
+    spans: Vec<(f64, f64)>,
     /// Per polar bin while binning: the smallest [`proto_key`] of its points (`u64::MAX`:
     /// empty).
     proto_key: Vec<u64>,
@@ -222,6 +225,7 @@ impl GroundSegmenter {
             point_bin: Vec::new(),
             acc: vec![BinAccumulator::EMPTY; polar],
             proto_key: vec![u64::MAX; polar],
+            spans: vec![(f64::NAN, f64::NAN); bins],
             // Before the first scan every bin has the line of `BinLine::NONE`.
             bin_line: vec![0; polar],
             bin_lines: vec![BinLine::NONE],
@@ -445,9 +449,19 @@ impl GroundSegmenter {
             let lines = |k: usize| &self.bin_lines[bin_line[k] as usize];
             // Depression of the expected ground (the bin's line) at radius r.
             let ground = |k: usize, r: f64| dep((lines(k).m * r + lines(k).b) / r);
-            // Each non-empty bin's rays: (shallowest, steepest) depression.
+            // Each non-empty bin's rays: (shallowest, steepest) depression. Every gap asks for
+            // the spans of the bins beyond it (and maybe of all): each is computed once per
+            // sector, in `spans` (the same values, without an `atan` pair per bin and gap).
             let span = |b: &BinAccumulator| (dep(f64::from(b.top_slope)), dep(f64::from(b.low_slope)));
             let full = |b: &BinAccumulator| b.proto_z.is_finite() && b.proto_r > 0.0;
+            let spans = &mut self.spans[..bins];
+            spans.fill((f64::NAN, f64::NAN));
+            let cached = |known: &mut (f64, f64), b: &BinAccumulator| {
+                if known.0.is_nan() {
+                    *known = span(b);
+                }
+                *known
+            };
             let mut previous: Option<usize> = None;
             for k in 0..bins {
                 if !full(&row[k]) {
@@ -459,10 +473,10 @@ impl GroundSegmenter {
                 }
                 // The rays that would meet the expected ground of the run a+1..k, and did not
                 // come back from `a`, nor (down to the steepest of them) from farther bins.
-                let top = span(&row[a]).0;
+                let top = cached(&mut spans[a], &row[a]).0;
                 let hi = top.min(ground(a + 1, (a + 1) as f64 * bin_m));
-                let farther = row[k..].iter().filter(|b| full(b)).flat_map(|b| {
-                    let (x, y) = span(b);
+                let farther = row[k..].iter().zip(&mut spans[k..]).filter(|(b, _)| full(b)).flat_map(|(b, known)| {
+                    let (x, y) = cached(known, b);
                     [x, y]
                 });
                 let Some(lo) = farther.filter(|&d| d <= top).reduce(f64::max) else { continue };
@@ -472,7 +486,7 @@ impl GroundSegmenter {
                 }
                 // Rays of any bin of the sector inside (lo, hi) are beams that came back: the
                 // void needs an empty stretch of more than `min_gap` between them.
-                let mut cuts: Vec<(f64, f64)> = row.iter().filter(|b| full(b)).map(span).filter(|&(x, y)| y > lo && x < hi).collect();
+                let mut cuts: Vec<(f64, f64)> = row.iter().zip(spans.iter_mut()).filter(|(b, _)| full(b)).map(|(b, known)| cached(known, b)).filter(|&(x, y)| y > lo && x < hi).collect();
                 cuts.sort_by(|p, q| p.0.total_cmp(&q.0));
                 let mut from = lo;
                 let mut empty = 0.0f64;
