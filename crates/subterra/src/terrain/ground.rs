@@ -193,6 +193,8 @@ pub struct GroundSegmenter {
     /// One sector's non-empty bins' ray spans in [`mark_voids`](Self::mark_voids), each
     /// computed when first needed (NaN: not yet).
     spans: Vec<(f64, f64)>,
+    /// One sector's non-empty bins, in order, in [`mark_voids`](Self::mark_voids).
+    full_bins: Vec<usize>,
     /// Per polar bin while binning: the smallest [`proto_key`] of its points (`u64::MAX`:
     /// empty).
     proto_key: Vec<u64>,
@@ -226,6 +228,7 @@ impl GroundSegmenter {
             acc: vec![BinAccumulator::EMPTY; polar],
             proto_key: vec![u64::MAX; polar],
             spans: vec![(f64::NAN, f64::NAN); bins],
+            full_bins: Vec::with_capacity(bins),
             // Before the first scan every bin has the line of `BinLine::NONE`.
             bin_line: vec![0; polar],
             bin_lines: vec![BinLine::NONE],
@@ -462,12 +465,13 @@ impl GroundSegmenter {
                 }
                 *known
             };
-            let mut previous: Option<usize> = None;
-            for k in 0..bins {
-                if !full(&row[k]) {
-                    continue;
-                }
-                let Some(a) = previous.replace(k) else { continue };
+            // The non-empty bins listed once: each gap walks those beyond it (and maybe all),
+            // without testing every bin again (a branch real scans mispredict).
+            let full_bins = &mut self.full_bins;
+            full_bins.clear();
+            full_bins.extend((0..bins).filter(|&k| full(&row[k])));
+            for j in 1..full_bins.len() {
+                let (a, k) = (full_bins[j - 1], full_bins[j]);
                 if k <= a + 1 {
                     continue;
                 }
@@ -475,8 +479,8 @@ impl GroundSegmenter {
                 // come back from `a`, nor (down to the steepest of them) from farther bins.
                 let top = cached(&mut spans[a], &row[a]).0;
                 let hi = top.min(ground(a + 1, (a + 1) as f64 * bin_m));
-                let farther = row[k..].iter().zip(&mut spans[k..]).filter(|(b, _)| full(b)).flat_map(|(b, known)| {
-                    let (x, y) = cached(known, b);
+                let farther = full_bins[j..].iter().flat_map(|&q| {
+                    let (x, y) = cached(&mut spans[q], &row[q]);
                     [x, y]
                 });
                 let Some(lo) = farther.filter(|&d| d <= top).reduce(f64::max) else { continue };
@@ -486,7 +490,7 @@ impl GroundSegmenter {
                 }
                 // Rays of any bin of the sector inside (lo, hi) are beams that came back: the
                 // void needs an empty stretch of more than `min_gap` between them.
-                let mut cuts: Vec<(f64, f64)> = row.iter().zip(spans.iter_mut()).filter(|(b, _)| full(b)).map(|(b, known)| cached(known, b)).filter(|&(x, y)| y > lo && x < hi).collect();
+                let mut cuts: Vec<(f64, f64)> = full_bins.iter().map(|&q| cached(&mut spans[q], &row[q])).filter(|&(x, y)| y > lo && x < hi).collect();
                 cuts.sort_by(|p, q| p.0.total_cmp(&q.0));
                 let mut from = lo;
                 let mut empty = 0.0f64;
