@@ -172,8 +172,11 @@ def assert_layer_matches(name, rust, ref):
     assert rust.shape == ref.shape and rust.dtype == ref.dtype == np.float32, name
     nan_rust, nan_ref = np.isnan(rust), np.isnan(ref)
     assert (nan_rust == nan_ref).all(), f"{name}: {(nan_rust != nan_ref).sum()} cells NaN in one map only"
+    inf_rust, inf_ref = np.isinf(rust), np.isinf(ref)
+    assert (inf_rust == inf_ref).all() and (rust[inf_rust] == ref[inf_rust]).all(), f"{name}: infinite cells differ"
     tol = TOLERANCE.get(name, 0.0)
-    diff = np.abs(rust.astype(np.float64) - ref)[~nan_rust]
+    finite = ~nan_rust & ~inf_rust
+    diff = np.abs(rust.astype(np.float64) - ref)[finite]
     bad = diff > tol
     assert not bad.any(), f"{name}: {bad.sum()} cells differ by more than {tol} (largest {diff.max():.3g})"
 

@@ -41,6 +41,10 @@ __all__ = ["PLANNERS", "DriveResult", "drive", "true_risk"]
 PLANNERS = ("risk-aware", "additive")
 #: Lidar mounting height above the body origin (on the ground) [m].
 LIDAR_HEIGHT_M = 0.7
+#: ``ground.void_min_gap_deg`` of the drive's terrain mapper: void (bottomless hole)
+#: detection on, above the ring spacing of the simulated lidars (VLP-16 2.0°, OS1-64 0.53°)
+#: [deg]. docs/terrain.md.
+LIDAR_VOID_MIN_GAP_DEG = 2.5
 #: Per-step arrays of a drive, in CSV column order (see :class:`DriveResult`).
 STEP_FIELDS = (
     "time_s", "position", "yaw", "roll", "pitch", "speed_m_s", "command", "behaviour", "target", "plan_status",
@@ -260,7 +264,9 @@ def drive(
     planner_cfg = dict(config.get("planner", {}))
     planner_cfg.setdefault("cost_model", "risk" if planner == "risk-aware" else "additive")
     config["planner"] = planner_cfg
-    nav = Navigator(goal=goal_xy, home=home_xy, config=config)
+    # The simulated lidars are spinning lidars: missing returns mark bottomless holes.
+    nav = Navigator(goal=goal_xy, home=home_xy, config=config,
+                    terrain={"ground": {"void_min_gap_deg": LIDAR_VOID_MIN_GAP_DEG}})
     robot = nav.robot.to_dict()
     v_max = float(robot["max_speed_m_s"])
     if time_limit_s is None:

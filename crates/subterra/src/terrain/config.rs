@@ -197,15 +197,19 @@ pub struct GroundConfig {
     /// Void (missing ground, DESIGN §2 `negative`): the empty bins between two returns of a
     /// sector are *void* when the rays between them span more than this depression angle
     /// [deg]: beams must have crossed the expected ground there and none came back (a hole
-    /// with no floor in range). Above the sensor's vertical beam spacing. subterra: 2.5 (the
-    /// coarsest DESIGN lidar, VLP-16, has 2.0°; OS1-64 0.53°).
-    #[serde(default = "default_void_min_gap_deg")]
+    /// with no floor in range). 0 (the default) turns void detection off. It reads the
+    /// absence of returns as evidence, so it suits a spinning lidar, whose beams are evenly
+    /// spaced in elevation: set it above the sensor's vertical beam spacing (2.5 for the
+    /// VLP-16's 2.0°, the coarsest DESIGN lidar; OS1-64: 0.53°). On clouds without that
+    /// structure (depth cameras with dropouts, sparse or merged clouds) empty bins near the
+    /// robot are common and would be marked lethal. subterra.
+    #[serde(default)]
     pub void_min_gap_deg: f64,
 }
 
-fn default_void_min_gap_deg() -> f64 {
-    2.5
-}
+/// `ground.void_min_gap_deg` for the simulated spinning lidars (VLP-16, OS1-64): above the
+/// VLP-16's 2.0° ring spacing [deg].
+pub const SPINNING_LIDAR_VOID_MIN_GAP_DEG: f64 = 2.5;
 
 /// Geometry of one robot-centred, world-axis-aligned map.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -313,7 +317,7 @@ impl Default for GroundConfig {
             max_gap_m: 3.0,
             min_line_points: 3,
             max_dist_to_line_m: 0.1,
-            void_min_gap_deg: default_void_min_gap_deg(),
+            void_min_gap_deg: 0.0,
         }
     }
 }
@@ -387,8 +391,8 @@ impl GroundConfig {
             return Err(Error::config("ground.min_line_points", "must be >= 2 (a line needs two points)", self.min_line_points));
         }
         require_positive("ground.max_dist_to_line_m", self.max_dist_to_line_m)?;
-        if !(self.void_min_gap_deg.is_finite() && self.void_min_gap_deg > 0.0 && self.void_min_gap_deg < 90.0) {
-            return Err(Error::config("ground.void_min_gap_deg", "must be in (0, 90) deg", self.void_min_gap_deg));
+        if !(self.void_min_gap_deg.is_finite() && self.void_min_gap_deg >= 0.0 && self.void_min_gap_deg < 90.0) {
+            return Err(Error::config("ground.void_min_gap_deg", "must be 0 (off) or in (0, 90) deg", self.void_min_gap_deg));
         }
         Ok(())
     }

@@ -442,6 +442,9 @@ impl GroundSegmenter {
 
     /// Marks the void runs of every sector (module doc, *Void*).
     fn mark_voids(&mut self) {
+        if self.config.void_min_gap_deg == 0.0 {
+            return; // off: `bin_points` left every bin non-void
+        }
         let bins = self.bins;
         let bin_m = self.config.bin_m;
         let min_gap = self.config.void_min_gap_deg.to_radians();
@@ -770,8 +773,13 @@ mod tests {
         // A 0.3 m rock face 3 m away along -x (its top 0.46 m below the sensor).
         let rock = |cos: f64, sin: f64| (cos < -0.99 && sin.abs() < 0.1).then_some((3.0, 0.3));
         let points = ring_scan(h, hole, rock);
-        let mut seg = GroundSegmenter::new(GroundConfig::default()).unwrap();
         let mut heights = Vec::new();
+        // Off by default: no bin is void.
+        let mut off = GroundSegmenter::new(GroundConfig::default()).unwrap();
+        off.segment(&points, h, &mut heights).unwrap();
+        assert!(!off.query(3.5, 0.0).unwrap().void);
+        let config = GroundConfig { void_min_gap_deg: crate::terrain::config::SPINNING_LIDAR_VOID_MIN_GAP_DEG, ..GroundConfig::default() };
+        let mut seg = GroundSegmenter::new(config).unwrap();
         seg.segment(&points, h, &mut heights).unwrap();
         for (x, y) in [(3.5, 0.0), (3.1, 0.1), (3.9, -0.2)] {
             assert!(seg.query(x, y).unwrap().void, "hole at ({x}, {y}) not void");

@@ -398,8 +398,11 @@ def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, m_bin: np.n
     is void when, of the depressions between ``hi = min(shallowest of a, expected ground at
     (a+1)·Δ)`` and ``lo = max(steepest of the farther spans not steeper than a's shallowest,
     expected ground at k·Δ)``, more than ``min_gap`` is left uncovered by every bin's span
-    (the expected ground's depression at ``r``: ``atan(-(m·r + b)/r)`` with the bin's line)."""
+    (the expected ground's depression at ``r``: ``atan(-(m·r + b)/r)`` with the bin's line).
+    ``min_gap_deg`` 0: off, no bin is void."""
     void = np.zeros(sectors * bins, dtype=bool)
+    if min_gap_deg == 0.0:  # void detection off
+        return void
     ok = (flat_bin >= 0) & (r > 0.0)
     slope = (z32[ok].astype(np.float64) / r[ok]).astype(np.float32)
     top = np.full(sectors * bins, -np.inf, dtype=np.float32)
@@ -493,7 +496,7 @@ def ground_heights(
     polar = PolarTable(
         sectors, bins, float(ground["bin_m"]), float(ground["max_range_m"]), m_bin, b_bin, lo_bin, hi_bin, pz,
         _ray_slopes(proto_bin, proto_r, proto_z, sectors, bins),
-        _void_bins(flat_bin, r, z32, m_bin, b_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 2.5))),
+        _void_bins(flat_bin, r, z32, m_bin, b_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 0.0))),
     )
     return GroundSegmentation(h, all_lines, float(ground["max_dist_to_line_m"]), polar)
 
