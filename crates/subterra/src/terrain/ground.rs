@@ -400,6 +400,9 @@ impl GroundSegmenter {
         // Each bin's lowest point as the smallest key: an integer `min`, without the branch
         // that a "lower?" test compiles to (whether a point is its bin's lowest so far depends
         // on the data, and real scans mispredicted it often).
+        // The bins' ray slopes serve only the void detection (`mark_voids`): not gathered
+        // while it is off (the default).
+        let voids = self.config.void_min_gap_deg != 0.0;
         let (keys, acc) = (&mut self.proto_key[..], &mut self.acc[..]);
         keys.fill(u64::MAX);
         for (i, (&sb, p)) in self.point_bin.iter().zip(points).enumerate() {
@@ -408,6 +411,9 @@ impl GroundSegmenter {
             }
             let key = &mut keys[sb as usize];
             *key = (*key).min(proto_key(p[2], i));
+            if !voids {
+                continue;
+            }
             // The same r as above.
             let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
             let r = (x * x + y * y).sqrt();
