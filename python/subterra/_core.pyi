@@ -520,6 +520,13 @@ class Navigator:
     def risk_map(self) -> RiskMap | None:
         """The last coarse risk map (None before the first scan)."""
     @property
+    def plan_grid(self) -> npt.NDArray[np.float32] | None:
+        """The planner's grid ``(ny, nx)`` on ``risk_map``'s geometry: risk where observed,
+        raised by the hazard memory, NaN where unobserved (None before the first scan)."""
+    @property
+    def remembered_hazards(self) -> int:
+        """Cells in the hazard memory (``navigator.hazard_memory``)."""
+    @property
     def robot(self) -> RobotConfig: ...
     @property
     def config(self) -> dict[str, Any]:

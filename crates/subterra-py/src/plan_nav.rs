@@ -3,6 +3,7 @@
 
 use glam::DVec2;
 use numpy::{IntoPyArray, PyArray2};
+use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use subterra::plan::navigator::{Navigator, NavigatorConfig, NavigatorOutput};
@@ -248,6 +249,23 @@ impl PyNavigator {
             }
             None => Ok(None),
         }
+    }
+
+    /// The planner's grid `(ny, nx)` float32 on `risk_map`'s geometry: the risk where
+    /// observed, raised by the hazard memory, NaN where unobserved (None before the first scan).
+    #[getter]
+    fn plan_grid<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray2<f32>>>> {
+        let Some(map) = self.inner.risk_map() else { return Ok(None) };
+        let g = map.geometry();
+        let grid = numpy::ndarray::Array2::from_shape_vec((g.ny, g.nx), self.inner.plan_grid().to_vec())
+            .map_err(|e| PyRuntimeError::new_err(format!("plan grid: {e}")))?;
+        Ok(Some(grid.into_pyarray(py)))
+    }
+
+    /// Cells in the hazard memory (`navigator.hazard_memory`).
+    #[getter]
+    fn remembered_hazards(&self) -> usize {
+        self.inner.remembered_hazards()
     }
 
     /// The robot.

@@ -7,14 +7,25 @@
 //! 2. **Risk grid.** The coarse map's `risk` layer, or with `navigator.cvar_alpha` its
 //!    `CVaR_α` (risk-averse planning on the uncertainty of DESIGN §2), where the map has
 //!    observed the cell; NaN (priced by the planner's `unknown_risk`, default
-//!    [`UNSEEN_RISK_PER_M`]) where it has not. The local risk is the grid's value under the
-//!    robot (`unknown_risk` when NaN or off the map).
+//!    [`UNSEEN_RISK_PER_M`]) where it has not. With `hazard_memory`, each new map then
+//!    passes through a **hazard memory** kept in the world frame, by global cell index:
+//!    remembered cells farther than `hazard_memory_range_m` from the robot, and those the map
+//!    now rates below `hazard_memory_risk` on at least `hazard_memory_forget_points` ground
+//!    points, are forgotten; every cell rated at or above `hazard_memory_risk` is remembered
+//!    (with its newest rating); every remembered cell on the grid is raised to its rating
+//!    (unobserved ones set to it). The mapper fuses only its window (2 s by default), and a
+//!    lidar 0.7 m up sees no ground within ~2.3 m: without the memory a hole seen from afar
+//!    leaves the map before the robot has passed it. A bottomless hole never gets ground
+//!    points, so it is never forgotten while the robot is near; `clear_map` empties the
+//!    memory with the window. The local risk is the grid's value under the robot
+//!    (`unknown_risk` when NaN or off the map).
 //! 3. **Plan** (only while tracking, and at most every `replan_period_s` unless the last
 //!    plan failed, the thresholds or the target changed): A* with the recovery machine's
 //!    current `R_inst`/`R_total` from the robot's cell to the target — the goal, or home
 //!    after the goal was given up. A target off the map is replaced by the map cell on
 //!    the segment robot→target nearest to it, one cell inside the edge, moved to the
-//!    nearest cell below `R_inst` within `standin_search_m` if it is not one (the planner
+//!    nearest cell within `standin_search_m` where the robot fits (every cell within half
+//!    its width below `R_inst`) if it is not one (the planner
 //!    sees only the local map; the rest of the way counts as straight). The distance to the
 //!    target the recovery machine measures progress by is the path's length plus that
 //!    straight remainder when a path was found, else the straight-line distance.
@@ -37,6 +48,7 @@
 //! Every stage's wall time is reported; nothing here allocates per step beyond the
 //! outputs it returns.
 
+use std::collections::HashMap;
 use std::f64::consts::PI;
 use std::time::Instant;
 
@@ -48,7 +60,7 @@ use crate::frames::Isometry3;
 use crate::plan::astar::{PlanOutcome, PlanStatus, RiskAStar, RiskAStarConfig, RiskGrid};
 use crate::plan::mpc::{MpcConfig, MpcOutput, MpcTracker, RiskGrid as MpcRiskGrid, UnicycleState};
 use crate::plan::recovery::{wrap_angle, Behaviour, PlanFeedback, RecoveryConfig, RecoveryInput, RecoveryMachine, Target, Transition};
-use crate::terrain::{RiskMap, RobotConfig, TerrainConfig, TerrainMapper, TerrainStats, TerrainTimings};
+use crate::terrain::{GridGeometry, RiskMap, RobotConfig, TerrainConfig, TerrainMapper, TerrainStats, TerrainTimings};
 
 /// Risk per metre the navigator's planner gives an unobserved cell. Smaller than the map's
 /// display value `risk.unknown` (0.15): with the per-metre budget, 0.15 would spend
@@ -80,6 +92,15 @@ pub struct NavigatorSettings {
     /// How far from a target off the map its stand-in on the map edge may move to reach a
     /// traversable cell [m].
     pub standin_search_m: f64,
+    /// Remember hazards in the world frame beyond the mapper's fusion window (step 2).
+    pub hazard_memory: bool,
+    /// Risk at or above which a cell is remembered [0-1].
+    pub hazard_memory_risk: f64,
+    /// A remembered cell is forgotten once the map holds at least this many ground points in
+    /// it and rates it below `hazard_memory_risk`.
+    pub hazard_memory_forget_points: u32,
+    /// Remembered cells farther than this from the robot are forgotten [m].
+    pub hazard_memory_range_m: f64,
 }
 
 impl Default for NavigatorSettings {
@@ -94,6 +115,10 @@ impl Default for NavigatorSettings {
             clearance_headings: 16,
             clearance_range_m: 5.0,
             standin_search_m: 3.0,
+            hazard_memory: true,
+            hazard_memory_risk: 0.9,
+            hazard_memory_forget_points: 5,
+            hazard_memory_range_m: 15.0,
         }
     }
 }
@@ -108,6 +133,13 @@ impl NavigatorSettings {
         require_positive("navigator.backout_clearance_m", self.backout_clearance_m)?;
         require_positive("navigator.clearance_range_m", self.clearance_range_m)?;
         require_positive("navigator.standin_search_m", self.standin_search_m)?;
+        require_positive("navigator.hazard_memory_range_m", self.hazard_memory_range_m)?;
+        if !(self.hazard_memory_risk > 0.0 && self.hazard_memory_risk <= 1.0) {
+            return Err(Error::config("navigator.hazard_memory_risk", "must be in (0, 1]", self.hazard_memory_risk));
+        }
+        if self.hazard_memory_forget_points == 0 {
+            return Err(Error::config("navigator.hazard_memory_forget_points", "must be >= 1", self.hazard_memory_forget_points));
+        }
         if !(4..=360).contains(&self.clearance_headings) {
             return Err(Error::config("navigator.clearance_headings", "must be in [4, 360]", self.clearance_headings));
         }
@@ -227,6 +259,7 @@ pub struct Navigator {
     goal: DVec2,
     map: Option<RiskMap>,
     plan_risk: Vec<f32>,
+    hazards: HashMap<(i64, i64), f32>,
     path: Vec<DVec2>,
     remainder_m: f64,
     last_plan_s: Option<f64>,
@@ -259,6 +292,7 @@ impl Navigator {
             goal,
             map: None,
             plan_risk: Vec::new(),
+            hazards: HashMap::new(),
             path: Vec::new(),
             remainder_m: 0.0,
             last_plan_s: None,
@@ -283,6 +317,18 @@ impl Navigator {
     /// The last coarse risk map, if a scan has arrived.
     pub fn risk_map(&self) -> Option<&RiskMap> {
         self.map.as_ref()
+    }
+
+    /// The planner's grid on the last map's geometry (step 2: risk or CVaR where observed,
+    /// raised by the hazard memory; NaN where unobserved), row-major `ny x nx`; empty before
+    /// the first scan.
+    pub fn plan_grid(&self) -> &[f32] {
+        &self.plan_risk
+    }
+
+    /// Cells in the hazard memory.
+    pub fn remembered_hazards(&self) -> usize {
+        self.hazards.len()
     }
 
     /// Counts and stage times of the last map update.
@@ -328,6 +374,10 @@ impl Navigator {
             let observed = map.layer("observed")?;
             self.plan_risk.clear();
             self.plan_risk.extend(risk.iter().zip(observed).map(|(&r, &o)| if o > 0.0 { r } else { f32::NAN }));
+            if self.config.navigator.hazard_memory {
+                let ground_points = map.layer("ground_count")?;
+                remember_hazards(&mut self.hazards, &mut self.plan_risk, ground_points, map.geometry(), position, &self.config.navigator);
+            }
             self.map = Some(map);
         }
         let t_map = Instant::now();
@@ -362,7 +412,8 @@ impl Navigator {
                 if remainder > 0.0 {
                     // A stand-in for a target off the map must be a cell the robot may enter.
                     let unknown = self.config.planner.unknown_risk;
-                    if let Some(p) = nearest_traversable(&grid, goal_on_map, key.0, unknown, self.config.navigator.standin_search_m) {
+                    let fit_radius = 0.5 * self.robot.width_m;
+                    if let Some(p) = nearest_traversable(&grid, goal_on_map, key.0, unknown, self.config.navigator.standin_search_m, fit_radius) {
                         goal_on_map = p;
                         remainder = p.distance(target_point);
                     }
@@ -428,6 +479,7 @@ impl Navigator {
             }
             Behaviour::ClearMap => {
                 self.mapper.reset();
+                self.hazards.clear();
                 self.tracker.reset();
                 self.path.clear();
                 self.last_plan_ok = false;
@@ -488,6 +540,38 @@ impl Navigator {
 }
 
 /// Heading of the body's x axis in the world's x-y plane [rad].
+/// Step 2's hazard memory, on the planner's grid `risk` (NaN: unobserved) of geometry `g`:
+/// forgets remembered cells beyond `hazard_memory_range_m` of `position` and those the map
+/// now holds `hazard_memory_forget_points` ground points in and rates below
+/// `hazard_memory_risk`; remembers every cell rated at or above it (its newest rating);
+/// then raises each remembered cell on the grid to its remembered rating.
+fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], ground_points: &[f32], g: &GridGeometry, position: DVec2, s: &NavigatorSettings) {
+    let (ox, oy) = g.origin_cell;
+    let threshold = s.hazard_memory_risk as f32;
+    let forget_points = s.hazard_memory_forget_points as f32;
+    let range_cells = s.hazard_memory_range_m / g.resolution_m;
+    let here = position / g.resolution_m - 0.5;
+    let flat = |(wx, wy): (i64, i64)| {
+        let (ix, iy) = (wx - ox, wy - oy);
+        (ix >= 0 && iy >= 0 && ix < g.nx as i64 && iy < g.ny as i64).then(|| iy as usize * g.nx + ix as usize)
+    };
+    memory.retain(|&key, _| {
+        let near = DVec2::new(key.0 as f64, key.1 as f64).distance_squared(here) <= range_cells * range_cells;
+        near && flat(key).is_none_or(|c| !(ground_points[c] >= forget_points && risk[c] < threshold))
+    });
+    for (c, &r) in risk.iter().enumerate() {
+        // NaN (unobserved) compares false.
+        if r >= threshold {
+            memory.insert((ox + (c % g.nx) as i64, oy + (c / g.nx) as i64), r);
+        }
+    }
+    for (&key, &remembered) in memory.iter() {
+        if let Some(c) = flat(key) {
+            risk[c] = if risk[c].is_nan() { remembered } else { risk[c].max(remembered) };
+        }
+    }
+}
+
 fn yaw_of(pose: &Isometry3) -> f64 {
     let x = pose.rotation * glam::DVec3::X;
     x.y.atan2(x.x)
@@ -527,26 +611,33 @@ fn on_map(grid: &RiskGrid<'_>, from: DVec2, target: DVec2) -> (DVec2, f64) {
     (p, p.distance(target))
 }
 
-/// The centre of the cell nearest `p` (within `radius_m`) whose risk (NaN: `unknown`) is
-/// below `r_inst`, if any.
-fn nearest_traversable(grid: &RiskGrid<'_>, p: DVec2, r_inst: f64, unknown: f64, radius_m: f64) -> Option<DVec2> {
+/// The centre of the cell nearest `p` (within `radius_m`) where the robot fits: every cell
+/// within `fit_radius_m` of it (itself included) has a risk (NaN: `unknown`) below `r_inst`.
+/// A lone traversable cell in a lethal patch would do as a target for the planner, but no
+/// path reaches it.
+fn nearest_traversable(grid: &RiskGrid<'_>, p: DVec2, r_inst: f64, unknown: f64, radius_m: f64, fit_radius_m: f64) -> Option<DVec2> {
     let centre = grid.cell_of(p)?;
-    let reach = (radius_m / grid.resolution_m()).ceil() as i64;
+    let res = grid.resolution_m();
+    let (nx, ny) = (grid.nx() as i64, grid.ny() as i64);
+    let blocked = |ix: i64, iy: i64| {
+        let inside = ix >= 0 && iy >= 0 && ix < nx && iy < ny;
+        !inside || {
+            let r = grid.risk()[(iy * nx + ix) as usize];
+            (if r.is_nan() { unknown } else { f64::from(r) }) >= r_inst
+        }
+    };
+    let fit = (fit_radius_m / res).floor() as i64;
+    let fits = |ix: i64, iy: i64| {
+        (-fit..=fit).all(|dy| (-fit..=fit).all(|dx| ((dx * dx + dy * dy) as f64 * res * res > fit_radius_m * fit_radius_m) || !blocked(ix + dx, iy + dy)))
+    };
+    let reach = (radius_m / res).ceil() as i64;
     let mut best: Option<(f64, DVec2)> = None;
     for dy in -reach..=reach {
         for dx in -reach..=reach {
             let (ix, iy) = (centre.ix as i64 + dx, centre.iy as i64 + dy);
-            if ix < 0 || iy < 0 || ix >= grid.nx() as i64 || iy >= grid.ny() as i64 {
-                continue;
-            }
-            let r = grid.risk()[iy as usize * grid.nx() + ix as usize];
-            let r = if r.is_nan() { unknown } else { f64::from(r) };
-            if r >= r_inst {
-                continue;
-            }
-            let q = grid.origin_m() + (DVec2::new(ix as f64, iy as f64) + 0.5) * grid.resolution_m();
+            let q = grid.origin_m() + (DVec2::new(ix as f64, iy as f64) + 0.5) * res;
             let d = q.distance_squared(p);
-            if d <= radius_m * radius_m && best.is_none_or(|(bd, _)| d < bd) {
+            if d <= radius_m * radius_m && best.is_none_or(|(bd, _)| d < bd) && fits(ix, iy) {
                 best = Some((d, q));
             }
         }
@@ -588,4 +679,101 @@ fn clearance_heading(grid: &RiskGrid<'_>, from: DVec2, r_inst: f64, toward: f64,
         }
     }
     best.2
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const N: usize = 10;
+
+    fn geometry(origin_cell: (i64, i64)) -> GridGeometry {
+        GridGeometry { resolution_m: 0.1, nx: N, ny: N, origin_cell }
+    }
+
+    /// One memory step on a 10x10 grid at `origin_cell`: `cells` lists (ix, iy, risk,
+    /// ground points), every other cell unobserved. Returns the grid after the step.
+    fn step(memory: &mut HashMap<(i64, i64), f32>, origin_cell: (i64, i64), cells: &[(usize, usize, f32, f32)], position: DVec2) -> Vec<f32> {
+        let mut risk = vec![f32::NAN; N * N];
+        let mut ground = vec![0.0; N * N];
+        for &(ix, iy, r, n) in cells {
+            risk[iy * N + ix] = r;
+            ground[iy * N + ix] = n;
+        }
+        remember_hazards(memory, &mut risk, &ground, &geometry(origin_cell), position, &NavigatorSettings::default());
+        risk
+    }
+
+    #[test]
+    fn a_hazard_stays_on_the_grid_until_ground_is_seen_there() {
+        let mut memory = HashMap::new();
+        let p = DVec2::new(0.5, 0.5);
+        // Seen lethal (a hole's void), with a safe neighbour.
+        let r = step(&mut memory, (0, 0), &[(4, 4, 1.0, 0.0), (5, 4, 0.1, 20.0)], p);
+        assert_eq!((r[44], r[45]), (1.0, 0.1));
+        // Out of view (the blind ring): still lethal; the unobserved rest stays NaN.
+        let r = step(&mut memory, (0, 0), &[], p);
+        assert_eq!(r[44], 1.0);
+        assert!(r.iter().enumerate().all(|(c, v)| c == 44 || v.is_nan()));
+        // Rated safe on too few ground points: the memory wins.
+        let r = step(&mut memory, (0, 0), &[(4, 4, 0.2, 4.0)], p);
+        assert_eq!(r[44], 1.0);
+        // Rated safe on enough ground points: forgotten, now and later.
+        let r = step(&mut memory, (0, 0), &[(4, 4, 0.2, 5.0)], p);
+        assert_eq!(r[44], 0.2);
+        assert!(step(&mut memory, (0, 0), &[], p)[44].is_nan());
+        assert!(memory.is_empty());
+    }
+
+    #[test]
+    fn a_hazard_is_kept_in_the_world_frame_as_the_map_moves() {
+        let mut memory = HashMap::new();
+        // World cell (7, 2): on the first map at (7, 2), on a map whose origin moved by
+        // (3, -1) cells at (4, 3); a cell below the memory's risk is not remembered.
+        step(&mut memory, (0, 0), &[(7, 2, 0.95, 30.0), (1, 1, 0.89, 0.0)], DVec2::ZERO);
+        let r = step(&mut memory, (3, -1), &[], DVec2::ZERO);
+        assert_eq!(r[3 * N + 4], 0.95);
+        assert_eq!(r.iter().filter(|v| !v.is_nan()).count(), 1);
+        // Off this map it is kept; beyond the range it is forgotten.
+        step(&mut memory, (100, 100), &[], DVec2::ZERO);
+        assert_eq!(memory.len(), 1);
+        step(&mut memory, (200, 0), &[], DVec2::new(20.0, 0.0));
+        assert!(memory.is_empty());
+    }
+
+    #[test]
+    fn a_stand_in_is_where_the_robot_fits_not_a_lone_cell_in_a_lethal_patch() {
+        // 20 x 20 cells of 0.1 m: a lethal 9 x 9 patch at cells 6..=14 with one safe cell
+        // (10, 10) in it.
+        let mut risk = vec![0.0f32; 400];
+        for iy in 6..=14 {
+            for ix in 6..=14 {
+                risk[iy * 20 + ix] = 1.0;
+            }
+        }
+        risk[10 * 20 + 10] = 0.0;
+        let grid = RiskGrid::new(&risk, 20, 20, 0.1, DVec2::ZERO).unwrap();
+        let p = DVec2::new(1.05, 1.05);
+        // Without room to fit, the lone cell itself.
+        assert_eq!(nearest_traversable(&grid, p, 0.6, 0.03, 1.0, 0.0), Some(p));
+        // A robot 0.2 m wide: the nearest cell at least 0.1 m clear of the patch, 5 cells
+        // away along an axis (cell 4 or 16).
+        let q = nearest_traversable(&grid, p, 0.6, 0.03, 1.0, 0.1).unwrap();
+        assert!((q.distance(p) - 0.6).abs() < 1e-9, "{q}");
+        // None within reach.
+        assert_eq!(nearest_traversable(&grid, p, 0.6, 0.03, 0.4, 0.1), None);
+    }
+
+    #[test]
+    fn hazard_memory_settings_are_checked() {
+        let bad = |f: fn(&mut NavigatorSettings)| {
+            let mut s = NavigatorSettings::default();
+            f(&mut s);
+            s.validate().unwrap_err().to_string()
+        };
+        assert!(bad(|s| s.hazard_memory_risk = 0.0).contains("hazard_memory_risk"));
+        assert!(bad(|s| s.hazard_memory_risk = 1.5).contains("hazard_memory_risk"));
+        assert!(bad(|s| s.hazard_memory_forget_points = 0).contains("hazard_memory_forget_points"));
+        assert!(bad(|s| s.hazard_memory_range_m = f64::NAN).contains("hazard_memory_range_m"));
+    }
 }

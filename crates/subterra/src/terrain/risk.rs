@@ -21,7 +21,9 @@
 //! - `step_height`: `max |H(n) - H(c)|` over the 8 neighbours n with a ground height.
 //! - `negative_depth`: at the cell centre, in the newest scan's polar bin: the bin's ground
 //!   line height minus the floor bound (the lower of the bin's lowest point and the
-//!   lowest ray that passed over the cell's radius), floored at 0; 0 without evidence.
+//!   lowest ray that passed over the cell's radius), floored at 0; 0 without evidence and
+//!   0 on a cell with ground points of its own (seen ground is no hole: the bin's line,
+//!   carried across a hole, overestimates a lower floor seen beyond it).
 //! - `tilt_angle`: *settling*. Each wheel rests on the highest ground in a square patch
 //!   (`layers.wheel_patch_m`) around its corner of the footprint (`robot.length_m x
 //!   robot.width_m`, corners rounded to cell centres) at heading ψ; the rigid body rests on
@@ -430,6 +432,7 @@ impl MapBuilder {
                     height[c] = if bin.covered && cell.ground_n == 0 && !void { line_height } else { height[c] };
                     let below = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
                     let below = if bin.floor_bound_z.is_finite() { below } else { depth[c] };
+                    let below = if cell.ground_n > 0 { 0.0 } else { below };
                     depth[c] = if void { f32::INFINITY } else { below };
                 });
             }

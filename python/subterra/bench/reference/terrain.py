@@ -773,8 +773,8 @@ def polar_fill(
     ``(ny, nx)``. ``height`` (above the body origin) is the mean z of the cell's ground
     points (float32), else the newest scan's ground line at the cell centre where it covers
     the cell, else NaN; ``observed`` = 1 where the cell has a point or is covered;
-    ``negative_depth = max(ground_z - floor_bound_z, 0)`` where the floor bound is finite,
-    else 0."""
+    ``negative_depth = max(ground_z - floor_bound_z, 0)`` where the floor bound is finite
+    and the cell has no ground point, else 0."""
     s = scan.sensor_level
     # Cell centres relative to the sensor: (corner + (i + 0.5)·res) - sensor, corner = origin - body.
     res = geometry.resolution_m
@@ -791,7 +791,7 @@ def polar_fill(
     height = np.where(ground_n > 0, mean, np.where(fill, (q.ground_z + s[2]).astype(np.float32), np.float32(np.nan)))
     observed = ((cells.count.reshape(shape) > 0) | q.covered).astype(np.float32)
     with np.errstate(invalid="ignore"):
-        depth = np.where(q.inside & np.isfinite(q.floor_bound_z), np.maximum(q.ground_z - q.floor_bound_z, 0.0), 0.0)
+        depth = np.where(q.inside & np.isfinite(q.floor_bound_z) & (ground_n == 0), np.maximum(q.ground_z - q.floor_bound_z, 0.0), 0.0)
     # Void: the floor found missing (this scan's bin, or a void sample in the cell) and no
     # ground point in the cell: observed, infinitely deep, no filled height.
     void_n = cells.void_n.reshape(shape) if cells.void_n is not None else np.zeros(shape, dtype=np.int64)
