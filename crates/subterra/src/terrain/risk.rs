@@ -181,6 +181,8 @@ pub(crate) struct MapBuilder {
     patch_max: Vec<f32>,
     patch_f64: Vec<f64>,
     tilt_worst: Vec<f64>,
+    /// The runs of cells with ground in the inner span of a row, in [`tilt`](Self::tilt).
+    tilt_runs: Vec<(usize, usize)>,
     integral: Vec<[f64; 10]>,
     /// Cell-centre x relative to the newest sensor, by column [m].
     xs: Vec<f64>,
@@ -217,6 +219,7 @@ impl MapBuilder {
             patch_max: Vec::new(),
             patch_f64: Vec::new(),
             tilt_worst: Vec::new(),
+            tilt_runs: Vec::new(),
             integral: Vec::new(),
             xs: Vec::new(),
             touched: Vec::new(),
@@ -653,8 +656,26 @@ impl MapBuilder {
             worst.clear();
             worst.resize(x1 - x0, -1.0);
             let has = &height[row + x0..row + x1];
+            // Only the runs of cells with ground (a cell without keeps -1 and gets NaN
+            // below): real scans leave long stretches without ground (out of range, behind
+            // walls). Gaps shorter than `MIN_GAP` are settled with the runs, at less cost than
+            // a call.
+            const MIN_GAP: usize = 8;
+            let runs = &mut self.tilt_runs;
+            runs.clear();
+            let mut at = 0;
+            while let Some(a) = has[at..].iter().position(|h| h.is_finite()).map(|a| at + a) {
+                let b = has[a..].iter().position(|h| !h.is_finite()).map_or(has.len(), |b| a + b);
+                match runs.last_mut() {
+                    Some(last) if a - last.1 < MIN_GAP => last.1 = b,
+                    _ => runs.push((a, b)),
+                }
+                at = b;
+            }
             for k in &headings {
-                k.settle_row(patch, row + x0, has, worst);
+                for &(a, b) in runs.iter() {
+                    k.settle_row(patch, row + x0 + a, &has[a..b], &mut worst[a..b]);
+                }
             }
             let (out_inner, slope_inner) = (&mut out[row + x0..row + x1], &slope[row + x0..row + x1]);
             for (i, &w) in worst.iter().enumerate() {
