@@ -410,10 +410,10 @@ impl MapBuilder {
         // cells unpredictably.
         for (c, cell) in self.cells[..n].iter().enumerate() {
             let mean = cell.ground_sum / cell.ground_n as f32;
-            height[c] = if cell.ground_n > 0 { mean } else { f32::NAN };
-            let void = cell.void_n > 0 && cell.ground_n == 0;
-            observed[c] = if cell.count > 0 || void { 1.0 } else { 0.0 };
-            depth[c] = if void { f32::INFINITY } else { 0.0 };
+            height[c] = select_f32(cell.ground_n > 0, mean, f32::NAN);
+            let void = (cell.void_n > 0) & (cell.ground_n == 0);
+            observed[c] = select_f32((cell.count > 0) | void, 1.0, 0.0);
+            depth[c] = select_f32(void, f32::INFINITY, 0.0);
         }
         if let Some(polar) = polar {
             let s = polar.sensor_level;
@@ -429,14 +429,14 @@ impl MapBuilder {
                     // Selects again: coverage and evidence vary cell by cell. A void cell
                     // without ground points is observed, infinitely deep, and keeps no line.
                     let cell = &cells[c];
-                    let void = cell.ground_n == 0 && (bin.void || cell.void_n > 0);
-                    observed[c] = if bin.covered || void { 1.0 } else { observed[c] };
+                    let void = (cell.ground_n == 0) & (bin.void | (cell.void_n > 0));
+                    observed[c] = select_f32(bin.covered | void, 1.0, observed[c]);
                     let line_height = (bin.ground_z + s.z) as f32;
-                    height[c] = if bin.covered && cell.ground_n == 0 && !void { line_height } else { height[c] };
+                    height[c] = select_f32(bin.covered & (cell.ground_n == 0) & !void, line_height, height[c]);
                     let below = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
-                    let below = if bin.floor_bound_z.is_finite() { below } else { depth[c] };
-                    let below = if cell.ground_n > 0 { 0.0 } else { below };
-                    depth[c] = if void { f32::INFINITY } else { below };
+                    let below = select_f32(bin.floor_bound_z.is_finite(), below, depth[c]);
+                    let below = select_f32(cell.ground_n > 0, 0.0, below);
+                    depth[c] = select_f32(void, f32::INFINITY, below);
                 });
             }
         }
@@ -722,9 +722,9 @@ impl MapBuilder {
             // +inf and -inf, a non-empty one's finite): selects on it compile without a
             // branch, which real scans, mixing empty and non-empty cells, mispredicted.
             let has = cell.min_z <= cell.max_z;
-            min_height[c] = if has { cell.min_z + z0 } else { f32::NAN };
-            max_height[c] = if has { cell.max_z + z0 } else { f32::NAN };
-            age_l[c] = if has { cell.min_age } else { f32::NAN };
+            min_height[c] = select_f32(has, cell.min_z + z0, f32::NAN);
+            max_height[c] = select_f32(has, cell.max_z + z0, f32::NAN);
+            age_l[c] = select_f32(has, cell.min_age, f32::NAN);
         }
         let (residual, step_height, negative_depth, tilt_angle, observed_l) =
             (&residual[..n], &step_height[..n], &negative_depth[..n], &tilt_angle[..n], &observed_l[..n]);
@@ -857,6 +857,15 @@ impl HeadingKernel {
             }
         }
     }
+}
+
+/// `if c { a } else { b }`, as an integer select on the bits: a plain `f32` select on a
+/// condition that is not itself a float comparison compiles to a branch on x86-64 (SSE2 has
+/// no scalar float `cmov`), and where the condition depends on the data that branch is
+/// mispredicted often.
+#[inline(always)]
+fn select_f32(c: bool, a: f32, b: f32) -> f32 {
+    f32::from_bits(std::hint::select_unpredictable(c, a.to_bits(), b.to_bits()))
 }
 
 /// One settling pose of [`settle_tan2`]: the body on corners `i, j, k` (heights `hi, hj,
