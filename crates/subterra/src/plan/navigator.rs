@@ -10,14 +10,13 @@
 //!    [`UNSEEN_RISK_PER_M`]) where it has not. With `hazard_memory`, each new map then
 //!    passes through a **hazard memory** kept in the world frame, by global cell index:
 //!    remembered cells farther than `hazard_memory_range_m` from the robot, and those the map
-//!    now rates below `hazard_memory_risk` on at least `hazard_memory_forget_points` ground
-//!    points, are forgotten; every cell rated at or above `hazard_memory_risk` is remembered
+//!    now rates below `lethal_risk` on at least `hazard_memory_forget_points` ground
+//!    points, are forgotten; every cell rated at or above `lethal_risk` is remembered
 //!    (with its newest rating); every remembered cell on the grid is raised to its rating
 //!    (unobserved ones set to it). The mapper fuses only its window (2 s by default), and a
 //!    lidar 0.7 m up sees no ground within ~2.3 m: without the memory a hole seen from afar
 //!    leaves the map before the robot has passed it. A bottomless hole never gets ground
-//!    points, so it is never forgotten while the robot is near; `clear_map` empties the
-//!    memory with the window. The local risk is the grid's value under the robot
+//!    points, so it is never forgotten while the robot is near. The local risk is the grid's value under the robot
 //!    (`unknown_risk` when NaN or off the map).
 //! 3. **Plan** (only while tracking, and at most every `replan_period_s` unless the last
 //!    plan failed, the thresholds or the target changed): A* with the recovery machine's
@@ -26,14 +25,21 @@
 //!    the segment robot→target nearest to it, one cell inside the edge, moved to the
 //!    nearest cell within `standin_search_m` where the robot fits (every cell within half
 //!    its width below `R_inst`) if it is not one (the planner
-//!    sees only the local map; the rest of the way counts as straight). The distance to the
+//!    sees only the local map; the rest of the way counts as straight). With
+//!    `inflate_lethal`, the A* plans on the grid with every cell within half the robot's
+//!    width (its inscribed radius) of a cell at or above `lethal_risk` raised to that level,
+//!    except within that radius of the robot (so that it can plan its way out); the A*
+//!    plans the robot's centre, and a centre there would put the footprint on the hazard.
+//!    The MPC, the local risk and `back_out` use the grid uninflated (the MPC keeps the
+//!    footprint off lethal polygons itself). The distance to the
 //!    target the recovery machine measures progress by is the path's length plus that
 //!    straight remainder when a path was found, else the straight-line distance.
 //! 4. **Recovery.** [`RecoveryMachine::step`] with the plan's outcome (a path within
 //!    thresholds, none, or none within the budget) and the heading of most clearance
 //!    (step 6) gives the behaviour for this tick.
 //! 5. **Act.** `track`: the MPC on the last path (the risk grid gives its speed limits and
-//!    obstacle polygons); no path yet: stop. `clear_map`: drop the mapper's window, stop.
+//!    obstacle polygons); no path yet: stop. `clear_map`: drop the mapper's window and the
+//!    remembered hazards farther than `hazard_memory_keep_m` from the robot, stop.
 //!    `rotate`: `v = 0`, `ω = clamp(k_rot·wrap(ψ* - ψ), ±ω_max)`. `back_out`: reverse toward
 //!    the machine's carrot: with `e = wrap(bearing of the carrot in the body frame - π)`,
 //!    `ω = clamp(k_rot·e, ±ω_max)`, `v = -v_back·max(cos e, 0)`, and `v = 0` while a cell
@@ -55,7 +61,7 @@ use std::time::Instant;
 use glam::DVec2;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{require_positive, Error, Result};
+use crate::error::{require_non_negative, require_positive, Error, Result};
 use crate::frames::Isometry3;
 use crate::plan::astar::{PlanOutcome, PlanStatus, RiskAStar, RiskAStarConfig, RiskGrid};
 use crate::plan::mpc::{MpcConfig, MpcOutput, MpcTracker, RiskGrid as MpcRiskGrid, UnicycleState};
@@ -94,10 +100,16 @@ pub struct NavigatorSettings {
     pub standin_search_m: f64,
     /// Remember hazards in the world frame beyond the mapper's fusion window (step 2).
     pub hazard_memory: bool,
-    /// Risk at or above which a cell is remembered [0-1].
-    pub hazard_memory_risk: f64,
+    /// Risk at or above which a cell is lethal: remembered by the hazard memory, and
+    /// inflated by half the robot's width for the planner [0-1].
+    pub lethal_risk: f64,
+    /// Inflate lethal cells by half the robot's width for the planner (step 3).
+    pub inflate_lethal: bool,
+    /// `clear_map` keeps the remembered cells this near the robot [m]: the lidar cannot see
+    /// them again from where it stands (its blind ring), the rest it sees again at once.
+    pub hazard_memory_keep_m: f64,
     /// A remembered cell is forgotten once the map holds at least this many ground points in
-    /// it and rates it below `hazard_memory_risk`.
+    /// it and rates it below `lethal_risk`.
     pub hazard_memory_forget_points: u32,
     /// Remembered cells farther than this from the robot are forgotten [m].
     pub hazard_memory_range_m: f64,
@@ -116,7 +128,9 @@ impl Default for NavigatorSettings {
             clearance_range_m: 5.0,
             standin_search_m: 3.0,
             hazard_memory: true,
-            hazard_memory_risk: 0.9,
+            lethal_risk: 0.9,
+            inflate_lethal: true,
+            hazard_memory_keep_m: 3.0,
             hazard_memory_forget_points: 5,
             hazard_memory_range_m: 15.0,
         }
@@ -134,8 +148,9 @@ impl NavigatorSettings {
         require_positive("navigator.clearance_range_m", self.clearance_range_m)?;
         require_positive("navigator.standin_search_m", self.standin_search_m)?;
         require_positive("navigator.hazard_memory_range_m", self.hazard_memory_range_m)?;
-        if !(self.hazard_memory_risk > 0.0 && self.hazard_memory_risk <= 1.0) {
-            return Err(Error::config("navigator.hazard_memory_risk", "must be in (0, 1]", self.hazard_memory_risk));
+        require_non_negative("navigator.hazard_memory_keep_m", self.hazard_memory_keep_m)?;
+        if !(self.lethal_risk > 0.0 && self.lethal_risk <= 1.0) {
+            return Err(Error::config("navigator.lethal_risk", "must be in (0, 1]", self.lethal_risk));
         }
         if self.hazard_memory_forget_points == 0 {
             return Err(Error::config("navigator.hazard_memory_forget_points", "must be >= 1", self.hazard_memory_forget_points));
@@ -260,6 +275,7 @@ pub struct Navigator {
     map: Option<RiskMap>,
     plan_risk: Vec<f32>,
     hazards: HashMap<(i64, i64), f32>,
+    astar_risk: Vec<f32>,
     path: Vec<DVec2>,
     remainder_m: f64,
     last_plan_s: Option<f64>,
@@ -293,6 +309,7 @@ impl Navigator {
             map: None,
             plan_risk: Vec::new(),
             hazards: HashMap::new(),
+            astar_risk: Vec::new(),
             path: Vec::new(),
             remainder_m: 0.0,
             last_plan_s: None,
@@ -421,7 +438,14 @@ impl Navigator {
                 if self.planner.config().r_inst != key.0 || self.planner.config().r_total != key.1 {
                     self.planner = RiskAStar::new(RiskAStarConfig { r_inst: key.0, r_total: key.1, ..self.config.planner })?;
                 }
-                let outcome = self.planner.plan(&grid, position, goal_on_map)?;
+                let nav = &self.config.navigator;
+                let outcome = if nav.inflate_lethal {
+                    inflate_lethal(&self.plan_risk, &mut self.astar_risk, g, nav.lethal_risk as f32, 0.5 * self.robot.width_m, position);
+                    let inflated = RiskGrid::new(&self.astar_risk, g.nx, g.ny, g.resolution_m, g.origin_m())?;
+                    self.planner.plan(&inflated, position, goal_on_map)?
+                } else {
+                    self.planner.plan(&grid, position, goal_on_map)?
+                };
                 self.last_plan_s = Some(input.stamp_s);
                 self.planned_for = Some(key);
                 self.last_plan_ok = outcome.status == PlanStatus::Found;
@@ -479,7 +503,7 @@ impl Navigator {
             }
             Behaviour::ClearMap => {
                 self.mapper.reset();
-                self.hazards.clear();
+                forget_beyond(&mut self.hazards, position, map.geometry().resolution_m, self.config.navigator.hazard_memory_keep_m);
                 self.tracker.reset();
                 self.path.clear();
                 self.last_plan_ok = false;
@@ -543,11 +567,11 @@ impl Navigator {
 /// Step 2's hazard memory, on the planner's grid `risk` (NaN: unobserved) of geometry `g`:
 /// forgets remembered cells beyond `hazard_memory_range_m` of `position` and those the map
 /// now holds `hazard_memory_forget_points` ground points in and rates below
-/// `hazard_memory_risk`; remembers every cell rated at or above it (its newest rating);
+/// `lethal_risk`; remembers every cell rated at or above it (its newest rating);
 /// then raises each remembered cell on the grid to its remembered rating.
 fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], ground_points: &[f32], g: &GridGeometry, position: DVec2, s: &NavigatorSettings) {
     let (ox, oy) = g.origin_cell;
-    let threshold = s.hazard_memory_risk as f32;
+    let threshold = s.lethal_risk as f32;
     let forget_points = s.hazard_memory_forget_points as f32;
     let range_cells = s.hazard_memory_range_m / g.resolution_m;
     let here = position / g.resolution_m - 0.5;
@@ -568,6 +592,52 @@ fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], gro
     for (&key, &remembered) in memory.iter() {
         if let Some(c) = flat(key) {
             risk[c] = if risk[c].is_nan() { remembered } else { risk[c].max(remembered) };
+        }
+    }
+}
+
+/// Forgets the remembered cells whose centres are farther than `keep_m` from `position`.
+fn forget_beyond(memory: &mut HashMap<(i64, i64), f32>, position: DVec2, resolution_m: f64, keep_m: f64) {
+    let here = position / resolution_m - 0.5;
+    let keep = keep_m / resolution_m;
+    memory.retain(|&(wx, wy), _| DVec2::new(wx as f64, wy as f64).distance_squared(here) <= keep * keep);
+}
+
+/// Step 3's planner grid: `risk` with every cell whose centre lies within `radius_m` of a
+/// cell at or above `lethal` raised to at least `lethal` (the robot's centre there
+/// would put its footprint on it; `radius_m` is half its width, the inscribed radius), except
+/// cells within `radius_m` of `robot`: a robot already that close must be able to plan its
+/// way out.
+fn inflate_lethal(risk: &[f32], out: &mut Vec<f32>, g: &GridGeometry, lethal: f32, radius_m: f64, robot: DVec2) {
+    out.clear();
+    out.extend_from_slice(risk);
+    let res = g.resolution_m;
+    let (nx, ny) = (g.nx as i64, g.ny as i64);
+    let reach = (radius_m / res).floor() as i64;
+    let r2 = (radius_m / res) * (radius_m / res);
+    let disc: Vec<(i64, i64)> =
+        (-reach..=reach).flat_map(|dy| (-reach..=reach).map(move |dx| (dx, dy))).filter(|&(dx, dy)| (dx * dx + dy * dy) as f64 <= r2).collect();
+    // The robot in cell units, relative to cell centres.
+    let rc = (robot - g.origin_m()) / res - 0.5;
+    let is_lethal = |ix: i64, iy: i64| ix < 0 || iy < 0 || ix >= nx || iy >= ny || risk[(iy * nx + ix) as usize] >= lethal;
+    for iy in 0..ny {
+        for ix in 0..nx {
+            let r = risk[(iy * nx + ix) as usize];
+            // NaN compares false. An interior cell's disc is covered by its neighbours' (a
+            // cell within reach of it is nearer one of its four neighbours).
+            if !(r >= lethal) || (is_lethal(ix - 1, iy) && is_lethal(ix + 1, iy) && is_lethal(ix, iy - 1) && is_lethal(ix, iy + 1)) {
+                continue;
+            }
+            for &(dx, dy) in &disc {
+                let (jx, jy) = (ix + dx, iy + dy);
+                if jx < 0 || jy < 0 || jx >= nx || jy >= ny || DVec2::new(jx as f64, jy as f64).distance_squared(rc) <= r2 {
+                    continue;
+                }
+                let v = &mut out[(jy * nx + jx) as usize];
+                if !(*v >= r) {
+                    *v = r;
+                }
+            }
         }
     }
 }
@@ -764,6 +834,78 @@ mod tests {
         assert_eq!(nearest_traversable(&grid, p, 0.6, 0.03, 0.4, 0.1), None);
     }
 
+    /// `inflate_lethal` without its shortcut: every lethal cell stamps its disc.
+    fn inflate_naive(risk: &[f32], g: &GridGeometry, lethal: f32, radius_m: f64, robot: DVec2) -> Vec<f32> {
+        let mut out = risk.to_vec();
+        let centre = |i: usize| g.origin_m() + (DVec2::new((i % g.nx) as f64, (i / g.nx) as f64) + 0.5) * g.resolution_m;
+        for (i, &r) in risk.iter().enumerate() {
+            for j in 0..risk.len() {
+                let near = |a: DVec2, b: DVec2| a.distance_squared(b) <= radius_m * radius_m * (1.0 + 1e-12);
+                if r >= lethal && near(centre(i), centre(j)) && !near(centre(j), robot) && !(out[j] >= r) {
+                    out[j] = r;
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_lethal_cell_is_inflated_by_the_inscribed_radius_except_around_the_robot() {
+        let g = GridGeometry { resolution_m: 0.1, nx: 21, ny: 21, origin_cell: (0, 0) };
+        let mut risk = vec![0.1f32; 21 * 21];
+        risk[10 * 21 + 10] = 1.0;
+        risk[10 * 21 + 12] = f32::NAN;
+        let mut out = Vec::new();
+        // 0.25 m = 2.5 cells: 21 cells within, the unobserved one among them raised too.
+        inflate_lethal(&risk, &mut out, &g, 0.9, 0.25, DVec2::ZERO);
+        assert_eq!(out.iter().filter(|&&v| v >= 0.9).count(), 21);
+        assert_eq!(out[10 * 21 + 12], 1.0);
+        assert_eq!((out[12 * 21 + 12], out[10 * 21 + 13]), (0.1, 0.1));
+        // The robot at cell (12, 10): cells within 0.25 m of it keep their risk.
+        inflate_lethal(&risk, &mut out, &g, 0.9, 0.25, DVec2::new(1.25, 1.05));
+        assert!(out[10 * 21 + 12].is_nan());
+        assert_eq!((out[10 * 21 + 10], out[10 * 21 + 9]), (1.0, 1.0));
+    }
+
+    #[test]
+    fn lethal_inflation_equals_stamping_every_lethal_cell() {
+        // Seeded random grids: blobs of lethal cells (values 0.9-1), NaN and safe cells.
+        let g = GridGeometry { resolution_m: 0.1, nx: 23, ny: 17, origin_cell: (-5, 3) };
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut out = Vec::new();
+        for case in 0..20 {
+            let risk: Vec<f32> = (0..g.cells())
+                .map(|_| match next() {
+                    u if u < 0.15 => 0.9 + 0.1 * next() as f32,
+                    u if u < 0.25 => f32::NAN,
+                    _ => 0.8 * next() as f32,
+                })
+                .collect();
+            let robot = g.origin_m() + DVec2::new(next() * 2.3, next() * 1.7);
+            let radius = 0.05 + 0.3 * next();
+            inflate_lethal(&risk, &mut out, &g, 0.9, radius, robot);
+            let want = inflate_naive(&risk, &g, 0.9, radius, robot);
+            for (c, (a, b)) in out.iter().zip(&want).enumerate() {
+                // Lethal values may come from a different lethal neighbour; both block.
+                let same = a.to_bits() == b.to_bits() || (*a >= 0.9 && *b >= 0.9);
+                assert!(same, "case {case} cell {c}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn clear_map_keeps_the_hazards_the_lidar_cannot_see_again() {
+        let mut memory: HashMap<(i64, i64), f32> = [((10, 0), 1.0), ((40, 0), 1.0)].into_iter().collect();
+        forget_beyond(&mut memory, DVec2::ZERO, 0.1, 3.0);
+        assert_eq!(memory.keys().copied().collect::<Vec<_>>(), vec![(10, 0)]);
+    }
+
     #[test]
     fn hazard_memory_settings_are_checked() {
         let bad = |f: fn(&mut NavigatorSettings)| {
@@ -771,8 +913,8 @@ mod tests {
             f(&mut s);
             s.validate().unwrap_err().to_string()
         };
-        assert!(bad(|s| s.hazard_memory_risk = 0.0).contains("hazard_memory_risk"));
-        assert!(bad(|s| s.hazard_memory_risk = 1.5).contains("hazard_memory_risk"));
+        assert!(bad(|s| s.lethal_risk = 0.0).contains("lethal_risk"));
+        assert!(bad(|s| s.lethal_risk = 1.5).contains("lethal_risk"));
         assert!(bad(|s| s.hazard_memory_forget_points = 0).contains("hazard_memory_forget_points"));
         assert!(bad(|s| s.hazard_memory_range_m = f64::NAN).contains("hazard_memory_range_m"));
     }
