@@ -1694,7 +1694,9 @@ fn ray_box_t(d: DVec3, cos: f64, sin: f64, near: DVec3, far: DVec3) -> Option<(f
             *t_near = tn;
             *enter = face;
         }
-        *t_far = t_far.min(tf);
+        // What `t_far.min(tf)` gives (`t_far` is never NaN; a NaN `tf` leaves it), as a
+        // select (one `minsd`) instead of `min`'s NaN blend.
+        *t_far = if tf < *t_far { tf } else { *t_far };
         true
     }
     if !slab(near.x, far.x, dl.x, 0, &mut t_near, &mut t_far, &mut enter)
@@ -1915,7 +1917,7 @@ impl Terrain {
         let (row, group, tail) = view.row(sector);
         let scale = view.inv_w * dxy;
         let last = row.len() - 1;
-        let j1 = if t1 * scale < last as f64 { (t1 * scale) as usize } else { last };
+        let j1 = if t1 * scale < index_f64(last) { index_of(t1 * scale) } else { last };
         let mut ray: Option<TerrainRay> = None;
         let mut j = 0;
         while j <= j1 {
@@ -1940,8 +1942,8 @@ impl Terrain {
                 j += 1;
             }
             // Bins ja..=j, widened by a hair, within [t0, t1].
-            let ta = ((ja as f64 / scale) * (1.0 - 1.0e-9) - 1.0e-9).max(t0);
-            let tb = (((j + 1) as f64 / scale) * (1.0 + 1.0e-9) + 1.0e-9).min(t1);
+            let ta = ((index_f64(ja) / scale) * (1.0 - 1.0e-9) - 1.0e-9).max(t0);
+            let tb = ((index_f64(j + 1) / scale) * (1.0 + 1.0e-9) + 1.0e-9).min(t1);
             if ta <= tb {
                 let ray = ray.get_or_insert_with(|| TerrainRay::new(self, o, d));
                 if let Some(hit) = self.walk_cells(ray, ta, tb) {
@@ -2068,7 +2070,8 @@ impl Terrain {
         // Triangle A (u <= v): z = h00 + u (h11 - h01) + v (h01 - h00); B (u > v):
         // z = h00 + u (h10 - h00) + v (h11 - h10). A hit on the ray where z_ray = z_plane.
         const EDGE: f64 = 1.0e-12;
-        let mut best: Option<LeafHit> = None;
+        // (t, gu, gv) of the nearest hit; its normal is worked out once, at the end.
+        let mut best: Option<(f64, f64, f64)> = None;
         for (gu, gv, in_triangle) in [(h11 - h01, h01 - h00, true), (h10 - h00, h11 - h10, false)] {
             let g0 = o.z - (h00 + ou * gu + ov * gv);
             let g1 = d.z - (du * gu + dv * gv);
@@ -2076,7 +2079,7 @@ impl Terrain {
                 continue;
             }
             let t = -g0 / g1;
-            if t.is_nan() || t < 0.0 || best.is_some_and(|b| b.t <= t) {
+            if t.is_nan() || t < 0.0 || best.is_some_and(|b| b.0 <= t) {
                 continue;
             }
             let (u, v) = (ou + du * t, ov + dv * t);
@@ -2086,10 +2089,10 @@ impl Terrain {
                 v >= -EDGE && u <= 1.0 + EDGE && v <= u + EDGE
             };
             if inside {
-                best = Some(LeafHit { t, normal: DVec3::new(-gu / res, -gv / res, 1.0).normalize() });
+                best = Some((t, gu, gv));
             }
         }
-        best
+        best.map(|(t, gu, gv)| LeafHit { t, normal: DVec3::new(-gu / res, -gv / res, 1.0).normalize() })
     }
 
     /// Distance to the surface, negative below it where it covers `p` (not over a hole).
@@ -2186,7 +2189,7 @@ fn pseudo_angle(x: f64, y: f64) -> f64 {
 }
 
 fn sector_of(pa: f64) -> usize {
-    ((pa * (TERRAIN_VIEW_SECTORS as f64 / 4.0)) as usize).min(TERRAIN_VIEW_SECTORS - 1)
+    index_of(pa * (TERRAIN_VIEW_SECTORS as f64 / 4.0)).min(TERRAIN_VIEW_SECTORS - 1)
 }
 
 impl TerrainView {
@@ -2351,6 +2354,20 @@ impl TerrainRay {
     }
 }
 
+/// `k as f64` for a grid index (far below 2^53, so exact either way): through `i64`, one
+/// instruction on x86-64 where the conversion from `u64` takes several.
+#[inline(always)]
+fn index_f64(k: usize) -> f64 {
+    k as i64 as f64
+}
+
+/// `x as usize` for `x >= 0` or NaN (the same value: truncated, saturated, NaN gives 0):
+/// through `i64`, fewer instructions than the saturating conversion to `u64`.
+#[inline(always)]
+fn index_of(x: f64) -> usize {
+    x as i64 as usize
+}
+
 /// Walks the square cells (side `size`, cell (i, j) spans `[i, i + 1) · size` along x) that
 /// the ray `p + t·d` (x, y only; `p` relative to the grid's corner) crosses for `t` in
 /// `[t0, t1]`, in order, within the index ranges `[i0, i1) x [j0, j1)`; `visit(i, j, ta, tb)`
@@ -2371,14 +2388,14 @@ fn walk_grid<T>(
     // `as usize` truncates and saturates (NaN gives 0): with the clamp at `lo >= 0` this is
     // the floor (no libm call).
     let (px, py, dx, dy, ix, iy) = (ray.px, ray.py, ray.d.x, ray.d.y, ray.ix, ray.iy);
-    let start = |p: f64, d: f64, lo: usize, hi: usize| (((p + d * t0) / size).max(lo as f64) as usize).min(hi - 1);
+    let start = |p: f64, d: f64, lo: usize, hi: usize| (index_of(((p + d * t0) / size).max(index_f64(lo)))).min(hi - 1);
     let (mut i, mut j) = (start(px, dx, i0, i1), start(py, dy, j0, j1));
     // Distance at which the ray leaves cell index `k` along an axis.
     let exit = |p: f64, d: f64, inv: f64, k: usize| {
         if d > 0.0 {
-            ((k + 1) as f64 * size - p) * inv
+            (index_f64(k + 1) * size - p) * inv
         } else if d < 0.0 {
-            (k as f64 * size - p) * inv
+            (index_f64(k) * size - p) * inv
         } else {
             f64::INFINITY
         }
