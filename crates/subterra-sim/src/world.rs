@@ -563,7 +563,7 @@ impl World {
             if let Some(t) = &self.terrain {
                 let limit = best.map_or(max_t, |h| h.t);
                 let hit = match view {
-                    Some(view) => t.cast_in_view(view, o, d, limit),
+                    Some(view) => t.cast_in_view::<NORMALS>(view, o, d, limit),
                     None => t.cast(o, d, limit),
                 };
                 if let Some(hit) = hit {
@@ -1893,7 +1893,9 @@ impl Terrain {
 
     /// [`Terrain::cast`] from `view`'s origin `o`: the same answer, walking only the stretches
     /// of the ray where `view` says the terrain may be met.
-    fn cast_in_view(&self, view: &TerrainView, o: DVec3, d: DVec3, max_t: f64) -> Option<LeafHit> {
+    /// The normal only when `NORMALS` (else zero), except for the (nearly) vertical rays it
+    /// hands to [`Terrain::cast`].
+    fn cast_in_view<const NORMALS: bool>(&self, view: &TerrainView, o: DVec3, d: DVec3, max_t: f64) -> Option<LeafHit> {
         let dxy = (d.x * d.x + d.y * d.y).sqrt();
         if dxy.is_nan() || dxy <= TERRAIN_VIEW_MIN_DXY {
             // (Nearly) vertical: the walk is short.
@@ -1946,7 +1948,7 @@ impl Terrain {
             let tb = ((index_f64(j + 1) / scale) * (1.0 + 1.0e-9) + 1.0e-9).min(t1);
             if ta <= tb {
                 let ray = ray.get_or_insert_with(|| TerrainRay::new(self, o, d));
-                if let Some(hit) = self.walk_cells(ray, ta, tb) {
+                if let Some(hit) = self.walk_cells::<NORMALS>(ray, ta, tb) {
                     return (hit.t <= max_t).then_some(hit);
                 }
             }
@@ -2000,7 +2002,7 @@ impl Terrain {
     /// The first hit of the ray over `[t0, t1]`, walking the cells (no pyramid): for short
     /// stretches near the surface.
     #[inline]
-    fn walk_cells(&self, ray: &TerrainRay, t0: f64, t1: f64) -> Option<LeafHit> {
+    fn walk_cells<const NORMALS: bool>(&self, ray: &TerrainRay, t0: f64, t1: f64) -> Option<LeafHit> {
         let (cells_x, cells_y) = (self.cols - 1, self.rows - 1);
         let (oz, dz) = (ray.o.z, ray.d.z);
         walk_grid(ray, self.resolution, (0, cells_x), (0, cells_y), t0, t1, |c, r, ta, tb| {
@@ -2011,7 +2013,7 @@ impl Terrain {
             if hi < f64::from(z.lo) || lo > f64::from(z.hi) {
                 return None;
             }
-            self.cast_cell_ray(ray, r, c, ta, tb)
+            self.cast_cell_ray::<NORMALS>(ray, r, c, ta, tb)
         })
     }
 
@@ -2034,7 +2036,7 @@ impl Terrain {
                     if self.removed[r * cells_x + c] {
                         return None;
                     }
-                    self.cast_cell_ray(ray, r, c, ta, tb)
+                    self.cast_cell_ray::<true>(ray, r, c, ta, tb)
                 })
             } else {
                 let child = &self.levels[level - 1];
@@ -2048,12 +2050,13 @@ impl Terrain {
     /// Ray against the two triangles of cell (r, c), whose part of the ray is `[ta, tb]`.
     #[cfg(test)]
     fn cast_cell(&self, o: DVec3, d: DVec3, r: usize, c: usize, ta: f64, tb: f64) -> Option<LeafHit> {
-        self.cast_cell_ray(&TerrainRay::new(self, o, d), r, c, ta, tb)
+        self.cast_cell_ray::<true>(&TerrainRay::new(self, o, d), r, c, ta, tb)
     }
 
-    /// [`Terrain::cast_cell`] of a prepared ray.
+    /// [`Terrain::cast_cell`] of a prepared ray; the normal only when `NORMALS` (else zero:
+    /// a lidar needs none).
     #[inline]
-    fn cast_cell_ray(&self, ray: &TerrainRay, r: usize, c: usize, ta: f64, tb: f64) -> Option<LeafHit> {
+    fn cast_cell_ray<const NORMALS: bool>(&self, ray: &TerrainRay, r: usize, c: usize, ta: f64, tb: f64) -> Option<LeafHit> {
         let (o, d) = (ray.o, ray.d);
         let at = r * self.cols + c;
         let (h00, h10, h01, h11) = (self.heights[at], self.heights[at + 1], self.heights[at + self.cols], self.heights[at + self.cols + 1]);
@@ -2092,7 +2095,7 @@ impl Terrain {
                 best = Some((t, gu, gv));
             }
         }
-        best.map(|(t, gu, gv)| LeafHit { t, normal: DVec3::new(-gu / res, -gv / res, 1.0).normalize() })
+        best.map(|(t, gu, gv)| LeafHit { t, normal: if NORMALS { DVec3::new(-gu / res, -gv / res, 1.0).normalize() } else { DVec3::ZERO } })
     }
 
     /// Distance to the surface, negative below it where it covers `p` (not over a hole).
