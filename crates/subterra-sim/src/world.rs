@@ -404,7 +404,7 @@ impl World {
         let plan = FanPlan::new(self, origin, rotation, g, &g.cones());
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
-            let hit = self.fan_ray::<NORMALS>(plan.slices(), origin, d, range(first + k), plan.g.bin(*dl), view);
+            let hit = self.fan_ray::<NORMALS, true>(plan.slices(), origin, d, range(first + k), plan.g.bin(*dl), view);
             sink.put(first + k, d, hit);
         }
     }
@@ -428,11 +428,7 @@ impl World {
             match geom {
                 Some(g) if !self.solids.is_empty() => {
                     let plan = FanPlan::new(self, origin, rotation, g, cones);
-                    for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
-                        let d = rotation * *dl;
-                        let hit = self.fan_ray::<NORMALS>(plan.slices(), origin, d, range(first + k), bin as usize, view);
-                        sink.put(first + k, d, hit);
-                    }
+                    self.cast_planned_fan::<NORMALS, R, S>(plan.slices(), origin, rotation, fan, bins, first, range, view, sink);
                 }
                 _ => {
                     for (k, dl) in fan.iter().enumerate() {
@@ -461,10 +457,47 @@ impl World {
         FanCast { world: self, origin, rotation, layout, plans, view: self.terrain_view(origin, layout.len()) }
     }
 
-    /// One ray of a fan: world direction `d`, range `max_t`, bin `bin` of the plan's grid.
-    /// The normal is computed (for the nearest hit only) when `NORMALS`.
+    /// The rays `fan` (local directions, `bins` their bins in `plan`'s grid; ray `k` is
+    /// `first + k` for `range` and `sink`) of a fan with a plan. A loop of its own for fans
+    /// whose plan meets the terrain and for those that do not: the latter's loop holds no
+    /// terrain code (fewer registers spilled per ray).
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn fan_ray<const NORMALS: bool>(&self, plan: PlanSlices<'_>, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<FanHit> {
+    fn cast_planned_fan<const NORMALS: bool, R, S>(
+        &self,
+        plan: PlanSlices<'_>,
+        origin: DVec3,
+        rotation: DMat3,
+        fan: &[DVec3],
+        bins: &[u32],
+        first: usize,
+        range: &R,
+        view: Option<&TerrainView>,
+        sink: &mut S,
+    ) where
+        R: Fn(usize) -> f64,
+        S: FanSink,
+    {
+        if plan.terrain && self.terrain.is_some() {
+            for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
+                let d = rotation * *dl;
+                let hit = self.fan_ray::<NORMALS, true>(plan, origin, d, range(first + k), bin as usize, view);
+                sink.put(first + k, d, hit);
+            }
+        } else {
+            for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
+                let d = rotation * *dl;
+                let hit = self.fan_ray::<NORMALS, false>(plan, origin, d, range(first + k), bin as usize, view);
+                sink.put(first + k, d, hit);
+            }
+        }
+    }
+
+    /// One ray of a fan: world direction `d`, range `max_t`, bin `bin` of the plan's grid.
+    /// The normal is computed (for the nearest hit only) when `NORMALS`; the terrain is cast
+    /// when `TERRAIN` and the plan meets it (`TERRAIN` false: the plan does not).
+    #[inline(always)]
+    fn fan_ray<const NORMALS: bool, const TERRAIN: bool>(&self, plan: PlanSlices<'_>, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<FanHit> {
         if max_t.is_nan() || max_t < 0.0 {
             return None;
         }
@@ -520,7 +553,7 @@ impl World {
                 best = Some(FanHit { t, normal, primitive: id });
             }
         }
-        self.finish::<NORMALS>(origin, d, max_t, best, plan.terrain, view)
+        self.finish::<NORMALS>(origin, d, max_t, best, TERRAIN && plan.terrain, view)
     }
 
     /// [`World::cast_ray`] for a unit `d`.
@@ -1035,11 +1068,7 @@ impl World {
                     // The plan's slices in locals (kept in registers across the sink's writes).
                     let plan = plan.slices();
                     let bins = &layout.bins[a..b];
-                    for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
-                        let d = rotation * *dl;
-                        let hit = self.fan_ray::<NORMALS>(plan, origin, d, range(a + k), bin as usize, view);
-                        sink.put(a + k, d, hit);
-                    }
+                    self.cast_planned_fan::<NORMALS, R, S>(plan, origin, rotation, fan, bins, a, range, view, sink);
                 }
                 None => {
                     for (k, dl) in fan.iter().enumerate() {
@@ -1895,6 +1924,11 @@ impl Terrain {
     /// of the ray where `view` says the terrain may be met.
     /// The normal only when `NORMALS` (else zero), except for the (nearly) vertical rays it
     /// hands to [`Terrain::cast`].
+    ///
+    /// The quick refusals (a slope no terrain point has) are inlined into the caller; the walk
+    /// ([`Terrain::walk_view`]) is not, so that the many rays it refuses (a lidar's upward
+    /// beams) skip its call and set-up.
+    #[inline(always)]
     fn cast_in_view<const NORMALS: bool>(&self, view: &TerrainView, o: DVec3, d: DVec3, max_t: f64) -> Option<LeafHit> {
         let dxy = (d.x * d.x + d.y * d.y).sqrt();
         if dxy.is_nan() || dxy <= TERRAIN_VIEW_MIN_DXY {
@@ -1904,8 +1938,6 @@ impl Terrain {
         if !self.any_cell {
             return None;
         }
-        // The view's bins hold the grid: no clipping to its box needed.
-        let (t0, t1) = (0.0, max_t);
         let k = d.z / dxy;
         // Slopes no terrain point seen from the origin has (anywhere, then in the sector):
         // no walk.
@@ -1916,6 +1948,16 @@ impl Terrain {
         if !view.tail.get(sector * view.groups).is_some_and(|r| r.admits(k)) {
             return None;
         }
+        self.walk_view::<NORMALS>(view, o, d, max_t, dxy, k, sector)
+    }
+
+    /// The walk of [`Terrain::cast_in_view`] for a ray of horizontal length `dxy`, slope `k`
+    /// in sector `sector` of the view.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(never)]
+    fn walk_view<const NORMALS: bool>(&self, view: &TerrainView, o: DVec3, d: DVec3, max_t: f64, dxy: f64, k: f64, sector: usize) -> Option<LeafHit> {
+        // The view's bins hold the grid: no clipping to its box needed.
+        let (t0, t1) = (0.0, max_t);
         let (row, group, tail) = view.row(sector);
         let scale = view.inv_w * dxy;
         let last = row.len() - 1;
