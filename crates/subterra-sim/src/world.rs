@@ -1921,9 +1921,8 @@ impl Terrain {
     }
 
     /// [`Terrain::cast`] from `view`'s origin `o`: the same answer, walking only the stretches
-    /// of the ray where `view` says the terrain may be met.
-    /// The normal only when `NORMALS` (else zero), except for the (nearly) vertical rays it
-    /// hands to [`Terrain::cast`].
+    /// of the ray where `view` says the terrain may be met. The normal only when `NORMALS`
+    /// (else zero), except for the (nearly) vertical rays it hands to [`Terrain::cast`].
     ///
     /// The quick refusals (a slope no terrain point has) are inlined into the caller; the walk
     /// ([`Terrain::walk_view`]) is not, so that the many rays it refuses (a lidar's upward
