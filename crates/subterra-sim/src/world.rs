@@ -404,7 +404,7 @@ impl World {
         let plan = FanPlan::new(self, origin, rotation, g, &g.cones());
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
-            let hit = self.fan_ray::<NORMALS>(plan.slices(), origin, d, range(first + k), plan.g.bin(*dl), view);
+            let hit = self.fan_ray::<NORMALS, true>(plan.slices(), origin, d, range(first + k), plan.g.bin(*dl), view);
             sink.put(first + k, d, hit);
         }
     }
@@ -428,11 +428,7 @@ impl World {
             match geom {
                 Some(g) if !self.solids.is_empty() => {
                     let plan = FanPlan::new(self, origin, rotation, g, cones);
-                    for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
-                        let d = rotation * *dl;
-                        let hit = self.fan_ray::<NORMALS>(plan.slices(), origin, d, range(first + k), bin as usize, view);
-                        sink.put(first + k, d, hit);
-                    }
+                    self.cast_planned_fan::<NORMALS, R, S>(plan.slices(), origin, rotation, fan, bins, first, range, view, sink);
                 }
                 _ => {
                     for (k, dl) in fan.iter().enumerate() {
@@ -461,10 +457,47 @@ impl World {
         FanCast { world: self, origin, rotation, layout, plans, view: self.terrain_view(origin, layout.len()) }
     }
 
-    /// One ray of a fan: world direction `d`, range `max_t`, bin `bin` of the plan's grid.
-    /// The normal is computed (for the nearest hit only) when `NORMALS`.
+    /// The rays `fan` (local directions, `bins` their bins in `plan`'s grid; ray `k` is
+    /// `first + k` for `range` and `sink`) of a fan with a plan. A loop of its own for fans
+    /// whose plan meets the terrain and for those that do not: the latter's loop holds no
+    /// terrain code (fewer registers spilled per ray).
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn fan_ray<const NORMALS: bool>(&self, plan: PlanSlices<'_>, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<FanHit> {
+    fn cast_planned_fan<const NORMALS: bool, R, S>(
+        &self,
+        plan: PlanSlices<'_>,
+        origin: DVec3,
+        rotation: DMat3,
+        fan: &[DVec3],
+        bins: &[u32],
+        first: usize,
+        range: &R,
+        view: Option<&TerrainView>,
+        sink: &mut S,
+    ) where
+        R: Fn(usize) -> f64,
+        S: FanSink,
+    {
+        if plan.terrain && self.terrain.is_some() {
+            for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
+                let d = rotation * *dl;
+                let hit = self.fan_ray::<NORMALS, true>(plan, origin, d, range(first + k), bin as usize, view);
+                sink.put(first + k, d, hit);
+            }
+        } else {
+            for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
+                let d = rotation * *dl;
+                let hit = self.fan_ray::<NORMALS, false>(plan, origin, d, range(first + k), bin as usize, view);
+                sink.put(first + k, d, hit);
+            }
+        }
+    }
+
+    /// One ray of a fan: world direction `d`, range `max_t`, bin `bin` of the plan's grid.
+    /// The normal is computed (for the nearest hit only) when `NORMALS`; the terrain is cast
+    /// when `TERRAIN` and the plan meets it (`TERRAIN` false: the plan does not).
+    #[inline(always)]
+    fn fan_ray<const NORMALS: bool, const TERRAIN: bool>(&self, plan: PlanSlices<'_>, origin: DVec3, d: DVec3, max_t: f64, bin: usize, view: Option<&TerrainView>) -> Option<FanHit> {
         if max_t.is_nan() || max_t < 0.0 {
             return None;
         }
@@ -520,7 +553,7 @@ impl World {
                 best = Some(FanHit { t, normal, primitive: id });
             }
         }
-        self.finish::<NORMALS>(origin, d, max_t, best, plan.terrain, view)
+        self.finish::<NORMALS>(origin, d, max_t, best, TERRAIN && plan.terrain, view)
     }
 
     /// [`World::cast_ray`] for a unit `d`.
@@ -563,7 +596,7 @@ impl World {
             if let Some(t) = &self.terrain {
                 let limit = best.map_or(max_t, |h| h.t);
                 let hit = match view {
-                    Some(view) => t.cast_in_view(view, o, d, limit),
+                    Some(view) => t.cast_in_view::<NORMALS>(view, o, d, limit),
                     None => t.cast(o, d, limit),
                 };
                 if let Some(hit) = hit {
@@ -1035,11 +1068,7 @@ impl World {
                     // The plan's slices in locals (kept in registers across the sink's writes).
                     let plan = plan.slices();
                     let bins = &layout.bins[a..b];
-                    for (k, (dl, &bin)) in fan.iter().zip(bins).enumerate() {
-                        let d = rotation * *dl;
-                        let hit = self.fan_ray::<NORMALS>(plan, origin, d, range(a + k), bin as usize, view);
-                        sink.put(a + k, d, hit);
-                    }
+                    self.cast_planned_fan::<NORMALS, R, S>(plan, origin, rotation, fan, bins, a, range, view, sink);
                 }
                 None => {
                     for (k, dl) in fan.iter().enumerate() {
@@ -1694,7 +1723,9 @@ fn ray_box_t(d: DVec3, cos: f64, sin: f64, near: DVec3, far: DVec3) -> Option<(f
             *t_near = tn;
             *enter = face;
         }
-        *t_far = t_far.min(tf);
+        // What `t_far.min(tf)` gives (`t_far` is never NaN; a NaN `tf` leaves it), as a
+        // select (one `minsd`) instead of `min`'s NaN blend.
+        *t_far = if tf < *t_far { tf } else { *t_far };
         true
     }
     if !slab(near.x, far.x, dl.x, 0, &mut t_near, &mut t_far, &mut enter)
@@ -1890,8 +1921,14 @@ impl Terrain {
     }
 
     /// [`Terrain::cast`] from `view`'s origin `o`: the same answer, walking only the stretches
-    /// of the ray where `view` says the terrain may be met.
-    fn cast_in_view(&self, view: &TerrainView, o: DVec3, d: DVec3, max_t: f64) -> Option<LeafHit> {
+    /// of the ray where `view` says the terrain may be met. The normal only when `NORMALS`
+    /// (else zero), except for the (nearly) vertical rays it hands to [`Terrain::cast`].
+    ///
+    /// The quick refusals (a slope no terrain point has) are inlined into the caller; the walk
+    /// ([`Terrain::walk_view`]) is not, so that the many rays it refuses (a lidar's upward
+    /// beams) skip its call and set-up.
+    #[inline(always)]
+    fn cast_in_view<const NORMALS: bool>(&self, view: &TerrainView, o: DVec3, d: DVec3, max_t: f64) -> Option<LeafHit> {
         let dxy = (d.x * d.x + d.y * d.y).sqrt();
         if dxy.is_nan() || dxy <= TERRAIN_VIEW_MIN_DXY {
             // (Nearly) vertical: the walk is short.
@@ -1900,8 +1937,6 @@ impl Terrain {
         if !self.any_cell {
             return None;
         }
-        // The view's bins hold the grid: no clipping to its box needed.
-        let (t0, t1) = (0.0, max_t);
         let k = d.z / dxy;
         // Slopes no terrain point seen from the origin has (anywhere, then in the sector):
         // no walk.
@@ -1912,10 +1947,20 @@ impl Terrain {
         if !view.tail.get(sector * view.groups).is_some_and(|r| r.admits(k)) {
             return None;
         }
+        self.walk_view::<NORMALS>(view, o, d, max_t, dxy, k, sector)
+    }
+
+    /// The walk of [`Terrain::cast_in_view`] for a ray of horizontal length `dxy`, slope `k`
+    /// in sector `sector` of the view.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(never)]
+    fn walk_view<const NORMALS: bool>(&self, view: &TerrainView, o: DVec3, d: DVec3, max_t: f64, dxy: f64, k: f64, sector: usize) -> Option<LeafHit> {
+        // The view's bins hold the grid: no clipping to its box needed.
+        let (t0, t1) = (0.0, max_t);
         let (row, group, tail) = view.row(sector);
         let scale = view.inv_w * dxy;
         let last = row.len() - 1;
-        let j1 = if t1 * scale < last as f64 { (t1 * scale) as usize } else { last };
+        let j1 = if t1 * scale < index_f64(last) { index_of(t1 * scale) } else { last };
         let mut ray: Option<TerrainRay> = None;
         let mut j = 0;
         while j <= j1 {
@@ -1940,11 +1985,11 @@ impl Terrain {
                 j += 1;
             }
             // Bins ja..=j, widened by a hair, within [t0, t1].
-            let ta = ((ja as f64 / scale) * (1.0 - 1.0e-9) - 1.0e-9).max(t0);
-            let tb = (((j + 1) as f64 / scale) * (1.0 + 1.0e-9) + 1.0e-9).min(t1);
+            let ta = ((index_f64(ja) / scale) * (1.0 - 1.0e-9) - 1.0e-9).max(t0);
+            let tb = ((index_f64(j + 1) / scale) * (1.0 + 1.0e-9) + 1.0e-9).min(t1);
             if ta <= tb {
                 let ray = ray.get_or_insert_with(|| TerrainRay::new(self, o, d));
-                if let Some(hit) = self.walk_cells(ray, ta, tb) {
+                if let Some(hit) = self.walk_cells::<NORMALS>(ray, ta, tb) {
                     return (hit.t <= max_t).then_some(hit);
                 }
             }
@@ -1998,7 +2043,7 @@ impl Terrain {
     /// The first hit of the ray over `[t0, t1]`, walking the cells (no pyramid): for short
     /// stretches near the surface.
     #[inline]
-    fn walk_cells(&self, ray: &TerrainRay, t0: f64, t1: f64) -> Option<LeafHit> {
+    fn walk_cells<const NORMALS: bool>(&self, ray: &TerrainRay, t0: f64, t1: f64) -> Option<LeafHit> {
         let (cells_x, cells_y) = (self.cols - 1, self.rows - 1);
         let (oz, dz) = (ray.o.z, ray.d.z);
         walk_grid(ray, self.resolution, (0, cells_x), (0, cells_y), t0, t1, |c, r, ta, tb| {
@@ -2009,7 +2054,7 @@ impl Terrain {
             if hi < f64::from(z.lo) || lo > f64::from(z.hi) {
                 return None;
             }
-            self.cast_cell_ray(ray, r, c, ta, tb)
+            self.cast_cell_ray::<NORMALS>(ray, r, c, ta, tb)
         })
     }
 
@@ -2032,7 +2077,7 @@ impl Terrain {
                     if self.removed[r * cells_x + c] {
                         return None;
                     }
-                    self.cast_cell_ray(ray, r, c, ta, tb)
+                    self.cast_cell_ray::<true>(ray, r, c, ta, tb)
                 })
             } else {
                 let child = &self.levels[level - 1];
@@ -2046,12 +2091,13 @@ impl Terrain {
     /// Ray against the two triangles of cell (r, c), whose part of the ray is `[ta, tb]`.
     #[cfg(test)]
     fn cast_cell(&self, o: DVec3, d: DVec3, r: usize, c: usize, ta: f64, tb: f64) -> Option<LeafHit> {
-        self.cast_cell_ray(&TerrainRay::new(self, o, d), r, c, ta, tb)
+        self.cast_cell_ray::<true>(&TerrainRay::new(self, o, d), r, c, ta, tb)
     }
 
-    /// [`Terrain::cast_cell`] of a prepared ray.
+    /// [`Terrain::cast_cell`] of a prepared ray; the normal only when `NORMALS` (else zero:
+    /// a lidar needs none).
     #[inline]
-    fn cast_cell_ray(&self, ray: &TerrainRay, r: usize, c: usize, ta: f64, tb: f64) -> Option<LeafHit> {
+    fn cast_cell_ray<const NORMALS: bool>(&self, ray: &TerrainRay, r: usize, c: usize, ta: f64, tb: f64) -> Option<LeafHit> {
         let (o, d) = (ray.o, ray.d);
         let at = r * self.cols + c;
         let (h00, h10, h01, h11) = (self.heights[at], self.heights[at + 1], self.heights[at + self.cols], self.heights[at + self.cols + 1]);
@@ -2068,7 +2114,8 @@ impl Terrain {
         // Triangle A (u <= v): z = h00 + u (h11 - h01) + v (h01 - h00); B (u > v):
         // z = h00 + u (h10 - h00) + v (h11 - h10). A hit on the ray where z_ray = z_plane.
         const EDGE: f64 = 1.0e-12;
-        let mut best: Option<LeafHit> = None;
+        // (t, gu, gv) of the nearest hit; its normal is worked out once, at the end.
+        let mut best: Option<(f64, f64, f64)> = None;
         for (gu, gv, in_triangle) in [(h11 - h01, h01 - h00, true), (h10 - h00, h11 - h10, false)] {
             let g0 = o.z - (h00 + ou * gu + ov * gv);
             let g1 = d.z - (du * gu + dv * gv);
@@ -2076,7 +2123,7 @@ impl Terrain {
                 continue;
             }
             let t = -g0 / g1;
-            if t.is_nan() || t < 0.0 || best.is_some_and(|b| b.t <= t) {
+            if t.is_nan() || t < 0.0 || best.is_some_and(|b| b.0 <= t) {
                 continue;
             }
             let (u, v) = (ou + du * t, ov + dv * t);
@@ -2086,10 +2133,10 @@ impl Terrain {
                 v >= -EDGE && u <= 1.0 + EDGE && v <= u + EDGE
             };
             if inside {
-                best = Some(LeafHit { t, normal: DVec3::new(-gu / res, -gv / res, 1.0).normalize() });
+                best = Some((t, gu, gv));
             }
         }
-        best
+        best.map(|(t, gu, gv)| LeafHit { t, normal: if NORMALS { DVec3::new(-gu / res, -gv / res, 1.0).normalize() } else { DVec3::ZERO } })
     }
 
     /// Distance to the surface, negative below it where it covers `p` (not over a hole).
@@ -2186,7 +2233,7 @@ fn pseudo_angle(x: f64, y: f64) -> f64 {
 }
 
 fn sector_of(pa: f64) -> usize {
-    ((pa * (TERRAIN_VIEW_SECTORS as f64 / 4.0)) as usize).min(TERRAIN_VIEW_SECTORS - 1)
+    index_of(pa * (TERRAIN_VIEW_SECTORS as f64 / 4.0)).min(TERRAIN_VIEW_SECTORS - 1)
 }
 
 impl TerrainView {
@@ -2351,6 +2398,20 @@ impl TerrainRay {
     }
 }
 
+/// `k as f64` for a grid index (far below 2^53, so exact either way): through `i64`, one
+/// instruction on x86-64 where the conversion from `u64` takes several.
+#[inline(always)]
+fn index_f64(k: usize) -> f64 {
+    k as i64 as f64
+}
+
+/// `x as usize` for `x >= 0` or NaN (the same value: truncated, saturated, NaN gives 0):
+/// through `i64`, fewer instructions than the saturating conversion to `u64`.
+#[inline(always)]
+fn index_of(x: f64) -> usize {
+    x as i64 as usize
+}
+
 /// Walks the square cells (side `size`, cell (i, j) spans `[i, i + 1) · size` along x) that
 /// the ray `p + t·d` (x, y only; `p` relative to the grid's corner) crosses for `t` in
 /// `[t0, t1]`, in order, within the index ranges `[i0, i1) x [j0, j1)`; `visit(i, j, ta, tb)`
@@ -2371,14 +2432,14 @@ fn walk_grid<T>(
     // `as usize` truncates and saturates (NaN gives 0): with the clamp at `lo >= 0` this is
     // the floor (no libm call).
     let (px, py, dx, dy, ix, iy) = (ray.px, ray.py, ray.d.x, ray.d.y, ray.ix, ray.iy);
-    let start = |p: f64, d: f64, lo: usize, hi: usize| (((p + d * t0) / size).max(lo as f64) as usize).min(hi - 1);
+    let start = |p: f64, d: f64, lo: usize, hi: usize| (index_of(((p + d * t0) / size).max(index_f64(lo)))).min(hi - 1);
     let (mut i, mut j) = (start(px, dx, i0, i1), start(py, dy, j0, j1));
     // Distance at which the ray leaves cell index `k` along an axis.
     let exit = |p: f64, d: f64, inv: f64, k: usize| {
         if d > 0.0 {
-            ((k + 1) as f64 * size - p) * inv
+            (index_f64(k + 1) * size - p) * inv
         } else if d < 0.0 {
-            (k as f64 * size - p) * inv
+            (index_f64(k) * size - p) * inv
         } else {
             f64::INFINITY
         }
