@@ -93,3 +93,41 @@ def test_navigator_bad_inputs_name_the_argument():
     assert out.command == (0.0, 0.0) and nav.risk_map is None
     with pytest.raises(InputError, match="planner"):
         drive("mine", planner="dijkstra")
+
+
+def _ground_scan(x_range, y_range, *, box=None, spacing=0.05, sensor_height=0.7):
+    """Points in a level sensor's frame: a flat floor ``sensor_height`` below over the given
+    ranges [m], plus the faces of ``box`` ``(x0, x1, y0, y1, height)`` standing on it."""
+    xs, ys = np.meshgrid(np.arange(*x_range, spacing), np.arange(*y_range, spacing))
+    pts = [np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, -sensor_height)], axis=1)]
+    if box is not None:
+        x0, x1, y0, y1, h = box
+        by, bz = np.meshgrid(np.arange(y0, y1, spacing / 2), np.arange(0.0, h, spacing / 2))
+        pts.append(np.stack([np.full(by.size, x0), by.ravel(), bz.ravel() - sensor_height], axis=1))
+        bx, by = np.meshgrid(np.arange(x0, x1, spacing / 2), np.arange(y0, y1, spacing / 2))
+        pts.append(np.stack([bx.ravel(), by.ravel(), np.full(bx.size, h - sensor_height)], axis=1))
+    return np.concatenate(pts).astype(np.float32)
+
+
+@pytest.mark.parametrize("memory", [True, False])
+def test_hazard_memory_keeps_a_lethal_box_that_left_the_fused_window(memory):
+    from subterra.terrain import translation
+
+    mount = translation(z=0.7)
+    nav = subterra.Navigator(goal=(8.0, 0.0), config={"navigator": {"hazard_memory": memory}})
+    box = (3.0, 3.4, -0.2, 0.2, 0.5)
+    nav.step(_ground_scan((0.5, 8.0), (-3.0, 3.0), box=box), stamp=0.0, world_from_body=np.eye(4), body_from_sensor=mount)
+    rm = nav.risk_map
+    grid = nav.plan_grid
+    assert grid.shape == rm.layer("risk").shape and grid.dtype == np.float32
+    ix, iy = rm.cell_of(3.2, 0.0)
+    assert grid[iy, ix] >= 0.9 and rm.layer("risk")[iy, ix] >= 0.9
+    assert (nav.remembered_hazards > 0) == memory
+    # 5 s later only the far floor is in view: the box has left the 2 s window.
+    nav.step(_ground_scan((6.0, 8.0), (-3.0, 3.0)), stamp=5.0, world_from_body=np.eye(4), body_from_sensor=mount)
+    rm = nav.risk_map
+    assert rm.layer("observed")[iy, ix] == 0.0
+    if memory:
+        assert nav.plan_grid[iy, ix] >= 0.9
+    else:
+        assert np.isnan(nav.plan_grid[iy, ix])

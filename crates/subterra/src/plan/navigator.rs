@@ -11,7 +11,8 @@
 //!    passes through a **hazard memory** kept in the world frame, by global cell index:
 //!    remembered cells farther than `hazard_memory_range_m` from the robot, and those the map
 //!    now rates below `lethal_risk` on at least `hazard_memory_forget_points` ground
-//!    points, are forgotten; every cell rated at or above `lethal_risk` is remembered
+//!    points, are forgotten; every cell within `hazard_memory_record_m` of the robot rated
+//!    at or above `lethal_risk` is remembered
 //!    (with its newest rating); every remembered cell on the grid is raised to its rating
 //!    (unobserved ones set to it). The mapper fuses only its window (2 s by default), and a
 //!    lidar 0.7 m up sees no ground within ~2.3 m: without the memory a hole seen from afar
@@ -25,7 +26,8 @@
 //!    the segment robot→target nearest to it, one cell inside the edge, moved to the
 //!    nearest cell within `standin_search_m` where the robot fits (every cell within half
 //!    its width below `R_inst`) if it is not one (the planner
-//!    sees only the local map; the rest of the way counts as straight). With
+//!    sees only the local map; the rest of the way counts as straight). A target on the
+//!    map where the robot does not fit is moved the same way. With
 //!    `inflate_lethal`, the A* plans on the grid with every cell within half the robot's
 //!    width (its inscribed radius) of a cell at or above `lethal_risk` raised to that level,
 //!    except within that radius of the robot (so that it can plan its way out); the A*
@@ -111,6 +113,9 @@ pub struct NavigatorSettings {
     /// A remembered cell is forgotten once the map holds at least this many ground points in
     /// it and rates it below `lethal_risk`.
     pub hazard_memory_forget_points: u32,
+    /// Only cells this near the robot are remembered [m]: the memory must bridge the blind
+    /// ring, and far cells, on few points and grazing rays, are rated least reliably.
+    pub hazard_memory_record_m: f64,
     /// Remembered cells farther than this from the robot are forgotten [m].
     pub hazard_memory_range_m: f64,
 }
@@ -132,6 +137,7 @@ impl Default for NavigatorSettings {
             inflate_lethal: true,
             hazard_memory_keep_m: 3.0,
             hazard_memory_forget_points: 5,
+            hazard_memory_record_m: 6.0,
             hazard_memory_range_m: 15.0,
         }
     }
@@ -147,6 +153,7 @@ impl NavigatorSettings {
         require_positive("navigator.backout_clearance_m", self.backout_clearance_m)?;
         require_positive("navigator.clearance_range_m", self.clearance_range_m)?;
         require_positive("navigator.standin_search_m", self.standin_search_m)?;
+        require_positive("navigator.hazard_memory_record_m", self.hazard_memory_record_m)?;
         require_positive("navigator.hazard_memory_range_m", self.hazard_memory_range_m)?;
         require_non_negative("navigator.hazard_memory_keep_m", self.hazard_memory_keep_m)?;
         if !(self.lethal_risk > 0.0 && self.lethal_risk <= 1.0) {
@@ -426,14 +433,12 @@ impl Navigator {
             if due || !self.last_plan_ok || self.planned_for != Some(key) {
                 let t_plan = Instant::now();
                 let (mut goal_on_map, mut remainder) = on_map(&grid, position, target_point);
-                if remainder > 0.0 {
-                    // A stand-in for a target off the map must be a cell the robot may enter.
-                    let unknown = self.config.planner.unknown_risk;
-                    let fit_radius = 0.5 * self.robot.width_m;
-                    if let Some(p) = nearest_traversable(&grid, goal_on_map, key.0, unknown, self.config.navigator.standin_search_m, fit_radius) {
-                        goal_on_map = p;
-                        remainder = p.distance(target_point);
-                    }
+                // A stand-in for a target off the map, or on a cell the robot may not enter,
+                // must be a cell where it fits.
+                let (unknown, fit_radius) = (self.config.planner.unknown_risk, 0.5 * self.robot.width_m);
+                if let Some(p) = nearest_traversable(&grid, goal_on_map, key.0, unknown, self.config.navigator.standin_search_m, fit_radius) {
+                    goal_on_map = p;
+                    remainder = p.distance(target_point);
                 }
                 if self.planner.config().r_inst != key.0 || self.planner.config().r_total != key.1 {
                     self.planner = RiskAStar::new(RiskAStarConfig { r_inst: key.0, r_total: key.1, ..self.config.planner })?;
@@ -567,7 +572,8 @@ impl Navigator {
 /// Step 2's hazard memory, on the planner's grid `risk` (NaN: unobserved) of geometry `g`:
 /// forgets remembered cells beyond `hazard_memory_range_m` of `position` and those the map
 /// now holds `hazard_memory_forget_points` ground points in and rates below
-/// `lethal_risk`; remembers every cell rated at or above it (its newest rating);
+/// `lethal_risk`; remembers every cell within `hazard_memory_record_m` rated at or above it
+/// (its newest rating);
 /// then raises each remembered cell on the grid to its remembered rating.
 fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], ground_points: &[f32], g: &GridGeometry, position: DVec2, s: &NavigatorSettings) {
     let (ox, oy) = g.origin_cell;
@@ -583,10 +589,12 @@ fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], gro
         let near = DVec2::new(key.0 as f64, key.1 as f64).distance_squared(here) <= range_cells * range_cells;
         near && flat(key).is_none_or(|c| !(ground_points[c] >= forget_points && risk[c] < threshold))
     });
+    let record_cells = s.hazard_memory_record_m / g.resolution_m;
     for (c, &r) in risk.iter().enumerate() {
+        let key = (ox + (c % g.nx) as i64, oy + (c / g.nx) as i64);
         // NaN (unobserved) compares false.
-        if r >= threshold {
-            memory.insert((ox + (c % g.nx) as i64, oy + (c / g.nx) as i64), r);
+        if r >= threshold && DVec2::new(key.0 as f64, key.1 as f64).distance_squared(here) <= record_cells * record_cells {
+            memory.insert(key, r);
         }
     }
     for (&key, &remembered) in memory.iter() {
