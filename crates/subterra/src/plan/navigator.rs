@@ -12,7 +12,8 @@
 //!    remembered cells farther than `hazard_memory_range_m` from the robot, and those the map
 //!    now rates below `lethal_risk` on at least `hazard_memory_forget_points` ground
 //!    points, are forgotten; every cell within `hazard_memory_record_m` of the robot rated
-//!    at or above `lethal_risk` is remembered
+//!    at or above `lethal_risk`, with at least `lethal_min_neighbours` of its 8 neighbours
+//!    rated so too (a patch, not a noise speckle), is remembered
 //!    (with its newest rating); every remembered cell on the grid is raised to its rating
 //!    (unobserved ones set to it). The mapper fuses only its window (2 s by default), and a
 //!    lidar 0.7 m up sees no ground within ~2.3 m: without the memory a hole seen from afar
@@ -29,7 +30,8 @@
 //!    sees only the local map; the rest of the way counts as straight). A target on the
 //!    map where the robot does not fit is moved the same way. With
 //!    `inflate_lethal`, the A* plans on the grid with every cell within half the robot's
-//!    width (its inscribed radius) of a cell at or above `lethal_risk` raised to that level,
+//!    width (its inscribed radius) of a lethal cell (at or above `lethal_risk`, in a patch as
+//!    for the memory) raised to that level,
 //!    except within that radius of the robot (so that it can plan its way out); the A*
 //!    plans the robot's centre, and a centre there would put the footprint on the hazard.
 //!    The MPC, the local risk and `back_out` use the grid uninflated (the MPC keeps the
@@ -105,6 +107,10 @@ pub struct NavigatorSettings {
     /// Risk at or above which a cell is lethal: remembered by the hazard memory, and
     /// inflated by half the robot's width for the planner [0-1].
     pub lethal_risk: f64,
+    /// A lethal cell is remembered and inflated only with at least this many of its 8
+    /// neighbours lethal too, in [0, 2]: real hazards are patches, while single cells rated
+    /// lethal by sensor noise would each close a disc the robot's width across.
+    pub lethal_min_neighbours: u32,
     /// Inflate lethal cells by half the robot's width for the planner (step 3).
     pub inflate_lethal: bool,
     /// `clear_map` keeps the remembered cells this near the robot [m]: the lidar cannot see
@@ -134,6 +140,7 @@ impl Default for NavigatorSettings {
             standin_search_m: 3.0,
             hazard_memory: true,
             lethal_risk: 0.9,
+            lethal_min_neighbours: 2,
             inflate_lethal: true,
             hazard_memory_keep_m: 3.0,
             hazard_memory_forget_points: 5,
@@ -158,6 +165,9 @@ impl NavigatorSettings {
         require_non_negative("navigator.hazard_memory_keep_m", self.hazard_memory_keep_m)?;
         if !(self.lethal_risk > 0.0 && self.lethal_risk <= 1.0) {
             return Err(Error::config("navigator.lethal_risk", "must be in (0, 1]", self.lethal_risk));
+        }
+        if self.lethal_min_neighbours > 2 {
+            return Err(Error::config("navigator.lethal_min_neighbours", "must be in [0, 2]", self.lethal_min_neighbours));
         }
         if self.hazard_memory_forget_points == 0 {
             return Err(Error::config("navigator.hazard_memory_forget_points", "must be >= 1", self.hazard_memory_forget_points));
@@ -445,7 +455,7 @@ impl Navigator {
                 }
                 let nav = &self.config.navigator;
                 let outcome = if nav.inflate_lethal {
-                    inflate_lethal(&self.plan_risk, &mut self.astar_risk, g, nav.lethal_risk as f32, 0.5 * self.robot.width_m, position);
+                    inflate_lethal(&self.plan_risk, &mut self.astar_risk, g, nav.lethal_risk as f32, nav.lethal_min_neighbours, 0.5 * self.robot.width_m, position);
                     let inflated = RiskGrid::new(&self.astar_risk, g.nx, g.ny, g.resolution_m, g.origin_m())?;
                     self.planner.plan(&inflated, position, goal_on_map)?
                 } else {
@@ -593,7 +603,8 @@ fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], gro
     for (c, &r) in risk.iter().enumerate() {
         let key = (ox + (c % g.nx) as i64, oy + (c / g.nx) as i64);
         // NaN (unobserved) compares false.
-        if r >= threshold && DVec2::new(key.0 as f64, key.1 as f64).distance_squared(here) <= record_cells * record_cells {
+        let near = DVec2::new(key.0 as f64, key.1 as f64).distance_squared(here) <= record_cells * record_cells;
+        if r >= threshold && near && clustered(risk, g.nx, g.ny, c, threshold, s.lethal_min_neighbours) {
             memory.insert(key, r);
         }
     }
@@ -604,6 +615,23 @@ fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], gro
     }
 }
 
+/// Whether cell `c` of the `nx x ny` grid `risk` has at least `min` of its 8 neighbours at or
+/// above `lethal` (cells off the grid do not count).
+fn clustered(risk: &[f32], nx: usize, ny: usize, c: usize, lethal: f32, min: u32) -> bool {
+    if min == 0 {
+        return true;
+    }
+    let (ix, iy) = ((c % nx) as i64, (c / nx) as i64);
+    let mut n = 0;
+    for (dx, dy) in [(-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)] {
+        let (jx, jy) = (ix + dx, iy + dy);
+        if jx >= 0 && jy >= 0 && jx < nx as i64 && jy < ny as i64 && risk[jy as usize * nx + jx as usize] >= lethal {
+            n += 1;
+        }
+    }
+    n >= min
+}
+
 /// Forgets the remembered cells whose centres are farther than `keep_m` from `position`.
 fn forget_beyond(memory: &mut HashMap<(i64, i64), f32>, position: DVec2, resolution_m: f64, keep_m: f64) {
     let here = position / resolution_m - 0.5;
@@ -612,11 +640,12 @@ fn forget_beyond(memory: &mut HashMap<(i64, i64), f32>, position: DVec2, resolut
 }
 
 /// Step 3's planner grid: `risk` with every cell whose centre lies within `radius_m` of a
-/// cell at or above `lethal` raised to at least `lethal` (the robot's centre there
+/// cell at or above `lethal` with at least `min_neighbours` such neighbours ([`clustered`])
+/// raised to at least `lethal` (the robot's centre there
 /// would put its footprint on it; `radius_m` is half its width, the inscribed radius), except
 /// cells within `radius_m` of `robot`: a robot already that close must be able to plan its
 /// way out.
-fn inflate_lethal(risk: &[f32], out: &mut Vec<f32>, g: &GridGeometry, lethal: f32, radius_m: f64, robot: DVec2) {
+fn inflate_lethal(risk: &[f32], out: &mut Vec<f32>, g: &GridGeometry, lethal: f32, min_neighbours: u32, radius_m: f64, robot: DVec2) {
     out.clear();
     out.extend_from_slice(risk);
     let res = g.resolution_m;
@@ -633,7 +662,9 @@ fn inflate_lethal(risk: &[f32], out: &mut Vec<f32>, g: &GridGeometry, lethal: f3
             let r = risk[(iy * nx + ix) as usize];
             // NaN compares false. An interior cell's disc is covered by its neighbours' (a
             // cell within reach of it is nearer one of its four neighbours).
-            if !(r >= lethal) || (is_lethal(ix - 1, iy) && is_lethal(ix + 1, iy) && is_lethal(ix, iy - 1) && is_lethal(ix, iy + 1)) {
+            // With `min_neighbours` <= 2 those neighbours are clustered themselves.
+            let interior = is_lethal(ix - 1, iy) && is_lethal(ix + 1, iy) && is_lethal(ix, iy - 1) && is_lethal(ix, iy + 1);
+            if !(r >= lethal) || interior || !clustered(risk, g.nx, g.ny, (iy * nx + ix) as usize, lethal, min_neighbours) {
                 continue;
             }
             for &(dx, dy) in &disc {
@@ -772,13 +803,18 @@ mod tests {
     /// One memory step on a 10x10 grid at `origin_cell`: `cells` lists (ix, iy, risk,
     /// ground points), every other cell unobserved. Returns the grid after the step.
     fn step(memory: &mut HashMap<(i64, i64), f32>, origin_cell: (i64, i64), cells: &[(usize, usize, f32, f32)], position: DVec2) -> Vec<f32> {
+        step_with(memory, origin_cell, cells, position, 0)
+    }
+
+    fn step_with(memory: &mut HashMap<(i64, i64), f32>, origin_cell: (i64, i64), cells: &[(usize, usize, f32, f32)], position: DVec2, min_neighbours: u32) -> Vec<f32> {
         let mut risk = vec![f32::NAN; N * N];
         let mut ground = vec![0.0; N * N];
         for &(ix, iy, r, n) in cells {
             risk[iy * N + ix] = r;
             ground[iy * N + ix] = n;
         }
-        remember_hazards(memory, &mut risk, &ground, &geometry(origin_cell), position, &NavigatorSettings::default());
+        let settings = NavigatorSettings { lethal_min_neighbours: min_neighbours, ..NavigatorSettings::default() };
+        remember_hazards(memory, &mut risk, &ground, &geometry(origin_cell), position, &settings);
         risk
     }
 
@@ -800,6 +836,20 @@ mod tests {
         let r = step(&mut memory, (0, 0), &[(4, 4, 0.2, 5.0)], p);
         assert_eq!(r[44], 0.2);
         assert!(step(&mut memory, (0, 0), &[], p)[44].is_nan());
+        assert!(memory.is_empty());
+    }
+
+    #[test]
+    fn only_clustered_lethal_cells_and_near_ones_are_remembered() {
+        let mut memory = HashMap::new();
+        // A lone lethal cell (noise) and an L of three (each with two lethal neighbours).
+        step_with(&mut memory, (0, 0), &[(1, 1, 1.0, 0.0), (5, 5, 1.0, 0.0), (6, 5, 1.0, 0.0), (5, 6, 1.0, 0.0)], DVec2::ZERO, 2);
+        let mut kept: Vec<_> = memory.keys().copied().collect();
+        kept.sort_unstable();
+        assert_eq!(kept, vec![(5, 5), (5, 6), (6, 5)]);
+        // Beyond hazard_memory_record_m (6 m = 60 cells), nothing new is remembered.
+        memory.clear();
+        step_with(&mut memory, (0, 0), &[(5, 5, 1.0, 0.0)], DVec2::new(-6.0, 0.0), 0);
         assert!(memory.is_empty());
     }
 
@@ -843,13 +893,13 @@ mod tests {
     }
 
     /// `inflate_lethal` without its shortcut: every lethal cell stamps its disc.
-    fn inflate_naive(risk: &[f32], g: &GridGeometry, lethal: f32, radius_m: f64, robot: DVec2) -> Vec<f32> {
+    fn inflate_naive(risk: &[f32], g: &GridGeometry, lethal: f32, min: u32, radius_m: f64, robot: DVec2) -> Vec<f32> {
         let mut out = risk.to_vec();
         let centre = |i: usize| g.origin_m() + (DVec2::new((i % g.nx) as f64, (i / g.nx) as f64) + 0.5) * g.resolution_m;
         for (i, &r) in risk.iter().enumerate() {
             for j in 0..risk.len() {
                 let near = |a: DVec2, b: DVec2| a.distance_squared(b) <= radius_m * radius_m * (1.0 + 1e-12);
-                if r >= lethal && near(centre(i), centre(j)) && !near(centre(j), robot) && !(out[j] >= r) {
+                if r >= lethal && clustered(risk, g.nx, g.ny, i, lethal, min) && near(centre(i), centre(j)) && !near(centre(j), robot) && !(out[j] >= r) {
                     out[j] = r;
                 }
             }
@@ -865,12 +915,12 @@ mod tests {
         risk[10 * 21 + 12] = f32::NAN;
         let mut out = Vec::new();
         // 0.25 m = 2.5 cells: 21 cells within, the unobserved one among them raised too.
-        inflate_lethal(&risk, &mut out, &g, 0.9, 0.25, DVec2::ZERO);
+        inflate_lethal(&risk, &mut out, &g, 0.9, 0, 0.25, DVec2::ZERO);
         assert_eq!(out.iter().filter(|&&v| v >= 0.9).count(), 21);
         assert_eq!(out[10 * 21 + 12], 1.0);
         assert_eq!((out[12 * 21 + 12], out[10 * 21 + 13]), (0.1, 0.1));
         // The robot at cell (12, 10): cells within 0.25 m of it keep their risk.
-        inflate_lethal(&risk, &mut out, &g, 0.9, 0.25, DVec2::new(1.25, 1.05));
+        inflate_lethal(&risk, &mut out, &g, 0.9, 0, 0.25, DVec2::new(1.25, 1.05));
         assert!(out[10 * 21 + 12].is_nan());
         assert_eq!((out[10 * 21 + 10], out[10 * 21 + 9]), (1.0, 1.0));
     }
@@ -897,8 +947,9 @@ mod tests {
                 .collect();
             let robot = g.origin_m() + DVec2::new(next() * 2.3, next() * 1.7);
             let radius = 0.05 + 0.3 * next();
-            inflate_lethal(&risk, &mut out, &g, 0.9, radius, robot);
-            let want = inflate_naive(&risk, &g, 0.9, radius, robot);
+            let min = (case % 3) as u32;
+            inflate_lethal(&risk, &mut out, &g, 0.9, min, radius, robot);
+            let want = inflate_naive(&risk, &g, 0.9, min, radius, robot);
             for (c, (a, b)) in out.iter().zip(&want).enumerate() {
                 // Lethal values may come from a different lethal neighbour; both block.
                 let same = a.to_bits() == b.to_bits() || (*a >= 0.9 && *b >= 0.9);
@@ -923,6 +974,7 @@ mod tests {
         };
         assert!(bad(|s| s.lethal_risk = 0.0).contains("lethal_risk"));
         assert!(bad(|s| s.lethal_risk = 1.5).contains("lethal_risk"));
+        assert!(bad(|s| s.lethal_min_neighbours = 3).contains("lethal_min_neighbours"));
         assert!(bad(|s| s.hazard_memory_forget_points = 0).contains("hazard_memory_forget_points"));
         assert!(bad(|s| s.hazard_memory_range_m = f64::NAN).contains("hazard_memory_range_m"));
     }
