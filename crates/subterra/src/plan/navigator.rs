@@ -26,11 +26,11 @@
 //!    after the goal was given up. A target off the map is replaced by the map cell on
 //!    the segment robot→target nearest to it, one cell inside the edge, moved to the
 //!    nearest cell within `standin_search_m` where the robot fits (every cell within half
-//!    its width below `R_inst`) if it is not one (the planner
+//!    its width plus `inflation_margin_m` below `R_inst`) if it is not one (the planner
 //!    sees only the local map; the rest of the way counts as straight). A target on the
 //!    map where the robot does not fit is moved the same way. With
 //!    `inflate_lethal`, the A* plans on the grid with every cell within half the robot's
-//!    width (its inscribed radius) of a lethal cell (at or above `lethal_risk`, in a patch as
+//!    width (its inscribed radius) plus `inflation_margin_m` of a lethal cell (at or above `lethal_risk`, in a patch as
 //!    for the memory) raised to that level,
 //!    except within that radius of the robot (so that it can plan its way out); the A*
 //!    plans the robot's centre, and a centre there would put the footprint on the hazard.
@@ -111,8 +111,13 @@ pub struct NavigatorSettings {
     /// neighbours lethal too, in [0, 2]: real hazards are patches, while single cells rated
     /// lethal by sensor noise would each close a disc the robot's width across.
     pub lethal_min_neighbours: u32,
-    /// Inflate lethal cells by half the robot's width for the planner (step 3).
+    /// Inflate lethal cells by half the robot's width plus `inflation_margin_m` for the
+    /// planner (step 3).
     pub inflate_lethal: bool,
+    /// Added to half the robot's width for the inflation and for where the robot fits [m].
+    /// A hazard's rim is mapped less sharply than its middle, but on `mine` seeds 0-19 a
+    /// 0.1 m margin closed passages: 12 of 20 reached the goal (16 without), 2 fell (1).
+    pub inflation_margin_m: f64,
     /// `clear_map` keeps the remembered cells this near the robot [m]: the lidar cannot see
     /// them again from where it stands (its blind ring), the rest it sees again at once.
     pub hazard_memory_keep_m: f64,
@@ -142,6 +147,7 @@ impl Default for NavigatorSettings {
             lethal_risk: 0.9,
             lethal_min_neighbours: 2,
             inflate_lethal: true,
+            inflation_margin_m: 0.0,
             hazard_memory_keep_m: 3.0,
             hazard_memory_forget_points: 5,
             hazard_memory_record_m: 6.0,
@@ -163,6 +169,7 @@ impl NavigatorSettings {
         require_positive("navigator.hazard_memory_record_m", self.hazard_memory_record_m)?;
         require_positive("navigator.hazard_memory_range_m", self.hazard_memory_range_m)?;
         require_non_negative("navigator.hazard_memory_keep_m", self.hazard_memory_keep_m)?;
+        require_non_negative("navigator.inflation_margin_m", self.inflation_margin_m)?;
         if !(self.lethal_risk > 0.0 && self.lethal_risk <= 1.0) {
             return Err(Error::config("navigator.lethal_risk", "must be in (0, 1]", self.lethal_risk));
         }
@@ -445,7 +452,8 @@ impl Navigator {
                 let (mut goal_on_map, mut remainder) = on_map(&grid, position, target_point);
                 // A stand-in for a target off the map, or on a cell the robot may not enter,
                 // must be a cell where it fits.
-                let (unknown, fit_radius) = (self.config.planner.unknown_risk, 0.5 * self.robot.width_m);
+                let fit_radius = 0.5 * self.robot.width_m + self.config.navigator.inflation_margin_m;
+                let unknown = self.config.planner.unknown_risk;
                 if let Some(p) = nearest_traversable(&grid, goal_on_map, key.0, unknown, self.config.navigator.standin_search_m, fit_radius) {
                     goal_on_map = p;
                     remainder = p.distance(target_point);
@@ -455,7 +463,7 @@ impl Navigator {
                 }
                 let nav = &self.config.navigator;
                 let outcome = if nav.inflate_lethal {
-                    inflate_lethal(&self.plan_risk, &mut self.astar_risk, g, nav.lethal_risk as f32, nav.lethal_min_neighbours, 0.5 * self.robot.width_m, position);
+                    inflate_lethal(&self.plan_risk, &mut self.astar_risk, g, nav.lethal_risk as f32, nav.lethal_min_neighbours, fit_radius, position);
                     let inflated = RiskGrid::new(&self.astar_risk, g.nx, g.ny, g.resolution_m, g.origin_m())?;
                     self.planner.plan(&inflated, position, goal_on_map)?
                 } else {
