@@ -30,6 +30,8 @@ test: test-rust test-python
 
 test-rust:
 	cargo test --workspace --exclude subterra-py
+	# The criterion benches and examples are not built by `cargo test`: check they compile.
+	cargo check --workspace --exclude subterra-py --benches --examples
 
 test-python: $(STAMP)
 	$(PY) -m pytest -q

@@ -10,8 +10,8 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec2;
 use std::hint::black_box;
-use subterra::plan::mpc::step;
-use subterra::plan::{MpcConfig, MpcTracker, RiskGrid, UnicycleState};
+use subterra::plan::mpc::{step, RiskGrid};
+use subterra::plan::{MpcConfig, MpcTracker, UnicycleState};
 
 const NX: usize = 200;
 const RES: f64 = 0.1;
