@@ -56,25 +56,6 @@ def test_dead_end_climbs_the_ladder_backs_out_and_goes_home():
     assert raised[-1]["r_inst"] == pytest.approx(0.9) and raised[-1]["r_total"] == pytest.approx(0.95)
 
 
-def test_risky_slope_raises_the_thresholds_and_climbs_to_the_goal():
-    # Regression: the terrain map rated the ramp and the plateau lethal (`negative` from 7 m,
-    # `collision` at the foot and on the ramp), so no path existed even at R_inst 0.9; and
-    # the goal ball sat at z = 0, 0.5 m under the plateau.
-    sc = recovery_scenario("risky-slope")
-    result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=60)
-    used = _behaviours(result)
-    m = result.metrics
-    assert m["success"] and m["failure"] is None and m["collisions"] == 0, (m["failure"], used)
-    for behaviour in sc.expect:
-        assert behaviour in used, (behaviour, used)
-    raised = [e for e in result.events if e["to"] == "raise_thresholds"]
-    # The ramp's tilt risk (~0.63) is above the nominal R_inst 0.6: it was climbed raised.
-    assert raised and raised[-1]["r_inst"] > 0.6
-    assert "back_out" not in used and "home" not in used
-    assert result.steps["position"][-1, 2] > 0.45  # on the plateau
-    assert 15.0 < m["max_tilt_deg"] < 25.0 and m["max_true_risk"] > 0.6
-
-
 def test_blocked_return_stops_safely_after_the_ladder_ran_twice():
     sc = recovery_scenario("blocked-return")
     result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=360)

@@ -190,10 +190,7 @@ impl TerrainMapper {
         timings.prefilter_s = (t_segment - started).as_secs_f64();
 
         // The body origin is on the ground (base_footprint): the sensor is sensor_level.z above it.
-        // The robot stands on the plane of its footprint: its body z axis is that plane's normal.
-        let up = rotation.z_axis;
-        let gradient = if up.z > 0.0 { [f64::from(-up.x / up.z), f64::from(-up.y / up.z)] } else { [0.0, 0.0] };
-        self.segmenter.segment_on_plane(&scan.points, sensor_level.z, gradient, &mut scan.heights)?;
+        self.segmenter.segment(&scan.points, sensor_level.z, &mut scan.heights)?;
         stats.ground_points = scan.heights.iter().filter(|&&h| self.segmenter.is_ground(h)).count();
         stats.obstacle_points = scan.heights.len() - stats.ground_points;
         let t_coarse = Instant::now();

@@ -252,49 +252,27 @@ class _Sums:
         return m, b, math.sqrt(max(sse, 0.0) / n)
 
 
-def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_height_m: float, ground: dict[str, Any],
-                     ground_slope: float = 0.0) -> list[GroundLine]:
+def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_height_m: float, ground: dict[str, Any]) -> list[GroundLine]:
     """Step 3 for one sector: its prototypes (bin index within the sector, radius, z) in
-    increasing bin order -> the accepted lines, in order of acceptance. ``ground_slope``:
-    the slope of the robot's own plane along the sector's centre ray (the first ground
-    estimate's slope)."""
+    increasing bin order -> the accepted lines, in order of acceptance."""
     max_gap, max_slope = ground["max_gap_m"], ground["max_slope"]
     max_start, max_pred, max_rmse = ground["max_start_height_m"], ground["max_prediction_error_m"], ground["max_rmse_m"]
     min_points = int(ground["min_line_points"])
     lines: list[GroundLine] = []
-    # The ground estimate: the line through (r_g, z_g) with slope s_g; first the robot's plane.
-    g = (0.0, -float(sensor_height_m), float(ground_slope))
-
-    def est(rr: float) -> float:
-        return g[1] + g[2] * (rr - g[0])
+    g = -float(sensor_height_m)
     seg: list[tuple[float, float, int]] = []
     sums: _Sums | None = None
 
-    def may_start(qr: float, qz: float) -> bool:
-        return abs(qz - est(qr)) <= max_start + max_slope * max(qr - g[0], 0.0)
-
-    def starts_on_ground(m: float, b: float) -> bool:
-        qr, qz = seg[0][0], seg[0][1]
-        if abs(qz - est(qr)) <= max_start:
-            return True
-        lo, hi = (g[0], qr) if g[0] <= qr else (qr, g[0])
-        d_lo, d_hi = m * lo + b - est(lo), m * hi + b - est(hi)
-        return (d_lo <= 0.0 <= d_hi) or (d_hi <= 0.0 <= d_lo) or min(abs(d_lo), abs(d_hi)) <= max_start
-
     def close() -> None:
         nonlocal g
-        if len(seg) < 2 or sums is None:
+        if len(seg) < min_points or sums is None:
             return
         fit = sums.fit()
         if fit is None:
             return
         m, b, _ = fit
-        if not starts_on_ground(m, b):
-            return
-        if len(seg) >= min_points:
-            lines.append(GroundLine(m, b, seg[0][2], seg[-1][2], seg[0][0], seg[-1][0]))
-        # A shorter chain that starts on the ground is no line but carries the ground estimate.
-        g = (seg[-1][0], m * seg[-1][0] + b, 0.0)
+        lines.append(GroundLine(m, b, seg[0][2], seg[-1][2], seg[0][0], seg[-1][0]))
+        g = m * seg[-1][0] + b
 
     for pr, pz, pk in zip(r.tolist(), z.tolist(), bins.tolist()):
         while True:
@@ -307,7 +285,7 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
                 seg, sums = [(pr, pz, pk)], _Sums(pr, pz)
                 break
             if len(seg) == 1:
-                if may_start(qr, qz) and abs(pz - qz) <= max_slope * (pr - qr):
+                if abs(qz - g) <= max_start and abs(pz - qz) <= max_slope * (pr - qr):
                     seg.append((pr, pz, pk))
                     sums = sums.with_point(pr, pz)
                 else:
@@ -321,7 +299,6 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
                 and abs(pz - (f0[0] * pr + f0[1])) <= max_pred
                 and abs(f1[0]) <= max_slope
                 and f1[2] <= max_rmse
-                and starts_on_ground(f1[0], f1[1])
             )
             if accept:
                 seg.append((pr, pz, pk))
@@ -335,15 +312,14 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
     return lines
 
 
-def _bin_lines(lines: list[GroundLine], bins: int, sensor_height_m: float) -> tuple[np.ndarray, ...]:
-    """Step 4 for one sector: ``(m, b, cover_lo, cover_hi, seen_lo, seen_hi)`` per bin
-    (float64 arrays of length ``bins``): the bin's line and, where a line's bin interval
-    contains the bin (*covered*), the radii of that line's first and last prototype (else
-    ``+inf, -inf``: no radius is covered); ``seen_lo, seen_hi``: those radii of the bin's
-    line, covered or not (0 without lines)."""
+def _bin_lines(lines: list[GroundLine], bins: int, sensor_height_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Step 4 for one sector: ``(m, b, cover_lo, cover_hi)`` per bin (float64 arrays of
+    length ``bins``): the bin's line and, where a line's bin interval contains the bin
+    (*covered*), the radii of that line's first and last prototype (else ``+inf, -inf``:
+    no radius is covered)."""
     none_lo, none_hi = np.full(bins, np.inf), np.full(bins, -np.inf)
     if not lines:
-        return np.zeros(bins), np.full(bins, -float(sensor_height_m)), none_lo, none_hi, np.zeros(bins), np.zeros(bins)
+        return np.zeros(bins), np.full(bins, -float(sensor_height_m)), none_lo, none_hi
     first = np.array([ln.first_bin for ln in lines])[:, None]
     last = np.array([ln.last_bin for ln in lines])[:, None]
     k = np.arange(bins)[None, :]
@@ -354,19 +330,9 @@ def _bin_lines(lines: list[GroundLine], bins: int, sensor_height_m: float) -> tu
     chosen = np.where(covered, contains.argmax(axis=0), dist.argmin(axis=0))
     m = np.array([ln.m for ln in lines])[chosen]
     b = np.array([ln.b for ln in lines])[chosen]
-    seen_lo = np.array([ln.first_r_m for ln in lines])[chosen]
-    seen_hi = np.array([ln.last_r_m for ln in lines])[chosen]
-    lo = np.where(covered, seen_lo, none_lo)
-    hi = np.where(covered, seen_hi, none_hi)
-    return m, b, lo, hi, seen_lo, seen_hi
-
-
-def expected_ground(m: np.ndarray, b: np.ndarray, seen_lo: np.ndarray, seen_hi: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """ground.rs ``BinLine::expected_z``: the line at ``r``, but outside the radii where
-    it was seen not higher than at its nearer end: ``min(m·r + b, m·clamp(r, lo, hi) + b)``."""
-    at = m * r + b
-    end = m * np.minimum(np.maximum(r, seen_lo), seen_hi) + b
-    return np.where(end < at, end, at)
+    lo = np.where(covered, np.array([ln.first_r_m for ln in lines])[chosen], none_lo)
+    hi = np.where(covered, np.array([ln.last_r_m for ln in lines])[chosen], none_hi)
+    return m, b, lo, hi
 
 
 @dataclass
@@ -390,9 +356,6 @@ class PolarTable:
     ray_slope: np.ndarray
     #: Per polar bin: void (ground.rs ``mark_voids``, :func:`_void_bins`); ``None``: none.
     void: np.ndarray | None = None
-    #: Per polar bin: the radii of its line's first and last prototype (covered or not).
-    seen_lo: np.ndarray | None = None
-    seen_hi: np.ndarray | None = None
 
 
 @dataclass
@@ -428,22 +391,18 @@ def _ray_slopes(proto_bin: np.ndarray, proto_r: np.ndarray, proto_z: np.ndarray,
 
 
 def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, m_bin: np.ndarray, b_bin: np.ndarray, sectors: int,
-               bins: int, bin_m: float, min_gap_deg: float, seen_lo: np.ndarray | None = None,
-               seen_hi: np.ndarray | None = None) -> np.ndarray:
+               bins: int, bin_m: float, min_gap_deg: float) -> np.ndarray:
     """ground.rs ``mark_voids``: per polar bin whether it is void. Each non-empty bin's ray
     span is ``(shallowest, steepest)`` depression ``atan(-slope)`` of its points' ``z/r``
     (float32, points with ``r > 0``); a run of empty bins between non-empty ``a`` and ``k``
     is void when, of the depressions between ``hi = min(shallowest of a, expected ground at
     (a+1)·Δ)`` and ``lo = max(steepest of the farther spans not steeper than a's shallowest,
     expected ground at k·Δ)``, more than ``min_gap`` is left uncovered by every bin's span
-    (the expected ground's depression at ``r``: ``atan(-e/r)`` with ``e`` the bin's
-    :func:`expected_ground`).
+    (the expected ground's depression at ``r``: ``atan(-(m·r + b)/r)`` with the bin's line).
     ``min_gap_deg`` 0: off, no bin is void."""
     void = np.zeros(sectors * bins, dtype=bool)
     if min_gap_deg == 0.0:  # void detection off
         return void
-    if seen_lo is None or seen_hi is None:
-        seen_lo, seen_hi = np.zeros(sectors * bins), np.zeros(sectors * bins)
     ok = (flat_bin >= 0) & (r > 0.0)
     slope = (z32[ok].astype(np.float64) / r[ok]).astype(np.float32)
     top = np.full(sectors * bins, -np.inf, dtype=np.float32)
@@ -459,8 +418,8 @@ def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, m_bin: np.n
             continue
         sh = np.arctan(-top[row].astype(np.float64))
         st = np.arctan(-low[row].astype(np.float64))
-        m, b, slo, shi = m_bin[row], b_bin[row], seen_lo[row], seen_hi[row]
-        ground = lambda k, rr: math.atan(-(float(expected_ground(m[k], b[k], slo[k], shi[k], rr)) / rr))
+        m, b = m_bin[row], b_bin[row]
+        ground = lambda k, rr: math.atan(-((m[k] * rr + b[k]) / rr))
         for j in range(1, ks.size):
             a, k = int(ks[j - 1]), int(ks[j])
             if k <= a + 1:
@@ -502,12 +461,10 @@ def void_samples(polar: PolarTable) -> np.ndarray:
 
 
 def ground_heights(
-    points: np.ndarray, *, sensor_height: float, config: dict[str, Any] | None = None, boundary_rule: str = "atan2",
-    ground_gradient: tuple[float, float] = (0.0, 0.0),
+    points: np.ndarray, *, sensor_height: float, config: dict[str, Any] | None = None, boundary_rule: str = "atan2"
 ) -> GroundSegmentation:
     """Steps 1-5 of ground.rs on ``points`` ``(N, 3)`` (sensor-centred, z up, float32);
-    ``boundary_rule`` as in :func:`polar_bins`; ``ground_gradient``: ``(dz/dx, dz/dy)`` of
-    the plane the robot stands on (``segment_on_plane``)."""
+    ``boundary_rule`` as in :func:`polar_bins`."""
     ground = _ground_cfg(config)
     p32 = np.asarray(points, dtype=np.float32).reshape(-1, 3)
     sectors = int(ground["sectors"])
@@ -521,19 +478,14 @@ def ground_heights(
     b_bin = np.full(sectors * bins, -float(sensor_height))
     lo_bin = np.full(sectors * bins, np.inf)
     hi_bin = np.full(sectors * bins, -np.inf)
-    seen_lo = np.zeros(sectors * bins)
-    seen_hi = np.zeros(sectors * bins)
-    gx, gy = float(ground_gradient[0]), float(ground_gradient[1])
     all_lines: list[list[GroundLine]] = []
     for s in range(sectors):
         a, e = bounds[s], bounds[s + 1]
-        ang = -math.pi + (s + 0.5) * math.tau / sectors
-        slope = gx * math.cos(ang) + gy * math.sin(ang)
-        lines = fit_sector_lines(proto_bin[a:e] - s * bins, proto_r[a:e], proto_z[a:e], sensor_height, ground, slope) if e > a else []
+        lines = fit_sector_lines(proto_bin[a:e] - s * bins, proto_r[a:e], proto_z[a:e], sensor_height, ground) if e > a else []
         all_lines.append(lines)
         if lines:
             row = slice(s * bins, (s + 1) * bins)
-            m_bin[row], b_bin[row], lo_bin[row], hi_bin[row], seen_lo[row], seen_hi[row] = _bin_lines(lines, bins, sensor_height)
+            m_bin[row], b_bin[row], lo_bin[row], hi_bin[row] = _bin_lines(lines, bins, sensor_height)
     has = flat_bin >= 0
     fb = np.where(has, flat_bin, 0)
     with np.errstate(invalid="ignore"):
@@ -544,9 +496,7 @@ def ground_heights(
     polar = PolarTable(
         sectors, bins, float(ground["bin_m"]), float(ground["max_range_m"]), m_bin, b_bin, lo_bin, hi_bin, pz,
         _ray_slopes(proto_bin, proto_r, proto_z, sectors, bins),
-        _void_bins(flat_bin, r, z32, m_bin, b_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 0.0)),
-                   seen_lo, seen_hi),
-        seen_lo, seen_hi,
+        _void_bins(flat_bin, r, z32, m_bin, b_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 0.0))),
     )
     return GroundSegmentation(h, all_lines, float(ground["max_dist_to_line_m"]), polar)
 
@@ -640,14 +590,11 @@ class LevelScan:
     """A prefiltered scan as the mapper keeps it (mapper.rs): ``points`` relative to the
     sensor in world-aligned axes (float32; the segmentation's frame), the sensor relative
     to the body origin in world axes (``sensor_level``, float64) and the body's world
-    position (``body_world``, float64) [m]; ``ground_gradient``: ``(dz/dx, dz/dy)`` of the
-    plane the robot stands on (its body z axis is the normal; float32 arithmetic, as
-    mapper.rs)."""
+    position (``body_world``, float64) [m]."""
 
     points: np.ndarray
     sensor_level: np.ndarray
     body_world: np.ndarray
-    ground_gradient: tuple[float, float] = (0.0, 0.0)
 
 
 def level_scan(
@@ -681,9 +628,7 @@ def level_scan(
     body = body[~((body >= lo).all(axis=1) & (body <= hi).all(axis=1))]
     sensor_level = _rotate(r_wb, t_bs[None, :])[0]
     level = _rotate(r_wb.astype(np.float32), body) + (-sensor_level).astype(np.float32)
-    up = r_wb.astype(np.float32)[:, 2]
-    gradient = (float(-up[0] / up[2]), float(-up[1] / up[2])) if up[2] > 0 else (0.0, 0.0)
-    return LevelScan(level.astype(np.float32), sensor_level, t_wb, gradient)
+    return LevelScan(level.astype(np.float32), sensor_level, t_wb)
 
 
 def _translation(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> np.ndarray:
@@ -794,7 +739,7 @@ class PolarQuery:
 def polar_query(polar: PolarTable, x: np.ndarray, y: np.ndarray, *, atan: str = "fast") -> PolarQuery:
     """ground.rs ``GroundSegmenter::query`` at sensor-centred positions ``(x, y)`` [m]:
     the polar bin ``(min(floor((atan2(y, x) + π)·S/2π), S - 1), min(floor(r·(1/Δ)), B - 1))``;
-    ``ground_z`` the :func:`expected_ground` of its line, *covered* iff the bin is covered and
+    ``ground_z = m·r + b`` of its line, *covered* iff the bin is covered and
     ``cover_lo <= r <= cover_hi``, ``floor_bound_z = min(proto_z, ray_slope·r)``.
     ``atan="fast"``: the sector from :func:`fast_atan2`, as Rust's query (a position within
     2e-5 rad of a sector boundary may be given the neighbouring sector); ``"exact"``: from
@@ -812,10 +757,7 @@ def polar_query(polar: PolarTable, x: np.ndarray, y: np.ndarray, *, atan: str = 
     s = np.minimum(np.floor((angle + math.pi) * (polar.sectors / (2.0 * math.pi))), polar.sectors - 1)
     k = np.minimum(np.floor(np.where(inside, r, 0.0) * (1.0 / polar.bin_m)), polar.bins - 1)
     sb = np.where(inside, s * polar.bins + k, 0).astype(np.int64)
-    if polar.seen_lo is None or polar.seen_hi is None:
-        ground_z = polar.m[sb] * r + polar.b[sb]
-    else:
-        ground_z = expected_ground(polar.m[sb], polar.b[sb], polar.seen_lo[sb], polar.seen_hi[sb], r)
+    ground_z = polar.m[sb] * r + polar.b[sb]
     covered = inside & (r >= polar.cover_lo[sb]) & (r <= polar.cover_hi[sb])
     with np.errstate(invalid="ignore"):
         # f64::min ignores a NaN (inf·0 at r = 0); so does fmin.
@@ -1102,8 +1044,7 @@ def coarse_map(
             raise ValueError("give sensor_height or body_from_sensor, not both")
         body_from_sensor = _translation(z=sensor_height)
     scan = level_scan(points, body_from_sensor=body_from_sensor, world_from_body=world_from_body, config=cfg, robot=robot)
-    seg = ground_heights(scan.points, sensor_height=float(scan.sensor_level[2]), config=cfg, boundary_rule=boundary_rule,
-                         ground_gradient=scan.ground_gradient)
+    seg = ground_heights(scan.points, sensor_height=float(scan.sensor_level[2]), config=cfg, boundary_rule=boundary_rule)
     geometry = Geometry.centred_on(cfg["coarse"], float(scan.body_world[0]), float(scan.body_world[1]))
     assert seg.polar is not None
     cells = bin_cells(scan, seg.heights, geometry, cfg, robot, void_samples(seg.polar))
