@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Polygon  # noqa: E402
 
 import subterra  # noqa: E402
+from subterra.bench.reference.mpc import arc_step as plant_step  # noqa: E402
 
 FIGURES = Path(__file__).resolve().parent / "figures"
 NX, RES, ORIGIN = 200, 0.1, (-5.0, -10.0)
@@ -35,17 +36,6 @@ def scene() -> tuple[np.ndarray, np.ndarray]:
     for x0, x1, y0, y1 in [(2.0, 2.5, -1.3, -0.7), (4.0, 4.5, 1.6, 2.1), (5.0, 5.6, 0.6, 1.1), (1.5, 2.0, 0.8, 1.3)]:
         risk[(x >= x0) & (x < x1) & (y >= y0) & (y < y1)] = 1.0
     return path, risk.astype(np.float32)
-
-
-def plant_step(state: np.ndarray, command: tuple[float, float], dt: float) -> np.ndarray:
-    x, y, th, _ = state
-    v, w = command
-    if abs(w) > 1e-9:
-        x += v / w * (np.sin(th + w * dt) - np.sin(th))
-        y += v / w * (np.cos(th) - np.cos(th + w * dt))
-    else:
-        x, y = x + v * dt * np.cos(th), y + v * dt * np.sin(th)
-    return np.array([x, y, th + w * dt, v])
 
 
 def rectangle(state: np.ndarray) -> np.ndarray:

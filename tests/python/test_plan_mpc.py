@@ -15,25 +15,13 @@ import numpy as np
 import pytest
 
 import subterra
+from subterra.bench.reference.mpc import arc_step as plant_step
 from subterra.errors import ConfigError, FileFormatError, InputError
 
 REPO = Path(__file__).resolve().parents[2]
 RES = 0.1
 #: Husky footprint and the default margin (configs/mpc.toml).
 LENGTH, WIDTH, MARGIN = 0.99, 0.67, 0.1
-
-
-def plant_step(state: np.ndarray, command: tuple[float, float], dt: float) -> np.ndarray:
-    """The robot: speed ``v`` and yaw rate ``ω`` held for ``dt`` (an exact arc)."""
-    x, y, th, _ = state
-    v, w = command
-    if abs(w) > 1e-9:
-        x += v / w * (np.sin(th + w * dt) - np.sin(th))
-        y += v / w * (np.cos(th) - np.cos(th + w * dt))
-    else:
-        x += v * dt * np.cos(th)
-        y += v * dt * np.sin(th)
-    return np.array([x, y, th + w * dt, v])
 
 
 def cross_track(p: np.ndarray, path: np.ndarray) -> float:

@@ -134,6 +134,20 @@ def step(state: np.ndarray, accel: float, yaw_rate: float, dt: float, jacobians:
     return nxt, a, b
 
 
+def arc_step(state: np.ndarray, command: tuple[float, float], dt: float) -> np.ndarray:
+    """The robot the closed-loop checks drive: state ``[x, y, θ, v]``, the command's speed
+    ``v`` and yaw rate ``ω`` held for ``dt`` (an exact arc); returns the new state."""
+    x, y, th, _ = state
+    v, w = command
+    if abs(w) > 1e-9:
+        x += v / w * (np.sin(th + w * dt) - np.sin(th))
+        y += v / w * (np.cos(th) - np.cos(th + w * dt))
+    else:
+        x += v * dt * np.cos(th)
+        y += v * dt * np.sin(th)
+    return np.array([x, y, th + w * dt, v])
+
+
 def rollout(state: np.ndarray, inputs: np.ndarray, dt: float) -> np.ndarray:
     """States ``x_0..x_N`` ``(N+1, 4)`` of ``inputs`` ``(N, 2)`` from ``state``."""
     xs = [np.asarray(state, dtype=np.float64)]
