@@ -19,23 +19,33 @@
 //! 2. **Prototypes.** Each non-empty bin's prototype is its lowest point `(r, z)` (smallest
 //!    z; on a tie, the first in input order).
 //! 3. **Line fits, per sector**, visiting its prototypes `p = (r, z)` in increasing bin order.
-//!    State: the ground estimate `g` (starts at `-H`), the current segment `seg` (a list of
+//!    State: the ground estimate `g`, a height `z_g` seen at radius `r_g` (starts at
+//!    `(0, -H)`: the ground the robot stands on), the current segment `seg` (a list of
 //!    prototypes, starts empty), the sector's accepted lines. `fit(P)` is the least-squares
 //!    line `z = m·r + b` through the points `P`; `rmse(P)` is `sqrt(Σ (z - m·r - b)² / |P|)`
-//!    of that fit. For each prototype `p`:
+//!    of that fit. A line *starts on the ground* when its first prototype `q` lies within
+//!    `max_start_height_m` (Himmelsbach's T_b) of `z_g`, or the line itself comes within
+//!    T_b of `z_g` somewhere between `r_g` and `q.r`: the ground rose or fell from where it
+//!    was last seen over a stretch the sensor did not see (the blind ring around the robot,
+//!    a hole), and the line leads back to it. For each prototype `p`:
 //!    - if `seg` is empty: `seg = [p]`;
 //!    - else if `p.r - last(seg).r > max_gap_m`: `close(seg)`, then `seg = [p]`;
-//!    - else if `|seg| = 1` (`q` its point): if `|q.z - g| <= max_start_height_m` and
-//!      `|p.z - q.z| <= max_slope · (p.r - q.r)`, append `p`; otherwise `seg = [p]`;
+//!    - else if `|seg| = 1` (`q` its point): if `|q.z - z_g| <= max_start_height_m +
+//!      max_slope · max(q.r - r_g, 0)` (the ground can have changed at most that much over
+//!      the unseen stretch) and `|p.z - q.z| <= max_slope · (p.r - q.r)`, append `p`;
+//!      otherwise `seg = [p]`;
 //!    - else (`|seg| >= 2`): with `(m0, b0) = fit(seg)` and `(m1, b1) = fit(seg + [p])`,
 //!      append `p` if `|p.z - (m0·p.r + b0)| <= max_prediction_error_m` and
-//!      `|m1| <= max_slope` and `rmse(seg + [p]) <= max_rmse_m`. Otherwise `close(seg)`, set
+//!      `|m1| <= max_slope` and `rmse(seg + [p]) <= max_rmse_m` and the line `(m1, b1)`
+//!      starts on the ground. Otherwise `close(seg)`, set
 //!      `seg = [last(seg)]` (the break point starts the next segment) and handle `p` again
 //!      by the rules above (it now meets the `|seg| = 1` rule).
 //!
-//!    After the last prototype, `close(seg)`. `close(seg)`: if `|seg| >= min_line_points`,
-//!    accept the line `(m, b) = fit(seg)` covering bins `[bin(first(seg)), bin(last(seg))]`
-//!    and set `g = m·last(seg).r + b`; otherwise discard it.
+//!    After the last prototype, `close(seg)`. `close(seg)`: if `|seg| >= min_line_points`
+//!    and the line `(m, b) = fit(seg)` starts on the ground, accept it covering bins
+//!    `[bin(first(seg)), bin(last(seg))]` and set `g = (last(seg).r, m·last(seg).r + b)`;
+//!    otherwise discard it. The top of a box is a level line more than T_b above the ground
+//!    everywhere: never accepted, however far away.
 //! 4. **Line of each bin.** Bin `k` of a sector takes the first accepted line (in order of
 //!    acceptance) whose bin interval contains `k` (the bin is then *covered*); if none does,
 //!    the line whose interval is nearest in bins (distance `first - k` or `k - last`; on a tie
@@ -58,10 +68,14 @@
 //! `hi` = min(`a`'s shallowest ray, the expected ground at the run's start) and `lo` =
 //! max(the steepest ray to a farther bin not steeper than `a`'s shallowest, the expected
 //! ground at the run's end), none lies in a bin's ray span `[shallowest, steepest]` (any bin
-//! of the sector) for more than that. Beams must have crossed the expected ground there and
-//! none came back: the floor is missing (a hole, or a drop beyond the sensor's range). Runs
-//! behind an occluder, past a crest, or beyond a partial occluder are not void: the rays
-//! over them came back from farther, or from the occluder.
+//! of the sector) for more than that. A bin's ray span is over its points with `h >=
+//! -max_dist_to_line_m` (step 5): a return from deeper below its line came through the
+//! floor (the inside of a hole, or whatever lies under it: the beam crossed the expected
+//! ground where there was none) and is evidence of the void, not a beam that came back.
+//! Beams must have crossed the expected ground there and none came back from it: the floor
+//! is missing (a hole, or a drop beyond the sensor's range). Runs behind an occluder, past
+//! a crest, or beyond a partial occluder are not void: the rays over them came back from
+//! farther, or from the occluder.
 
 use super::config::GroundConfig;
 use crate::error::{Error, Result};
@@ -262,7 +276,6 @@ impl GroundSegmenter {
         self.sensor_height_m = sensor_height_m;
         self.bin_points(points);
         self.fit_lines();
-        self.mark_voids();
         heights_out.clear();
         let (bin_line, lines) = (&self.bin_line[..], &self.bin_lines[..]);
         heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
@@ -274,6 +287,10 @@ impl GroundSegmenter {
             let line = &lines[bin_line[sb as usize] as usize];
             (p[2] as f64 - (line.m * r + line.b)) as f32
         }));
+        if self.config.void_min_gap_deg != 0.0 {
+            self.gather_ray_spans(points, heights_out);
+            self.mark_voids();
+        }
         Ok(())
     }
 
@@ -400,10 +417,7 @@ impl GroundSegmenter {
         // Each bin's lowest point as the smallest key: an integer `min`, without the branch
         // that a "lower?" test compiles to (whether a point is its bin's lowest so far depends
         // on the data, and real scans mispredicted it often).
-        // The bins' ray slopes serve only the void detection (`mark_voids`): not gathered
-        // while it is off (the default).
-        let voids = self.config.void_min_gap_deg != 0.0;
-        let (keys, acc) = (&mut self.proto_key[..], &mut self.acc[..]);
+        let keys = &mut self.proto_key[..];
         keys.fill(u64::MAX);
         for (i, (&sb, p)) in self.point_bin.iter().zip(points).enumerate() {
             if sb == NO_BIN {
@@ -411,17 +425,6 @@ impl GroundSegmenter {
             }
             let key = &mut keys[sb as usize];
             *key = (*key).min(proto_key(p[2], i));
-            if !voids {
-                continue;
-            }
-            // The same r as above.
-            let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
-            let r = (x * x + y * y).sqrt();
-            if r > 0.0 {
-                let acc = &mut acc[sb as usize];
-                acc.top_slope = acc.top_slope.max((z / r) as f32);
-                acc.low_slope = acc.low_slope.min((z / r) as f32);
-            }
         }
         // Per bin: its prototype, and the steepest ray to any point of a farther bin of the
         // sector.
@@ -442,6 +445,29 @@ impl GroundSegmenter {
                 if r > 0.0 {
                     farther = farther.min((p[2] as f64 / r) as f32);
                 }
+            }
+        }
+    }
+
+    /// Each bin's ray span for the void detection (module doc, *Void*): the slopes `z/r` of
+    /// its points that are not more than `max_dist_to_line_m` below its ground line. A return
+    /// from deeper came through the floor: its ray crossed the expected ground where there
+    /// was none (a hole's inside, or what lies under it), so it is evidence for a void, not a
+    /// beam that came back from the ground.
+    fn gather_ray_spans(&mut self, points: &[[f32; 3]], heights: &[f32]) {
+        let below = -(self.config.max_dist_to_line_m as f32);
+        let acc = &mut self.acc[..];
+        for ((&sb, p), &h) in self.point_bin.iter().zip(points).zip(heights) {
+            if sb == NO_BIN || !(h >= below) {
+                continue;
+            }
+            // The same r as in `bin_points`.
+            let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
+            let r = (x * x + y * y).sqrt();
+            if r > 0.0 {
+                let acc = &mut acc[sb as usize];
+                acc.top_slope = acc.top_slope.max((z / r) as f32);
+                acc.low_slope = acc.low_slope.min((z / r) as f32);
             }
         }
     }
@@ -530,7 +556,7 @@ impl GroundSegmenter {
         let mut seg: Vec<(f64, f64, u32)> = Vec::with_capacity(bins);
         for s in 0..c.sectors as usize {
             let first_line = self.lines.len();
-            let mut g = -self.sensor_height_m;
+            let mut g = GroundEstimate { r: 0.0, z: -self.sensor_height_m };
             seg.clear();
             let mut sums = LineSums::default();
             for (k, acc) in self.acc[s * bins..(s + 1) * bins].iter().enumerate() {
@@ -552,7 +578,7 @@ impl GroundSegmenter {
                         break;
                     }
                     if seg.len() == 1 {
-                        if (qz - g).abs() <= c.max_start_height_m && (z - qz).abs() <= c.max_slope * (r - qr) {
+                        if may_start(&c, (qr, qz), g) && (z - qz).abs() <= c.max_slope * (r - qr) {
                             seg.push((r, z, k as u32));
                             sums = sums.with(r, z);
                         } else {
@@ -564,8 +590,11 @@ impl GroundSegmenter {
                     }
                     let grown = sums.with(r, z);
                     let accept = match (sums.fit(), grown.fit()) {
-                        (Some((m0, b0, _)), Some((m1, _, rmse1))) => {
-                            (z - (m0 * r + b0)).abs() <= c.max_prediction_error_m && m1.abs() <= c.max_slope && rmse1 <= c.max_rmse_m
+                        (Some((m0, b0, _)), Some((m1, b1, rmse1))) => {
+                            (z - (m0 * r + b0)).abs() <= c.max_prediction_error_m
+                                && m1.abs() <= c.max_slope
+                                && rmse1 <= c.max_rmse_m
+                                && starts_on_ground(&c, (seg[0].0, seg[0].1), m1, b1, g)
                         }
                         _ => false,
                     };
@@ -691,15 +720,47 @@ fn proto_key(z: f32, index: usize) -> u64 {
     (ordered as u64) << 32 | index as u64
 }
 
+/// The ground estimate of a sector while its lines are fitted (module doc, step 3): height
+/// `z` [m] last seen at radius `r` [m].
+#[derive(Debug, Clone, Copy)]
+struct GroundEstimate {
+    r: f64,
+    z: f64,
+}
+
+/// Whether a segment may start at the prototype `q = (r, z)` (module doc, step 3): within
+/// `max_start_height_m` of the estimate, widened by `max_slope` per metre beyond it.
+#[inline]
+fn may_start(c: &GroundConfig, q: (f64, f64), g: GroundEstimate) -> bool {
+    (q.1 - g.z).abs() <= c.max_start_height_m + c.max_slope * (q.0 - g.r).max(0.0)
+}
+
+/// Whether the line `z = m·r + b` whose first prototype is `first = (r, z)` starts on the
+/// ground estimate `g` (module doc, step 3).
+fn starts_on_ground(c: &GroundConfig, first: (f64, f64), m: f64, b: f64, g: GroundEstimate) -> bool {
+    let t = c.max_start_height_m;
+    if (first.1 - g.z).abs() <= t {
+        return true;
+    }
+    // The line's height over the estimate is linear in r: over [lo, hi] it is within t of
+    // 0 iff it changes sign there or an end is within t.
+    let (lo, hi) = if g.r <= first.0 { (g.r, first.0) } else { (first.0, g.r) };
+    let (d_lo, d_hi) = (m * lo + b - g.z, m * hi + b - g.z);
+    (d_lo <= 0.0) != (d_hi < 0.0) || d_lo.abs().min(d_hi.abs()) <= t
+}
+
 /// `close(seg)` of the module doc.
-fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut f64, lines: &mut Vec<GroundLine>) {
+fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut GroundEstimate, lines: &mut Vec<GroundLine>) {
     if seg.len() < c.min_line_points as usize {
         return;
     }
     let Some((m, b, _)) = sums.fit() else { return };
+    if !starts_on_ground(c, (seg[0].0, seg[0].1), m, b, *g) {
+        return;
+    }
     let (last_r, _, last_bin) = seg[seg.len() - 1];
     lines.push(GroundLine { m, b, first_bin: seg[0].2, last_bin, first_r_m: seg[0].0, last_r_m: last_r });
-    *g = m * last_r + b;
+    *g = GroundEstimate { r: last_r, z: m * last_r + b };
 }
 
 /// Labels each point of `points` (row-major `(N, 3)`, sensor-centred, z up) ground (`true`)
@@ -771,6 +832,35 @@ mod tests {
     }
 
     #[test]
+    fn hole_whose_beams_come_back_from_below_the_ground_is_void() {
+        // Regression (mine seed 16, "fall"): the beams that entered a hole came back from the
+        // mine's wall 16 m away, 2-3 m below the floor; their ray spans covered the hole's
+        // depressions, so it was taken for a shadow and rated drivable ground.
+        let h = 0.76;
+        let hole = |x: f64, y: f64| (x - 3.5).hypot(y) < 0.6;
+        let mut points = ring_scan(h, hole, |_, _| None);
+        for col in 0..1440 {
+            let (sin, cos) = ((col as f64 + 0.5) * 0.25f64.to_radians()).sin_cos();
+            for ring in 0..31 {
+                let d = (16.5 - 0.5 * ring as f64).to_radians();
+                if hole(h / d.tan() * cos, h / d.tan() * sin) {
+                    points.push([(16.0 * cos) as f32, (16.0 * sin) as f32, (-16.0 * d.tan()) as f32]);
+                }
+            }
+        }
+        let config = GroundConfig { void_min_gap_deg: crate::terrain::config::SPINNING_LIDAR_VOID_MIN_GAP_DEG, ..GroundConfig::default() };
+        let mut seg = GroundSegmenter::new(config).unwrap();
+        let mut heights = Vec::new();
+        seg.segment(&points, h, &mut heights).unwrap();
+        for (x, y) in [(3.5, 0.0), (3.1, 0.1), (3.9, -0.2)] {
+            assert!(seg.query(x, y).unwrap().void, "hole at ({x}, {y}) not void");
+        }
+        for (x, y) in [(3.5, 1.0), (5.0, 0.0), (-2.0, 0.5), (0.0, 3.0)] {
+            assert!(!seg.query(x, y).unwrap().void, "ground at ({x}, {y}) taken for void");
+        }
+    }
+
+    #[test]
     fn hole_with_no_floor_is_void_and_a_rock_shadow_is_not() {
         // Regression: a bottomless hole (the mine's NaN holes) gave no return and no
         // negative evidence; the robot drove its wheels over it (mine seed 0, "fall").
@@ -804,6 +894,58 @@ mod tests {
         samples.clear();
         seg.void_samples(&mut samples);
         assert!(samples.is_empty(), "{} void samples on flat ground seen by 2° rings", samples.len());
+    }
+
+    /// A level lidar `h` above the ground at its foot, `ground(x, y)` the ground's height
+    /// (vertical faces where it jumps): rings every 0.5° of depression from 16.5° to 1.5°, a
+    /// column every 0.5°, each return found by marching the ray in 5 mm steps.
+    fn heightfield_scan(h: f64, ground: impl Fn(f64, f64) -> f64) -> Vec<[f32; 3]> {
+        let mut out = Vec::new();
+        for col in 0..720 {
+            let (sin, cos) = ((col as f64 + 0.5) * 0.5f64.to_radians()).sin_cos();
+            for ring in 0..31 {
+                let t = (16.5 - 0.5 * ring as f64).to_radians().tan();
+                if let Some(r) = (1..8000).map(|i| f64::from(i) * 0.005).find(|&r| h - r * t <= ground(r * cos, r * sin)) {
+                    out.push([(r * cos) as f32, (r * sin) as f32, (-r * t) as f32]);
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn ground_falling_away_in_the_blind_ring_is_ground_and_a_box_top_is_not() {
+        // Regression (mine seed 8): the terrain ahead falls away (here 8.5°) from the robot's feet, so the
+        // nearest ring meets it 0.25 m below -H; no line could start more than T_b = 0.2 m
+        // from -H, every point up to the next rise was an obstacle (a lethal `collision` fan).
+        let h = 0.7;
+        let dip = |x: f64| -0.15 * x.max(0.0);
+        // Behind the robot, a 0.3 m box 0.8 m deep.
+        let boxed = |x: f64, y: f64| (-3.5..=-2.7).contains(&x) && y.abs() < 0.5;
+        let points = heightfield_scan(h, |x, y| if boxed(x, y) { 0.3 } else { dip(x) });
+        let mut seg = GroundSegmenter::new(GroundConfig::default()).unwrap();
+        let mut heights = Vec::new();
+        seg.segment(&points, h, &mut heights).unwrap();
+        let (mut ahead_n, mut ahead_ground, mut top_n, mut top_ground) = (0, 0, 0, 0);
+        for (p, &hg) in points.iter().zip(&heights) {
+            let (x, y, z) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+            if x > 2.0 && y.abs() < 0.5 * x {
+                ahead_n += 1;
+                ahead_ground += usize::from(seg.is_ground(hg));
+            }
+            if boxed(x - 0.03, y) && z > 0.25 - h {
+                top_n += 1;
+                top_ground += usize::from(seg.is_ground(hg));
+            }
+        }
+        assert!(ahead_n > 500 && ahead_ground == ahead_n, "{ahead_ground} of {ahead_n} points of the falling ground are ground");
+        assert!(top_n > 20 && top_ground == 0, "{top_ground} of {top_n} box-top points are ground");
+        // A level line more than T_b above the ground is no ground at any distance: a 0.3 m
+        // high plateau beyond a 2 m gap with no returns (a trench whose floor is out of sight).
+        let trench = heightfield_scan(h, |x, _| if x < 4.0 { 0.0 } else if x < 6.0 { -5.0 } else { 0.3 });
+        seg.segment(&trench, h, &mut heights).unwrap();
+        let plateau: Vec<bool> = trench.iter().zip(&heights).filter(|(p, _)| p[0] > 6.1 && p[1].abs() < 1.0).map(|(_, &hg)| seg.is_ground(hg)).collect();
+        assert!(plateau.len() > 20 && plateau.iter().all(|&g| !g), "{} of {} plateau points ground", plateau.iter().filter(|&&g| g).count(), plateau.len());
     }
 
     fn flat_ring_cloud(height: f32) -> Vec<f32> {

@@ -259,20 +259,31 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
     max_start, max_pred, max_rmse = ground["max_start_height_m"], ground["max_prediction_error_m"], ground["max_rmse_m"]
     min_points = int(ground["min_line_points"])
     lines: list[GroundLine] = []
-    g = -float(sensor_height_m)
+    g_r, g_z = 0.0, -float(sensor_height_m)  # the ground estimate: height g_z seen at radius g_r
     seg: list[tuple[float, float, int]] = []
     sums: _Sums | None = None
 
+    def on_ground(first_r: float, first_z: float, m: float, b: float) -> bool:
+        # The first prototype within T_b of the estimate, or the line within T_b of it
+        # somewhere between the estimate's radius and the first prototype's.
+        if abs(first_z - g_z) <= max_start:
+            return True
+        lo, hi = min(g_r, first_r), max(g_r, first_r)
+        d_lo, d_hi = m * lo + b - g_z, m * hi + b - g_z
+        return (d_lo <= 0.0) != (d_hi < 0.0) or min(abs(d_lo), abs(d_hi)) <= max_start
+
     def close() -> None:
-        nonlocal g
+        nonlocal g_r, g_z
         if len(seg) < min_points or sums is None:
             return
         fit = sums.fit()
         if fit is None:
             return
         m, b, _ = fit
+        if not on_ground(seg[0][0], seg[0][1], m, b):
+            return
         lines.append(GroundLine(m, b, seg[0][2], seg[-1][2], seg[0][0], seg[-1][0]))
-        g = m * seg[-1][0] + b
+        g_r, g_z = seg[-1][0], m * seg[-1][0] + b
 
     for pr, pz, pk in zip(r.tolist(), z.tolist(), bins.tolist()):
         while True:
@@ -285,7 +296,7 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
                 seg, sums = [(pr, pz, pk)], _Sums(pr, pz)
                 break
             if len(seg) == 1:
-                if abs(qz - g) <= max_start and abs(pz - qz) <= max_slope * (pr - qr):
+                if abs(qz - g_z) <= max_start + max_slope * max(qr - g_r, 0.0) and abs(pz - qz) <= max_slope * (pr - qr):
                     seg.append((pr, pz, pk))
                     sums = sums.with_point(pr, pz)
                 else:
@@ -299,6 +310,7 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
                 and abs(pz - (f0[0] * pr + f0[1])) <= max_pred
                 and abs(f1[0]) <= max_slope
                 and f1[2] <= max_rmse
+                and on_ground(seg[0][0], seg[0][1], f1[0], f1[1])
             )
             if accept:
                 seg.append((pr, pz, pk))
@@ -390,11 +402,12 @@ def _ray_slopes(proto_bin: np.ndarray, proto_r: np.ndarray, proto_z: np.ndarray,
     return ray.reshape(-1)
 
 
-def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, m_bin: np.ndarray, b_bin: np.ndarray, sectors: int,
-               bins: int, bin_m: float, min_gap_deg: float) -> np.ndarray:
+def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, h: np.ndarray, m_bin: np.ndarray, b_bin: np.ndarray,
+               sectors: int, bins: int, bin_m: float, min_gap_deg: float, max_dist_to_line_m: float) -> np.ndarray:
     """ground.rs ``mark_voids``: per polar bin whether it is void. Each non-empty bin's ray
     span is ``(shallowest, steepest)`` depression ``atan(-slope)`` of its points' ``z/r``
-    (float32, points with ``r > 0``); a run of empty bins between non-empty ``a`` and ``k``
+    (float32, points with ``r > 0`` not more than ``max_dist_to_line_m`` below their line:
+    ``h >= -max_dist_to_line_m`` in float32; deeper returns came through the floor); a run of empty bins between non-empty ``a`` and ``k``
     is void when, of the depressions between ``hi = min(shallowest of a, expected ground at
     (a+1)·Δ)`` and ``lo = max(steepest of the farther spans not steeper than a's shallowest,
     expected ground at k·Δ)``, more than ``min_gap`` is left uncovered by every bin's span
@@ -403,7 +416,8 @@ def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, m_bin: np.n
     void = np.zeros(sectors * bins, dtype=bool)
     if min_gap_deg == 0.0:  # void detection off
         return void
-    ok = (flat_bin >= 0) & (r > 0.0)
+    with np.errstate(invalid="ignore"):
+        ok = (flat_bin >= 0) & (r > 0.0) & (h >= -np.float32(max_dist_to_line_m))
     slope = (z32[ok].astype(np.float64) / r[ok]).astype(np.float32)
     top = np.full(sectors * bins, -np.inf, dtype=np.float32)
     low = np.full(sectors * bins, np.inf, dtype=np.float32)
@@ -496,7 +510,8 @@ def ground_heights(
     polar = PolarTable(
         sectors, bins, float(ground["bin_m"]), float(ground["max_range_m"]), m_bin, b_bin, lo_bin, hi_bin, pz,
         _ray_slopes(proto_bin, proto_r, proto_z, sectors, bins),
-        _void_bins(flat_bin, r, z32, m_bin, b_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 0.0))),
+        _void_bins(flat_bin, r, z32, h, m_bin, b_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 0.0)),
+                   float(ground["max_dist_to_line_m"])),
     )
     return GroundSegmentation(h, all_lines, float(ground["max_dist_to_line_m"]), polar)
 
