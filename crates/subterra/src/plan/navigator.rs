@@ -18,7 +18,11 @@
 //!    (unobserved ones set to it). The mapper fuses only its window (2 s by default), and a
 //!    lidar 0.7 m up sees no ground within ~2.3 m: without the memory a hole seen from afar
 //!    leaves the map before the robot has passed it. A bottomless hole never gets ground
-//!    points, so it is never forgotten while the robot is near. The local risk is the grid's value under the robot
+//!    points, so it is never forgotten while the robot is near. Then, with
+//!    `unseen_growth_m` > 0, every unobserved cell within that distance of a lethal patch
+//!    (as for the memory) takes its rating: a hazard's corners and far side lie in its own
+//!    shadow (mine seed 11: a pit's tip beyond its near rim never got a return, and the
+//!    footprint went over it). The local risk is the grid's value under the robot
 //!    (`unknown_risk` when NaN or off the map).
 //! 3. **Plan** (only while tracking, and at most every `replan_period_s` unless the last
 //!    plan failed, the thresholds or the target changed): A* with the recovery machine's
@@ -120,6 +124,11 @@ pub struct NavigatorSettings {
     /// A hazard's rim is mapped less sharply than its middle, but on `mine` seeds 0-19 a
     /// 0.1 m margin closed passages: 12 of 20 reached the goal (16 without), 2 fell (1).
     pub inflation_margin_m: f64,
+    /// Unobserved cells within this distance of a lethal patch are taken as part of it
+    /// (step 2) [m]; 0: off. A hazard's far side and corners lie in its own shadow (a pit's
+    /// tip beyond its near rim gets no return): what the lidar could not see next to a drop
+    /// is more likely the drop than ground.
+    pub unseen_growth_m: f64,
     /// `clear_map` keeps the remembered cells this near the robot [m]: the lidar cannot see
     /// them again from where it stands (its blind ring), the rest it sees again at once.
     pub hazard_memory_keep_m: f64,
@@ -150,6 +159,7 @@ impl Default for NavigatorSettings {
             lethal_min_neighbours: 2,
             inflate_lethal: true,
             inflation_margin_m: 0.0,
+            unseen_growth_m: 0.3,
             hazard_memory_keep_m: 3.0,
             hazard_memory_forget_points: 5,
             hazard_memory_record_m: 6.0,
@@ -172,6 +182,7 @@ impl NavigatorSettings {
         require_positive("navigator.hazard_memory_range_m", self.hazard_memory_range_m)?;
         require_non_negative("navigator.hazard_memory_keep_m", self.hazard_memory_keep_m)?;
         require_non_negative("navigator.inflation_margin_m", self.inflation_margin_m)?;
+        require_non_negative("navigator.unseen_growth_m", self.unseen_growth_m)?;
         if !(self.lethal_risk > 0.0 && self.lethal_risk <= 1.0) {
             return Err(Error::config("navigator.lethal_risk", "must be in (0, 1]", self.lethal_risk));
         }
@@ -427,6 +438,10 @@ impl Navigator {
                 let ground_points = map.layer("ground_count")?;
                 remember_hazards(&mut self.hazards, &mut self.plan_risk, ground_points, map.geometry(), position, &self.config.navigator);
             }
+            let nav = &self.config.navigator;
+            if nav.unseen_growth_m > 0.0 {
+                grow_into_unseen(&mut self.plan_risk, &mut self.astar_risk, map.geometry(), nav.lethal_risk as f32, nav.lethal_min_neighbours, nav.unseen_growth_m);
+            }
             self.map = Some(map);
         }
         let t_map = Instant::now();
@@ -632,6 +647,40 @@ fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], gro
     for (&key, &remembered) in memory.iter() {
         if let Some(c) = flat(key) {
             risk[c] = if risk[c].is_nan() { remembered } else { risk[c].max(remembered) };
+        }
+    }
+}
+
+/// Step 2's growth into the unseen: every unobserved (NaN) cell of `risk` within `radius_m`
+/// of a lethal cell (at or above `lethal`, with `min_neighbours` lethal neighbours) takes
+/// the highest such rating. Only cells lethal before the growth spread it. `scratch`: a
+/// buffer for the grid as it was.
+fn grow_into_unseen(risk: &mut [f32], scratch: &mut Vec<f32>, g: &GridGeometry, lethal: f32, min_neighbours: u32, radius_m: f64) {
+    scratch.clear();
+    scratch.extend_from_slice(risk);
+    let src = &scratch[..];
+    let (nx, ny) = (g.nx as i64, g.ny as i64);
+    // In cells, a hair wide: 0.3 m / 0.1 m is 2.9999999999999996.
+    let cells = radius_m / g.resolution_m * (1.0 + 1e-9);
+    let reach = cells.floor() as i64;
+    let disc: Vec<(i64, i64)> = (-reach..=reach).flat_map(|dy| (-reach..=reach).map(move |dx| (dx, dy))).filter(|&(dx, dy)| (dx * dx + dy * dy) as f64 <= cells * cells).collect();
+    for iy in 0..ny {
+        for ix in 0..nx {
+            let c = (iy * nx + ix) as usize;
+            let r = src[c];
+            if !(r >= lethal) || !clustered(src, g.nx, g.ny, c, lethal, min_neighbours) {
+                continue;
+            }
+            for &(dx, dy) in &disc {
+                let (jx, jy) = (ix + dx, iy + dy);
+                if jx < 0 || jy < 0 || jx >= nx || jy >= ny {
+                    continue;
+                }
+                let j = (jy * nx + jx) as usize;
+                if src[j].is_nan() && !(risk[j] >= r) {
+                    risk[j] = r;
+                }
+            }
         }
     }
 }
@@ -1118,5 +1167,34 @@ mod tests {
         assert!(bad(|s| s.lethal_min_neighbours = 3).contains("lethal_min_neighbours"));
         assert!(bad(|s| s.hazard_memory_forget_points = 0).contains("hazard_memory_forget_points"));
         assert!(bad(|s| s.hazard_memory_range_m = f64::NAN).contains("hazard_memory_range_m"));
+        assert!(bad(|s| s.unseen_growth_m = -0.1).contains("unseen_growth_m"));
+    }
+
+    #[test]
+    fn lethal_patches_grow_into_unobserved_cells_only() {
+        // 12 x 12 cells of 0.1 m: a lethal 3 x 3 patch at cells 2..=4, unobserved cells to
+        // its right (columns 5..=11 of rows 2..=4), observed ground elsewhere.
+        let g = GridGeometry { resolution_m: 0.1, nx: 12, ny: 12, origin_cell: (0, 0) };
+        let mut risk = vec![0.1f32; 144];
+        for iy in 2..=4 {
+            for ix in 2..=4 {
+                risk[iy * 12 + ix] = 1.0;
+            }
+            for ix in 5..12 {
+                risk[iy * 12 + ix] = f32::NAN;
+            }
+        }
+        risk[8 * 12 + 8] = 0.95; // a lone lethal speckle: no patch, no growth
+        risk[8 * 12 + 9] = f32::NAN;
+        let mut scratch = Vec::new();
+        grow_into_unseen(&mut risk, &mut scratch, &g, 0.9, 2, 0.3);
+        for iy in 2..=4 {
+            // 0.3 m = 3 cells: columns 5..=7 taken, not 8 and beyond (no chain reaction).
+            assert_eq!(&risk[iy * 12 + 5..iy * 12 + 8], &[1.0, 1.0, 1.0], "row {iy}");
+            assert!(risk[iy * 12 + 8..iy * 12 + 12].iter().all(|v| v.is_nan()), "row {iy}");
+        }
+        // Observed cells keep their rating; the speckle spreads nothing.
+        assert_eq!((risk[12 + 3], risk[5 * 12 + 3]), (0.1, 0.1));
+        assert!(risk[8 * 12 + 9].is_nan());
     }
 }

@@ -21,9 +21,11 @@
 //! - `step_height`: `max |H(n) - H(c)|` over the 8 neighbours n with a ground height.
 //! - `negative_depth`: at the cell centre, in the newest scan's polar bin: the bin's ground
 //!   line height minus the floor bound (the lower of the bin's lowest point and the
-//!   lowest ray that passed over the cell's radius), floored at 0; 0 without evidence and
-//!   0 on a cell with ground points of its own (seen ground is no hole: the bin's line,
-//!   carried across a hole, overestimates a lower floor seen beyond it).
+//!   lowest ray that passed over the cell's radius), floored at 0; 0 without evidence. On
+//!   a cell with ground points of its own it is instead how far its lowest point lies
+//!   below their mean height, where that exceeds `thr`, else 0: seen ground is no hole
+//!   (the bin's line, carried across a hole, overestimates a lower floor seen beyond it),
+//!   but a rim cell holding part of the drop's wall or floor is as deep as they reach.
 //! - `tilt_angle`: *settling*. Each wheel rests on the highest ground in a square patch
 //!   (`layers.wheel_patch_m`) around its corner of the footprint (`robot.length_m x
 //!   robot.width_m`, corners rounded to cell centres) at heading ψ; the rigid body rests on
@@ -408,12 +410,17 @@ impl MapBuilder {
         // found missing and no scan of the window saw ground here (the polar queries below
         // add to that). Selects, not branches: real scans mix empty, ground and obstacle
         // cells unpredictably.
+        let thr = self.ground_threshold;
         for (c, cell) in self.cells[..n].iter().enumerate() {
             let mean = cell.ground_sum / cell.ground_n as f32;
             height[c] = select_f32(cell.ground_n > 0, mean, f32::NAN);
             let void = (cell.void_n > 0) & (cell.ground_n == 0);
             observed[c] = select_f32((cell.count > 0) | void, 1.0, 0.0);
-            depth[c] = select_f32(void, f32::INFINITY, 0.0);
+            // A cell with ground of its own is as deep as its points reach below that ground,
+            // if deeper than the ground band (a rim with the drop's wall or floor in it).
+            let drop = mean - cell.min_z;
+            let own = select_f32((cell.ground_n > 0) & (drop > thr), drop, 0.0);
+            depth[c] = select_f32(void, f32::INFINITY, own);
         }
         if let Some(polar) = polar {
             let s = polar.sensor_level;
@@ -435,7 +442,7 @@ impl MapBuilder {
                     height[c] = select_f32(bin.covered & (cell.ground_n == 0) & !void, line_height, height[c]);
                     let below = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
                     let below = select_f32(bin.floor_bound_z.is_finite(), below, depth[c]);
-                    let below = select_f32(cell.ground_n > 0, 0.0, below);
+                    let below = select_f32(cell.ground_n > 0, depth[c], below);
                     depth[c] = select_f32(void, f32::INFINITY, below);
                 });
             }

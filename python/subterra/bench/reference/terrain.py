@@ -782,14 +782,16 @@ def polar_query(polar: PolarTable, x: np.ndarray, y: np.ndarray, *, atan: str = 
 
 
 def polar_fill(
-    cells: CellSums, polar: PolarTable, scan: LevelScan, geometry: Geometry, *, atan: str = "fast"
+    cells: CellSums, polar: PolarTable, scan: LevelScan, geometry: Geometry, *, atan: str = "fast", ground_threshold: float = 0.1
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """risk.rs ``ground_heights``: ``(height, observed, negative_depth)`` as float32
     ``(ny, nx)``. ``height`` (above the body origin) is the mean z of the cell's ground
     points (float32), else the newest scan's ground line at the cell centre where it covers
     the cell, else NaN; ``observed`` = 1 where the cell has a point or is covered;
     ``negative_depth = max(ground_z - floor_bound_z, 0)`` where the floor bound is finite
-    and the cell has no ground point, else 0."""
+    and the cell has no ground point, else 0; on a cell with ground points, ``mean -
+    min_z`` (float32) where that exceeds ``ground_threshold`` (``max_dist_to_line_m``),
+    else 0."""
     s = scan.sensor_level
     # Cell centres relative to the sensor: (corner + (i + 0.5)·res) - sensor, corner = origin - body.
     res = geometry.resolution_m
@@ -807,6 +809,8 @@ def polar_fill(
     observed = ((cells.count.reshape(shape) > 0) | q.covered).astype(np.float32)
     with np.errstate(invalid="ignore"):
         depth = np.where(q.inside & np.isfinite(q.floor_bound_z) & (ground_n == 0), np.maximum(q.ground_z - q.floor_bound_z, 0.0), 0.0)
+        drop = (mean - cells.min_z.reshape(shape)).astype(np.float32)
+        depth = np.where((ground_n > 0) & (drop > np.float32(ground_threshold)), drop, depth)
     # Void: the floor found missing (this scan's bin, or a void sample in the cell) and no
     # ground point in the cell: observed, infinitely deep, no filled height.
     void_n = cells.void_n.reshape(shape) if cells.void_n is not None else np.zeros(shape, dtype=np.int64)
@@ -1063,7 +1067,8 @@ def coarse_map(
     geometry = Geometry.centred_on(cfg["coarse"], float(scan.body_world[0]), float(scan.body_world[1]))
     assert seg.polar is not None
     cells = bin_cells(scan, seg.heights, geometry, cfg, robot, void_samples(seg.polar))
-    height, observed, depth = polar_fill(cells, seg.polar, scan, geometry, atan=query_atan)
+    height, observed, depth = polar_fill(cells, seg.polar, scan, geometry, atan=query_atan,
+                                         ground_threshold=float(cfg["ground"]["max_dist_to_line_m"]))
     res = geometry.resolution_m
     lay = cfg["layers"]
     slope, residual, collinear = _plane_fit(height, res, lay["plane_window_m"], int(lay["plane_min_cells"]))
