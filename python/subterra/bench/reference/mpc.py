@@ -98,6 +98,8 @@ MONOTONE_AFTER = 12
 #: SLSQP's tolerance on the cost change and its iteration cap.
 SLSQP_FTOL = 1e-13
 SLSQP_MAX_ITERATIONS = 500
+#: SLSQP's exit status "positive directional derivative for linesearch".
+SLSQP_NO_DESCENT = 8
 
 _TAU, _W = np.polynomial.legendre.leggauss(QUADRATURE_NODES)
 #: Nodes on [0, 1] and weights summing to 1.
@@ -454,7 +456,10 @@ def solve(state, reference_path, *, risk=None, resolution: float | None = None, 
         change = float(np.max(np.abs(new - u)))
         u = new
         if change <= FIXED_POINT_TOL:
-            converged = bool(out.success)
+            # At the fixed point SciPy 1.17's SLSQP may end with status 8 ("positive
+            # directional derivative for linesearch"): with ftol 1e-13 no descent is left
+            # at machine precision. The pass did not move the inputs either: converged.
+            converged = bool(out.success) or out.status == SLSQP_NO_DESCENT
             break
     x = rollout(x0, u, dt)
     problem, _ = _problem(c, path, s0, desired, x, grid, prev, floor)
