@@ -259,7 +259,10 @@ def drive(
     body_from_sensor = translation(z=LIDAR_HEIGHT_M)
     sim = Simulation(world, "ground", {"lidar": (Lidar(lidar), body_from_sensor, noise)}, seed=seed,
                      start=[start_xy[0], start_xy[1], 0.0], yaw=yaw)
-    sim.set_goal(point=[goal_xy[0], goal_xy[1], 0.0], radius_m=goal_radius)
+    # The goal ball is centred on the ground there (the body origin is on the ground): at
+    # z = 0 a goal on a plateau 0.5 m up (risky-slope) could never be reached with radius 0.5.
+    goal_z = world.ground_height(float(goal_xy[0]), float(goal_xy[1]))
+    sim.set_goal(point=[goal_xy[0], goal_xy[1], 0.0 if goal_z is None else float(goal_z)], radius_m=goal_radius)
     config = dict(navigator_config or {})
     planner_cfg = dict(config.get("planner", {}))
     planner_cfg.setdefault("cost_model", "risk" if planner == "risk-aware" else "additive")

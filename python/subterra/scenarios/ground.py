@@ -6,7 +6,7 @@
   climbs the whole recovery ladder (clear map, rotate, raise thresholds, back out),
   gives up the goal and drives home.
 - ``risky-slope``: a 19.5° ramp, 0.5 m up to a plateau, across the whole hall between
-  start and goal. Its tilt risk, about 0.63 (the Husky's tilt ramp is 10°-25°), is above
+  start and goal (foot and crest rounded over 0.6 m, see :data:`RAMP_ROUNDING_M`). Its tilt risk, about 0.63 (the Husky's tilt ramp is 10°-25°), is above
   the nominal ``R_inst`` = 0.6: the robot must raise its thresholds to climb, then reaches
   the goal on the plateau (19.5° is far from the 35° rollover limit).
 - ``blocked-return``: the dead end, and the base the robot should return to is walled in
@@ -40,6 +40,12 @@ FLOOR_RESOLUTION_M = 0.1
 RAMP_SLOPE_DEG = 19.5
 RAMP_HEIGHT_M = 0.5
 RAMP_FOOT_X_M = 11.0
+#: ``risky-slope``: the foot and the crest are rounded, the ramp's profile averaged over this
+#: length [m] (its middle 0.8 m keep the full slope). Over a sharp 19.5° crest the footprint's
+#: half-length (0.5 m) overhangs the ramp by tan(19.5°)·0.5 = 0.18 m, more than the 0.13 m
+#: the simulator's ground robot allows before it calls a fall (``max_drop_m`` = clearance):
+#: no robot could cross it. Rounded over 0.6 m the overhang stays below 0.08 m.
+RAMP_ROUNDING_M = 0.6
 
 RECOVERY_SCENARIOS = ("dead-end", "risky-slope", "blocked-return")
 
@@ -122,6 +128,20 @@ def _dead_end_walls() -> list[str]:
     ]
 
 
+def _rounded_ramp(x: np.ndarray) -> np.ndarray:
+    """``risky-slope``'s floor height at ``x`` [m]: the ramp from ``RAMP_FOOT_X_M`` up
+    ``RAMP_HEIGHT_M`` at ``RAMP_SLOPE_DEG``, averaged over ``RAMP_ROUNDING_M`` (a moving
+    average, on a 1 cm profile)."""
+    run = RAMP_HEIGHT_M / np.tan(np.radians(RAMP_SLOPE_DEG))
+    step = 0.01
+    xs = np.arange(RAMP_FOOT_X_M - RAMP_ROUNDING_M, RAMP_FOOT_X_M + run + RAMP_ROUNDING_M + step / 2, step)
+    sharp = RAMP_HEIGHT_M * np.clip((xs - RAMP_FOOT_X_M) / run, 0.0, 1.0)
+    n = max(1, round(RAMP_ROUNDING_M / step))
+    padded = np.concatenate([np.zeros(n), sharp, np.full(n, RAMP_HEIGHT_M)])
+    smooth = np.convolve(padded, np.ones(n) / n, mode="same")[n:-n]
+    return np.interp(x, xs, smooth)
+
+
 def recovery_scenario(name: str) -> GroundScenario:
     """The scenario ``name`` (one of :data:`RECOVERY_SCENARIOS`)."""
     mid = HALL_WIDTH_M / 2
@@ -136,8 +156,7 @@ def recovery_scenario(name: str) -> GroundScenario:
         final = "home"
         description = "a corridor closed at its far end is the only way on: give up the goal, back out, go home"
     elif name == "risky-slope":
-        run = RAMP_HEIGHT_M / np.tan(np.radians(RAMP_SLOPE_DEG))
-        heights = RAMP_HEIGHT_M * np.clip((xg - RAMP_FOOT_X_M) / run, 0.0, 1.0)
+        heights = _rounded_ramp(xg)
         home = start
         expect = ("raise_thresholds",)
         final = "goal_reached"
