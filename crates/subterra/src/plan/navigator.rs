@@ -18,12 +18,15 @@
 //!    (unobserved ones set to it). The mapper fuses only its window (2 s by default), and a
 //!    lidar 0.7 m up sees no ground within ~2.3 m: without the memory a hole seen from afar
 //!    leaves the map before the robot has passed it. A bottomless hole never gets ground
-//!    points, so it is never forgotten while the robot is near. Then, with
-//!    `unseen_growth_m` > 0, every unobserved cell within that distance of a lethal patch
-//!    (as for the memory) takes its rating: a hazard's corners and far side lie in its own
-//!    shadow (mine seed 11: a pit's tip beyond its near rim never got a return, and the
-//!    footprint went over it). The local risk is the grid's value under the robot
-//!    (`unknown_risk` when NaN or off the map).
+//!    points, so it is never forgotten while the robot is near. Then, on a copy for the A*
+//!    only, with `unseen_growth_m` > 0, every unobserved cell within that distance of a
+//!    lethal patch (as for the memory) and at least `unseen_growth_min_range_m` from the
+//!    robot takes its rating: a hazard's corners and far side lie in its own shadow (mine
+//!    seed 11: a pit's tip beyond its near rim never got a return, and the footprint went
+//!    over it). The grown cells are a guess, so they steer the plan but are not the MPC's
+//!    hard obstacles: in its grid they boxed in the robot's current state (mine seed 0: the
+//!    backup stop on 11 of 307 ticks). The
+//!    local risk is the grid's value under the robot (`unknown_risk` when NaN or off the map).
 //! 3. **Plan** (only while tracking, and at most every `replan_period_s` unless the last
 //!    plan failed, the thresholds or the target changed): A* with the recovery machine's
 //!    current `R_inst`/`R_total` from the robot's cell to the target — the goal, or home
@@ -40,7 +43,7 @@
 //!    for the memory) raised to that level,
 //!    except within that radius of the robot (so that it can plan its way out); the A*
 //!    plans the robot's centre, and a centre there would put the footprint on the hazard.
-//!    The MPC, the local risk and `back_out` use the grid uninflated (the MPC keeps the
+//!    The MPC, the local risk and `back_out` use the grid uninflated and ungrown (the MPC keeps the
 //!    footprint off lethal polygons itself). The distance to the
 //!    target the recovery machine measures progress by is the path's length plus that
 //!    straight remainder when a path was found, else the straight-line distance.
@@ -124,11 +127,19 @@ pub struct NavigatorSettings {
     /// A hazard's rim is mapped less sharply than its middle, but on `mine` seeds 0-19 a
     /// 0.1 m margin closed passages: 12 of 20 reached the goal (16 without), 2 fell (1).
     pub inflation_margin_m: f64,
-    /// Unobserved cells within this distance of a lethal patch are taken as part of it
-    /// (step 2) [m]; 0: off. A hazard's far side and corners lie in its own shadow (a pit's
+    /// Unobserved cells within this distance of a lethal patch are taken as part of it on
+    /// the A*'s grid (step 2) [m]; 0: off. A hazard's far side and corners lie in its own shadow (a pit's
     /// tip beyond its near rim gets no return): what the lidar could not see next to a drop
     /// is more likely the drop than ground.
     pub unseen_growth_m: f64,
+    /// No growth into unobserved cells nearer than this to the robot [m] (default about
+    /// the Husky footprint's half-length, 0.5 m): the cells under and beside the robot are
+    /// unobserved because the lidar cannot look down so steeply, not because a hazard
+    /// shadows them, and grown there a corridor's walls closed it around the robot
+    /// (`dead-end` gave up on the way home with 0 and 0.35 m). Farther out the growth stays,
+    /// blind ring or not: mine seed 11 fell with 0.6 m, and on mine seeds 0-99 a 2.5 m range
+    /// gave 3 falls (docs/drive.md).
+    pub unseen_growth_min_range_m: f64,
     /// `clear_map` keeps the remembered cells this near the robot [m]: the lidar cannot see
     /// them again from where it stands (its blind ring), the rest it sees again at once.
     pub hazard_memory_keep_m: f64,
@@ -160,6 +171,7 @@ impl Default for NavigatorSettings {
             inflate_lethal: true,
             inflation_margin_m: 0.0,
             unseen_growth_m: 0.3,
+            unseen_growth_min_range_m: 0.5,
             hazard_memory_keep_m: 3.0,
             hazard_memory_forget_points: 5,
             hazard_memory_record_m: 6.0,
@@ -183,6 +195,7 @@ impl NavigatorSettings {
         require_non_negative("navigator.hazard_memory_keep_m", self.hazard_memory_keep_m)?;
         require_non_negative("navigator.inflation_margin_m", self.inflation_margin_m)?;
         require_non_negative("navigator.unseen_growth_m", self.unseen_growth_m)?;
+        require_non_negative("navigator.unseen_growth_min_range_m", self.unseen_growth_min_range_m)?;
         if !(self.lethal_risk > 0.0 && self.lethal_risk <= 1.0) {
             return Err(Error::config("navigator.lethal_risk", "must be in (0, 1]", self.lethal_risk));
         }
@@ -312,6 +325,8 @@ pub struct Navigator {
     map: Option<RiskMap>,
     plan_risk: Vec<f32>,
     hazards: HashMap<(i64, i64), f32>,
+    /// `plan_risk` grown into the unseen (step 2): the A*'s grid before its inflation.
+    grown_risk: Vec<f32>,
     astar_risk: Vec<f32>,
     /// Scratch: the cells the planner can reach from the robot (stand-ins must be).
     reachable: Vec<bool>,
@@ -350,6 +365,7 @@ impl Navigator {
             map: None,
             plan_risk: Vec::new(),
             hazards: HashMap::new(),
+            grown_risk: Vec::new(),
             astar_risk: Vec::new(),
             reachable: Vec::new(),
             flood: Vec::new(),
@@ -439,8 +455,10 @@ impl Navigator {
                 remember_hazards(&mut self.hazards, &mut self.plan_risk, ground_points, map.geometry(), position, &self.config.navigator);
             }
             let nav = &self.config.navigator;
+            self.grown_risk.clone_from(&self.plan_risk);
             if nav.unseen_growth_m > 0.0 {
-                grow_into_unseen(&mut self.plan_risk, &mut self.astar_risk, map.geometry(), nav.lethal_risk as f32, nav.lethal_min_neighbours, nav.unseen_growth_m);
+                let growth = Growth { lethal: nav.lethal_risk as f32, min_neighbours: nav.lethal_min_neighbours, radius_m: nav.unseen_growth_m, robot: position, min_range_m: nav.unseen_growth_min_range_m };
+                grow_into_unseen(&mut self.grown_risk, &mut self.astar_risk, map.geometry(), &growth);
             }
             self.map = Some(map);
         }
@@ -476,9 +494,9 @@ impl Navigator {
                 let fit_radius = 0.5 * self.robot.width_m + nav.inflation_margin_m;
                 let unknown = self.config.planner.unknown_risk;
                 if nav.inflate_lethal {
-                    inflate_lethal(&self.plan_risk, &mut self.astar_risk, g, nav.lethal_risk as f32, nav.lethal_min_neighbours, fit_radius, position);
+                    inflate_lethal(&self.grown_risk, &mut self.astar_risk, g, nav.lethal_risk as f32, nav.lethal_min_neighbours, fit_radius, position);
                 } else {
-                    self.astar_risk.clone_from(&self.plan_risk);
+                    self.astar_risk.clone_from(&self.grown_risk);
                 }
                 let astar_grid = RiskGrid::new(&self.astar_risk, g.nx, g.ny, g.resolution_m, g.origin_m())?;
                 // A stand-in for a target off the map, or on a cell the robot may not enter,
@@ -651,11 +669,30 @@ fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], gro
     }
 }
 
-/// Step 2's growth into the unseen: every unobserved (NaN) cell of `risk` within `radius_m`
-/// of a lethal cell (at or above `lethal`, with `min_neighbours` lethal neighbours) takes
-/// the highest such rating. Only cells lethal before the growth spread it. `scratch`: a
-/// buffer for the grid as it was.
-fn grow_into_unseen(risk: &mut [f32], scratch: &mut Vec<f32>, g: &GridGeometry, lethal: f32, min_neighbours: u32, radius_m: f64) {
+/// Step 2's growth into the unseen, its settings.
+#[derive(Debug, Clone, Copy)]
+struct Growth {
+    /// The lethal level.
+    lethal: f32,
+    /// Lethal neighbours a lethal cell needs to spread (a patch, not a speckle).
+    min_neighbours: u32,
+    /// How far a patch spreads [m].
+    radius_m: f64,
+    /// The robot [m, world].
+    robot: DVec2,
+    /// No cell whose centre is nearer the robot than this takes a rating [m].
+    min_range_m: f64,
+}
+
+/// Step 2's growth into the unseen: every unobserved (NaN) cell of `risk` within
+/// `radius_m` of a lethal cell (at or above `lethal`, with `min_neighbours` lethal
+/// neighbours), and at least `min_range_m` from the robot, takes the highest such rating.
+/// Only cells lethal before the growth spread it. `scratch`: a buffer for the grid as it was.
+fn grow_into_unseen(risk: &mut [f32], scratch: &mut Vec<f32>, g: &GridGeometry, growth: &Growth) {
+    let Growth { lethal, min_neighbours, radius_m, robot, min_range_m } = *growth;
+    // The robot in cell units, relative to cell centres.
+    let rc = (robot - g.origin_m()) / g.resolution_m - 0.5;
+    let near2 = (min_range_m / g.resolution_m).powi(2);
     scratch.clear();
     scratch.extend_from_slice(risk);
     let src = &scratch[..];
@@ -677,7 +714,7 @@ fn grow_into_unseen(risk: &mut [f32], scratch: &mut Vec<f32>, g: &GridGeometry, 
                     continue;
                 }
                 let j = (jy * nx + jx) as usize;
-                if src[j].is_nan() && !(risk[j] >= r) {
+                if src[j].is_nan() && !(risk[j] >= r) && DVec2::new(jx as f64, jy as f64).distance_squared(rc) >= near2 {
                     risk[j] = r;
                 }
             }
@@ -1187,7 +1224,9 @@ mod tests {
         risk[8 * 12 + 8] = 0.95; // a lone lethal speckle: no patch, no growth
         risk[8 * 12 + 9] = f32::NAN;
         let mut scratch = Vec::new();
-        grow_into_unseen(&mut risk, &mut scratch, &g, 0.9, 2, 0.3);
+        // The robot far off the grid: nothing is too near it to grow into.
+        let growth = Growth { lethal: 0.9, min_neighbours: 2, radius_m: 0.3, robot: DVec2::new(-50.0, -50.0), min_range_m: 2.5 };
+        grow_into_unseen(&mut risk, &mut scratch, &g, &growth);
         for iy in 2..=4 {
             // 0.3 m = 3 cells: columns 5..=7 taken, not 8 and beyond (no chain reaction).
             assert_eq!(&risk[iy * 12 + 5..iy * 12 + 8], &[1.0, 1.0, 1.0], "row {iy}");
@@ -1196,5 +1235,26 @@ mod tests {
         // Observed cells keep their rating; the speckle spreads nothing.
         assert_eq!((risk[12 + 3], risk[5 * 12 + 3]), (0.1, 0.1));
         assert!(risk[8 * 12 + 9].is_nan());
+    }
+
+    #[test]
+    fn no_growth_next_to_the_robot() {
+        // A lethal band at x = 0.1-0.3 m, unobserved cells right of it; the robot at
+        // (0.78, 0.64) m. Within 0.5 m of it nothing grows, beyond it the growth stays.
+        let g = GridGeometry { resolution_m: 0.1, nx: 12, ny: 12, origin_cell: (0, 0) };
+        let mut risk = vec![f32::NAN; 144];
+        for iy in 0..12 {
+            risk[iy * 12 + 1] = 1.0;
+            risk[iy * 12 + 2] = 1.0;
+        }
+        let growth = Growth { lethal: 0.9, min_neighbours: 2, radius_m: 0.3, robot: DVec2::new(0.78, 0.64), min_range_m: 0.5 };
+        grow_into_unseen(&mut risk, &mut Vec::new(), &g, &growth);
+        for iy in 0..12usize {
+            for ix in 3..=5usize {
+                let centre = DVec2::new(ix as f64 + 0.5, iy as f64 + 0.5) * 0.1;
+                let grown = risk[iy * 12 + ix] == 1.0;
+                assert_eq!(grown, centre.distance(growth.robot) >= 0.5, "cell ({ix}, {iy})");
+            }
+        }
     }
 }
