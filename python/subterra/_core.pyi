@@ -124,6 +124,30 @@ class DepthPerception:
     def state_of(self, i: int, j: int, k: int) -> int: ...
     def voxel_of(self, state: int) -> tuple[int, int, int] | None: ...
 
+class MemoryOutput:
+    """What one ``ObstacleMemory.update`` gives."""
+
+    @property
+    def repulsive_body(self) -> npt.NDArray[np.float64]:
+        """The memory's repulsive force in the body frame [N]."""
+    @property
+    def cells(self) -> int:
+        """Cells remembered after the update."""
+    @property
+    def nearest_m(self) -> float | None:
+        """Distance from the body origin to the nearest remembered point [m]."""
+
+class ObstacleMemory:
+    """Where a camera's belief put obstacles, in the odometry frame, so that they still repel
+    out of view (settings: the perception config's ``memory`` section; on in ``flight-memory``)."""
+
+    def __init__(self, perception: DepthPerception) -> None: ...
+    def update(self, output: PerceptionOutput, *, stamp: float, world_from_body: npt.ArrayLike) -> MemoryOutput: ...
+    def reset(self) -> None: ...
+    def points_world(self) -> npt.NDArray[np.float64]: ...
+    def weights(self) -> npt.NDArray[np.float64]: ...
+    def __len__(self) -> int: ...
+
 class Command:
     @property
     def v_x(self) -> float: ...

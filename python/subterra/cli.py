@@ -31,7 +31,9 @@ _NOISES = ("none", "paper-every-pixel", "paper-every-2nd", "paper-every-10th", "
 
 def _flight_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="highbay", help="built-in scenario with routes: highbay (default) or tunnel")
-    p.add_argument("--preset", default="flight", help="perception preset (default flight)")
+    p.add_argument("--preset", default="flight",
+                   help="perception preset: flight (default, the paper's), flight-memory (sigma_o 300 and an obstacle "
+                        "memory), cable; fly-batch takes a comma-separated list")
     p.add_argument("--config", default=None, help="perception config TOML, instead of --preset")
     p.add_argument("--rate", type=float, default=15.0, help="camera and control rate [Hz] (default 15)")
 

@@ -22,6 +22,9 @@ REALSENSE = "realsense-d435-room"
 DEMO_ROUTE = "A-B"
 DEMO_NOISE = "d435-phantom"
 DEMO_SEED = 1
+#: The demo's single flights: (controller, perception preset, run folder).
+DEMO_FLIGHTS = (("apf-pf", "flight", "fly-apf-pf"), ("apf-pf", "flight-memory", "fly-apf-pf-memory"),
+                ("raw-apf", "flight", "fly-raw-apf"))
 #: The mine the ground robot drives in the demo.
 DRIVE_SEED = 0
 
@@ -74,29 +77,32 @@ def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = F
     summary: dict[str, Any] = {"quick": quick}
 
     # 1. One highbay route flown by each controller, same world, seed and noise.
-    print(f"[1/5] highbay {DEMO_ROUTE}, noise {DEMO_NOISE}, seed {DEMO_SEED}: APF-PF and the raw-APF baseline")
+    print(f"[1/5] highbay {DEMO_ROUTE}, noise {DEMO_NOISE}, seed {DEMO_SEED}: APF-PF (paper, and with the obstacle "
+          "memory) and the raw-APF baseline")
     flights = []
-    for controller in ("apf-pf", "raw-apf"):
-        result = fly("highbay", DEMO_ROUTE, controller=controller, noise=DEMO_NOISE, seed=DEMO_SEED, progress=True,
-                     time_limit_s=20.0 if quick else None)
-        result.save(report / f"fly-{controller}")
+    for controller, preset, folder in DEMO_FLIGHTS:
+        result = fly("highbay", DEMO_ROUTE, controller=controller, preset=preset, noise=DEMO_NOISE, seed=DEMO_SEED,
+                     progress=True, time_limit_s=20.0 if quick else None)
+        result.save(report / folder)
+        result.extra["folder"] = folder
         flights.append(result)
     plot_flight_path(flights, report / "flight-paths.png",
                      title=f"highbay {DEMO_ROUTE}, seed {DEMO_SEED}, noise {DEMO_NOISE}: APF-PF vs raw APF")
     flight_rows = []
     for r in flights:
         m = r.summary()
-        flight_rows.append((r.controller, "goal" if m["success"] else m["failure"], f"{m['time_s']:.1f}", f"{m['path_length_m']:.1f}",
+        flight_rows.append((f"{r.controller} ({r.preset})", "goal" if m["success"] else m["failure"], f"{m['time_s']:.1f}", f"{m['path_length_m']:.1f}",
                             m["collisions"], f"{m['min_clearance_m']:.3f}", f"{m['compute_ms_median']:.2f}", f"{m['compute_ms_p99']:.2f}"))
-    flight_table = _table(("controller", "outcome", "time [s]", "path [m]", "collisions", "min clearance [m]",
+    flight_table = _table(("controller (preset)", "outcome", "time [s]", "path [m]", "collisions", "min clearance [m]",
                            "compute median [ms]", "p99 [ms]"), flight_rows)
     summary["flights"] = [r.summary() for r in flights]
     index += ["## Closed-loop flight: APF-PF vs raw APF", "",
-              f"`highbay` route {DEMO_ROUTE} (seed {DEMO_SEED}), D435 noise with phantom speckle, 15 Hz.", "",
+              f"`highbay` route {DEMO_ROUTE} (seed {DEMO_SEED}), D435 noise with phantom speckle, 15 Hz. `flight` is the "
+              "paper's preset; `flight-memory` adds σ_o = 300 and the obstacle memory (docs/flight.md).", "",
               "```", flight_table, "```", "", "![paths](flight-paths.png)", ""]
     for r in flights:
-        d = f"fly-{r.controller}"
-        index += [f"### {r.controller}", "", f"![trace]({d}/depth-trace.png)", "", f"![compute]({d}/compute-time.png)", "",
+        d = r.extra["folder"]
+        index += [f"### {r.controller} ({r.preset})", "", f"![trace]({d}/depth-trace.png)", "", f"![compute]({d}/compute-time.png)", "",
                   f"Data: [{d}/frames.csv]({d}/frames.csv), [{d}/trajectory.csv]({d}/trajectory.csv), "
                   f"[{d}/metrics.json]({d}/metrics.json)", ""]
 

@@ -163,6 +163,20 @@ def test_batch_summarises_both_controllers(tmp_path):
     assert "apf-pf" in md and "raw-apf" in md
 
 
+def test_batch_flies_presets_side_by_side(tmp_path):
+    b = flight.fly_batch("highbay", ["A-B"], [7], controllers=("apf-pf",), noises=("none",), preset="flight,flight-memory",
+                         workers=2, progress=False, rate_hz=10.0, time_limit_s=10.0)
+    assert sorted(r["preset"] for r in b.rows) == ["flight", "flight-memory"]
+    totals = {t["preset"]: t for t in b.table if t["route"] == "all"}
+    assert set(totals) == {"flight", "flight-memory"} and all(t["flights"] == 1 for t in totals.values())
+    assert b.settings["presets"] == ["flight", "flight-memory"]
+    assert "| apf-pf | flight-memory | none | A-B |" in b.markdown()
+    written = b.save(tmp_path / "batch")
+    assert {"paths_none-flight", "paths_none-flight-memory"} <= set(written)
+    with pytest.raises(InputError, match="preset"):
+        flight.fly_batch("highbay", ["A-B"], [7], preset="flight,fast", progress=False)
+
+
 def test_bad_arguments_name_the_argument():
     with pytest.raises(InputError, match="controller"):
         flight.fly(controller="magic")

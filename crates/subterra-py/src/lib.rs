@@ -15,6 +15,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use subterra::config::{FilterMode, PerceptionConfig, PRESET_NAMES};
 use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, VoxelIndex};
+use subterra::apf::memory::{MemoryOutput, ObstacleMemory};
 use subterra::{ApfController, Command, Isometry3, PinholeCamera};
 
 use crate::convert::{isometry, vec3, with_depth};
@@ -443,6 +444,86 @@ impl PyDepthPerception {
     }
 }
 
+/// What one `ObstacleMemory.update` gives.
+#[pyclass(name = "MemoryOutput", module = "subterra._core", frozen)]
+struct PyMemoryOutput {
+    inner: MemoryOutput,
+}
+
+#[pymethods]
+impl PyMemoryOutput {
+    /// The memory's repulsive force in the body frame [N].
+    #[getter]
+    fn repulsive_body<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.repulsive_body)
+    }
+    /// Cells remembered after the update.
+    #[getter]
+    fn cells(&self) -> usize {
+        self.inner.cells
+    }
+    /// Distance from the body origin to the nearest remembered point [m], or None.
+    #[getter]
+    fn nearest_m(&self) -> Option<f64> {
+        self.inner.nearest_m
+    }
+    fn __repr__(&self) -> String {
+        let o = &self.inner;
+        let f = o.repulsive_body;
+        let nearest = o.nearest_m.map_or("None".to_owned(), |d| format!("{d:.3}"));
+        format!("MemoryOutput(cells={}, nearest_m={nearest}, repulsive_body=[{:.4}, {:.4}, {:.4}])", o.cells, f.x, f.y, f.z)
+    }
+}
+
+/// Where a camera's belief put obstacles, kept in the odometry frame so that they still
+/// repel out of view: `update(output, stamp=..., world_from_body=...)` per frame.
+#[pyclass(name = "ObstacleMemory", module = "subterra._core")]
+struct PyObstacleMemory {
+    inner: ObstacleMemory,
+}
+
+#[pymethods]
+impl PyObstacleMemory {
+    /// A memory for `perception`'s camera, grid and mounting, with its config's `memory` settings.
+    #[new]
+    fn new(py: Python<'_>, perception: &PyDepthPerception) -> PyResult<Self> {
+        Ok(Self { inner: ObstacleMemory::new(&perception.inner).py_err(py)? })
+    }
+
+    /// Records `output` (a `PerceptionOutput` of that perception) taken at `stamp` [s] with
+    /// the odometry pose `world_from_body` (4x4), forgets, and returns the memory's force.
+    #[pyo3(signature = (output, *, stamp, world_from_body))]
+    fn update(&mut self, py: Python<'_>, output: &PyPerceptionOutput, stamp: f64, world_from_body: &Bound<'_, PyAny>) -> PyResult<PyMemoryOutput> {
+        let pose = isometry(py, "world_from_body", world_from_body)?;
+        Ok(PyMemoryOutput { inner: self.inner.update(&output.inner, stamp, &pose).py_err(py)? })
+    }
+
+    /// Forgets everything.
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+
+    /// The remembered points, shape `(N, 3)` [m, world].
+    fn points_world<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let flat: Vec<f64> = self.inner.obstacles().flat_map(|c| [c.point_world.x, c.point_world.y, c.point_world.z]).collect();
+        Ok(flat.into_pyarray(py).reshape([self.inner.len(), 3])?)
+    }
+
+    /// Their weights (the belief that recorded them), shape `(N,)`.
+    fn weights<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.obstacles().map(|c| c.weight).collect::<Vec<_>>().into_pyarray(py)
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    fn __repr__(&self) -> String {
+        let c = self.inner.config();
+        format!("ObstacleMemory(cells={}, rho_0_m={}, timeout_s={}, in_view_timeout_s={})", self.inner.len(), c.rho_0_m, c.timeout_s, c.in_view_timeout_s)
+    }
+}
+
 /// A velocity command in the body frame (FLU).
 #[pyclass(name = "Command", module = "subterra._core", frozen)]
 pub struct PyCommand {
@@ -564,6 +645,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyMostProbableVoxel>()?;
     m.add_class::<PyApfController>()?;
     m.add_class::<PyCommand>()?;
+    m.add_class::<PyObstacleMemory>()?;
+    m.add_class::<PyMemoryOutput>()?;
     m.add_function(wrap_pyfunction!(preset_names, m)?)?;
     sim::register(m)?;
     terrain::register(m)?;

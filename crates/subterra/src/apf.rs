@@ -3,7 +3,10 @@
 //!
 //! In: the goal relative to the robot in the body frame, and the repulsive forces of one
 //! or more cameras' perception (already belief-weighted, in the body frame). Out: a
-//! [`Command`].
+//! [`Command`]. [`memory`] keeps where the belief put obstacles, so that they still repel
+//! out of view (subterra).
+
+pub mod memory;
 
 use std::f64::consts::PI;
 

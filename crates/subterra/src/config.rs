@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{require_non_negative, require_positive, Error, Result};
 
 /// Names of the built-in presets, the default first.
-pub const PRESET_NAMES: [&str; 2] = ["flight", "cable"];
+pub const PRESET_NAMES: [&str; 3] = ["flight", "cable", "flight-memory"];
 
 /// Largest number of states (voxels + free) accepted; past this the grid is a mistake.
 const MAX_STATES: usize = 4_000_000;
@@ -139,6 +139,56 @@ pub struct ApfConfig {
     pub min_distance_m: f64,
 }
 
+/// The obstacle memory ([`crate::apf::memory`]; subterra, not in the paper): where the
+/// belief put obstacles, kept in the odometry frame so that they still repel once out of view.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MemoryConfig {
+    /// Whether a flight builds the memory. Off in the paper's presets.
+    pub enabled: bool,
+    /// Side of the world-frame cells in which remembered obstacles merge [m] (the depth bin).
+    pub cell_m: f64,
+    /// Belief a voxel needs to be remembered (a thin pole's belief spreads over its column's
+    /// voxels, ~0.1-0.2 each).
+    pub min_belief: f64,
+    /// A remembered cell in the camera's view that the belief has not put an obstacle in for
+    /// this long is forgotten [s]: the filter sees the place.
+    pub in_view_timeout_s: f64,
+    /// Any remembered cell is forgotten this long after the belief last put an obstacle in it
+    /// [s] (odometry drifts; a hovering robot must not forget what is beside it sooner).
+    pub timeout_s: f64,
+    /// Cut-off ρ_m of the memory's repulsion [m]: short, so that it acts near contact only.
+    pub rho_0_m: f64,
+    /// At most this many cells are kept; the oldest go first.
+    pub max_cells: u32,
+}
+
+impl Default for MemoryConfig {
+    fn default() -> Self {
+        Self { enabled: false, cell_m: 0.1, min_belief: 0.01, in_view_timeout_s: 1.0, timeout_s: 10.0, rho_0_m: 0.6, max_cells: 4096 }
+    }
+}
+
+/// Largest number of memory cells accepted.
+const MAX_MEMORY_CELLS: u32 = 1_000_000;
+
+impl MemoryConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<()> {
+        require_positive("memory.cell_m", self.cell_m)?;
+        if !(self.min_belief > 0.0 && self.min_belief <= 1.0) {
+            return Err(Error::config("memory.min_belief", "must be in (0, 1]", self.min_belief));
+        }
+        require_non_negative("memory.in_view_timeout_s", self.in_view_timeout_s)?;
+        require_non_negative("memory.timeout_s", self.timeout_s)?;
+        require_positive("memory.rho_0_m", self.rho_0_m)?;
+        if self.max_cells == 0 || self.max_cells > MAX_MEMORY_CELLS {
+            return Err(Error::config("memory.max_cells", format!("must be in 1..={MAX_MEMORY_CELLS}"), self.max_cells));
+        }
+        Ok(())
+    }
+}
+
 /// Everything APF-PF needs besides the camera: one preset.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -153,6 +203,9 @@ pub struct PerceptionConfig {
     pub filter: FilterConfig,
     /// Potential fields and command limits.
     pub apf: ApfConfig,
+    /// Obstacle memory (subterra); absent from a file = the defaults, off.
+    #[serde(default)]
+    pub memory: MemoryConfig,
 }
 
 impl Default for PerceptionConfig {
@@ -187,6 +240,7 @@ impl PerceptionConfig {
                 success_radius_m: 0.3,
                 min_distance_m: 0.05,
             },
+            memory: MemoryConfig::default(),
         }
     }
 
@@ -197,11 +251,23 @@ impl PerceptionConfig {
         config
     }
 
+    /// Preset `flight-memory` (subterra): `flight` with the §V-A occupied spread σ_o = 300
+    /// (a 22 mm pole is believed from ~1 m instead of ~0.65 m; σ_n = 60 still rejects
+    /// speckle) and the obstacle memory on. The paper's `flight` grazes 22 mm poles
+    /// (docs/flight.md); this is what `fly-batch` reaches 0 collisions with.
+    pub fn flight_memory() -> Self {
+        let mut config = Self::flight();
+        config.observation.sigma_o_points = 300.0;
+        config.memory.enabled = true;
+        config
+    }
+
     /// A preset by name (see [`PRESET_NAMES`]).
     pub fn preset(name: &str) -> Result<Self> {
         match name {
             "flight" => Ok(Self::flight()),
             "cable" => Ok(Self::cable()),
+            "flight-memory" => Ok(Self::flight_memory()),
             _ => Err(Error::UnknownPreset { name: name.to_owned(), known: PRESET_NAMES.join(", ") }),
         }
     }
@@ -277,6 +343,7 @@ impl PerceptionConfig {
         require_non_negative("apf.success_radius_m", a.success_radius_m)?;
         require_positive("apf.min_distance_m", a.min_distance_m)?;
         let strongest = a.eta * (1.0 / a.min_distance_m - 1.0 / a.rho_0_m).max(0.0) / (a.min_distance_m * a.min_distance_m);
+        self.memory.validate()?;
         if !(strongest.is_finite() && strongest <= MAX_REPULSION) {
             return Err(Error::config(
                 "apf.eta",

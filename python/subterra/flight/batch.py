@@ -1,5 +1,6 @@
-"""Many randomized flights (`subterra fly-batch`): every route x seed x noise model, flown
-by APF-PF and by the raw-APF baseline on the same worlds, seeds and noise.
+"""Many randomized flights (`subterra fly-batch`): every route x seed x noise model x
+perception preset, flown by APF-PF and by the raw-APF baseline on the same worlds, seeds
+and noise.
 
 Each seed is a new obstacle layout (the built-in generators are seeded), a new noise
 stream and a new particle-filter stream. Flights run in parallel threads (the simulator
@@ -46,23 +47,24 @@ class BatchResult:
                 "summary": self.table, "flights": self.rows}
 
     def markdown(self) -> str:
-        """The results table (one line per controller x noise x route, then the totals)."""
-        head = ("| controller | noise | route | flights | success | collisions | local minima | timeouts "
+        """The results table (one line per controller x preset x noise x route, then the totals)."""
+        head = ("| controller | preset | noise | route | flights | success | collisions | local minima | timeouts "
                 "| min clearance [m] (worst / median) | time to goal [s] (median) | compute [ms] (median / p99) |")
-        lines = [head, "|" + "---|" * 11]
+        lines = [head, "|" + "---|" * 12]
         for r in self.table:
             clear = "-" if r["min_clearance_m"] is None else f"{r['min_clearance_m']:.3f} / {r['median_min_clearance_m']:.3f}"
             t = "-" if r["median_time_s"] is None else f"{r['median_time_s']:.1f}"
             c = "-" if r["compute_ms_median"] is None else f"{r['compute_ms_median']:.2f} / {r['compute_ms_p99']:.2f}"
             lines.append(
-                f"| {r['controller']} | {r['noise']} | {r['route']} | {r['flights']} | {r['successes']} ({100 * r['success_rate']:.0f}%) "
+                f"| {r['controller']} | {r['preset']} | {r['noise']} | {r['route']} | {r['flights']} | {r['successes']} ({100 * r['success_rate']:.0f}%) "
                 f"| {r['collisions']} | {r['local_minima']} | {r['timeouts']} | {clear} | {t} | {c} |"
             )
         return "\n".join(lines) + "\n"
 
     def save(self, out_dir: str | os.PathLike[str], *, plots: bool = True) -> dict[str, Path]:
-        """Writes ``results.json``, ``results.md`` and, with ``plots``, ``paths-seed<N>.png``
-        (every kept route, both controllers, over the world of that seed)."""
+        """Writes ``results.json``, ``results.md`` and, with ``plots``,
+        ``paths-seed<N>-<noise>[-<preset>].png`` (every kept route, both controllers, over
+        the world of that seed; the preset in the name when the batch flew several)."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         written = {"json": out / "results.json", "markdown": out / "results.md"}
@@ -71,26 +73,30 @@ class BatchResult:
         if plots and self.kept:
             from subterra.viz.flight import plot_flight_path
 
-            by_noise: dict[str, list[FlightResult]] = {}
+            groups: dict[tuple[str, str], list[FlightResult]] = {}
             for r in self.kept:
-                by_noise.setdefault(r.noise, []).append(r)
-            for noise, results in by_noise.items():
+                groups.setdefault((r.noise, r.preset), []).append(r)
+            several = len({preset for _, preset in groups}) > 1
+            for (noise, preset), results in groups.items():
                 seed = results[0].seed
-                name = f"paths-seed{seed}-{noise}.png"
-                written[f"paths_{noise}"] = plot_flight_path(
-                    results, out / name, title=f"{self.scenario}, seed {seed}, noise {noise}: every route, both controllers")
+                suffix = f"{noise}-{preset}" if several else noise
+                written[f"paths_{suffix}"] = plot_flight_path(
+                    results, out / f"paths-seed{seed}-{suffix}.png",
+                    title=f"{self.scenario}, seed {seed}, noise {noise}, preset {preset}: every route, both controllers")
         return written
 
 
 def summarise_rows(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Groups flight rows by (controller, noise, route) and by (controller, noise) over all
-    routes (route "all"); counts successes and failure causes."""
-    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    """Groups flight rows by (controller, preset, noise, route) and by (controller, preset,
+    noise) over all routes (route "all"); counts successes and failure causes."""
+    groups: dict[tuple[str, str, str, str], list[dict[str, Any]]] = {}
     for r in rows:
-        groups.setdefault((r["controller"], r["noise"], r["route"]), []).append(r)
-        groups.setdefault((r["controller"], r["noise"], "all"), []).append(r)
+        preset = r.get("preset", "flight")
+        groups.setdefault((r["controller"], preset, r["noise"], r["route"]), []).append(r)
+        groups.setdefault((r["controller"], preset, r["noise"], "all"), []).append(r)
     table = []
-    for (controller, noise, route), rs in sorted(groups.items(), key=lambda kv: (kv[0][1], kv[0][0], kv[0][2] == "all", kv[0][2])):
+    order = lambda kv: (kv[0][2], kv[0][0], kv[0][1], kv[0][3] == "all", kv[0][3])  # noqa: E731
+    for (controller, preset, noise, route), rs in sorted(groups.items(), key=order):
         clear = [r["min_clearance_m"] for r in rs if r["min_clearance_m"] is not None]
         times = [r["time_s"] for r in rs if r["success"]]
         compute = [r["compute_ms_median"] for r in rs if r["compute_ms_median"] is not None]
@@ -99,7 +105,7 @@ def summarise_rows(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
         n = len(rs)
         successes = sum(bool(r["success"]) for r in rs)
         table.append({
-            "controller": controller, "noise": noise, "route": route, "flights": n,
+            "controller": controller, "preset": preset, "noise": noise, "route": route, "flights": n,
             "successes": successes, "success_rate": successes / n if n else 0.0,
             "collisions": failures.count("collision"), "local_minima": failures.count("local_minimum"),
             "timeouts": failures.count("timeout"),
@@ -135,7 +141,7 @@ def fly_batch(
     *,
     controllers: Sequence[str] = ("apf-pf", "raw-apf"),
     noises: Sequence[str] = ("d435-phantom",),
-    preset: str = "flight",
+    preset: str | Sequence[str] = "flight",
     rate_hz: float = 15.0,
     time_limit_s: float | None = None,
     workers: int | None = None,
@@ -143,7 +149,10 @@ def fly_batch(
     progress: bool | Callable[[int, int, dict[str, Any]], None] = True,
     log_path: str | os.PathLike[str] | None = None,
 ) -> BatchResult:
-    """Flies every (noise, seed, route, controller) combination and summarises them.
+    """Flies every (preset, noise, seed, route, controller) combination and summarises them.
+
+    ``preset``: a perception preset name, a comma-separated list or a sequence of names
+    (e.g. ``"flight,flight-memory"``: the paper's and the obstacle memory's side by side).
 
     ``seeds``: a count (seeds ``0..n-1``) or explicit seeds. ``time_limit_s``: per flight
     (default: :func:`~subterra.flight.fly`'s, from the route length). ``workers``: parallel flights
@@ -166,15 +175,24 @@ def fly_batch(
         raise InputError("argument `noises` must not be empty")
     if workers is not None and not (isinstance(workers, int) and 1 <= workers <= 256):
         raise InputError(f"argument `workers` must be an integer in 1..256, got {workers!r}")
+    from subterra._core import preset_names
+
+    presets = [p.strip() for p in preset.split(",") if p.strip()] if isinstance(preset, str) else [str(p) for p in preset]
+    if not presets:
+        raise InputError("argument `preset` must name at least one perception preset")
+    for p in presets:
+        if p not in preset_names():
+            raise InputError(f"argument `preset`: unknown perception preset {p!r} (known: {', '.join(preset_names())})")
     route_list = _routes(scenario, routes)
     keep = seed_list[0] if keep_seed is None else keep_seed
-    jobs = [(noise, seed, route, controller) for noise in noises for seed in seed_list for route in route_list for controller in controllers]
+    jobs = [(p, noise, seed, route, controller) for p in presets for noise in noises for seed in seed_list
+            for route in route_list for controller in controllers]
     workers = workers or os.cpu_count() or 1
     started = time.perf_counter()
 
-    def run(job: tuple[str, int, str, str]) -> FlightResult:
-        noise, seed, route, controller = job
-        return fly(scenario, route, controller=controller, noise=noise, preset=preset, seed=seed, rate_hz=rate_hz,
+    def run(job: tuple[str, str, int, str, str]) -> FlightResult:
+        p, noise, seed, route, controller = job
+        return fly(scenario, route, controller=controller, noise=noise, preset=p, seed=seed, rate_hz=rate_hz,
                    time_limit_s=time_limit_s)
 
     bar = None
@@ -189,7 +207,8 @@ def fly_batch(
             bar, plain_every = None, max(1, len(jobs) // 20)
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
     kept: list[FlightResult] = []
-    counts = {c: {"ok": 0, "collisions": 0} for c in controllers}
+    label = (lambda c, p: f"{c}@{p}") if len(presets) > 1 else (lambda c, p: c)
+    counts = {label(c, p): {"ok": 0, "collisions": 0} for p in presets for c in controllers}
     log = None
     if log_path is not None:
         Path(log_path).parent.mkdir(parents=True, exist_ok=True)
@@ -204,7 +223,7 @@ def fly_batch(
                     log.flush()
                 if result.seed == keep:
                     kept.append(result)
-                c = counts[result.controller]
+                c = counts[label(result.controller, result.preset)]
                 c["ok"] += int(result.success)
                 c["collisions"] += int(result.failure == "collision")
                 status = ", ".join(f"{k}: {v['ok']} ok, {v['collisions']} coll." for k, v in counts.items())
@@ -223,6 +242,6 @@ def fly_batch(
             log.close()
     final_rows = [r for r in rows if r is not None]
     settings = {"routes": route_list, "seeds": seed_list, "controllers": list(controllers), "noises": list(noises),
-                "preset": preset, "rate_hz": rate_hz, "time_limit_s": time_limit_s, "workers": workers}
+                "presets": presets, "rate_hz": rate_hz, "time_limit_s": time_limit_s, "workers": workers}
     return BatchResult(scenario=scenario, rows=final_rows, table=summarise_rows(final_rows), kept=kept,
                        wall_s=time.perf_counter() - started, settings=settings)

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from subterra._core import ApfController, DepthPerception, PerceptionConfig, PinholeCamera
+from subterra._core import ApfController, DepthPerception, ObstacleMemory, PerceptionConfig, PinholeCamera
 from subterra.errors import ConfigError, InputError
 from subterra.sim import DEPTH_NOISE_PRESETS, DepthCamera, Simulation, World
 
@@ -42,7 +42,7 @@ CONTROLLERS: dict[str, str] = {"apf-pf": "particle", "apf-pf-histogram": "histog
 FRAME_FIELDS = (
     "time_s", "position", "yaw", "mpv_voxel", "mpv_depth_m", "mpv_probability", "mpv_body", "p_free",
     "closest_depth_m", "truth_closest_m", "obstacle_in_view", "repulsive_body", "repulsive_norm",
-    "command", "compute_ms", "clearance_m",
+    "memory_repulsive_norm", "memory_cells", "command", "compute_ms", "clearance_m",
 )
 
 
@@ -56,7 +56,10 @@ class FlightResult:
     in the body frame, ``p_free`` (F,), ``closest_depth_m`` (F,) closest valid raw (noisy)
     depth, ``truth_closest_m`` (F,) closest noise-free depth (NaN when nothing returns),
     ``obstacle_in_view`` (F,) bool (a real surface within the filter's horizon),
-    ``repulsive_body`` (F, 3) and ``repulsive_norm`` (F,), ``command`` (F, 4) ``[v_x, v_y,
+    ``repulsive_body`` (F, 3) and ``repulsive_norm`` (F,) the repulsion the command used
+    (belief plus, with the preset's obstacle memory on, the memory's), ``memory_repulsive_norm``
+    (F,) the memory's share and ``memory_cells`` (F,) what it held (0 without a memory),
+    ``command`` (F, 4) ``[v_x, v_y,
     v_z, yaw_rate]``, ``compute_ms`` (F,) controller wall time, ``clearance_m`` (F,) after
     the step (negative = penetration). ``path`` is (F + 1, 3): every observed position and
     the final one.
@@ -160,8 +163,8 @@ def _write_frames(result: FlightResult, path: Path) -> Path:
     header = [
         "time_s", "x_m", "y_m", "z_m", "yaw_rad", "mpv_i", "mpv_j", "mpv_k", "mpv_depth_m", "mpv_probability",
         "mpv_x_body_m", "mpv_y_body_m", "mpv_z_body_m", "p_free", "closest_depth_m", "truth_closest_m",
-        "obstacle_in_view", "rep_x", "rep_y", "rep_z", "rep_norm", "cmd_v_x", "cmd_v_y", "cmd_v_z", "cmd_yaw_rate",
-        "compute_ms", "clearance_m",
+        "obstacle_in_view", "rep_x", "rep_y", "rep_z", "rep_norm", "memory_rep_norm", "memory_cells",
+        "cmd_v_x", "cmd_v_y", "cmd_v_z", "cmd_yaw_rate", "compute_ms", "clearance_m",
     ]
 
     def num(v: float, digits: int = 5) -> str:
@@ -176,6 +179,7 @@ def _write_frames(result: FlightResult, path: Path) -> Path:
             row += [num(f["mpv_depth_m"][n]), num(f["mpv_probability"][n]), *(num(v) for v in f["mpv_body"][n])]
             row += [num(f["p_free"][n]), num(f["closest_depth_m"][n]), num(f["truth_closest_m"][n])]
             row += [str(int(f["obstacle_in_view"][n])), *(num(v) for v in f["repulsive_body"][n]), num(f["repulsive_norm"][n])]
+            row += [num(f["memory_repulsive_norm"][n]), str(int(f["memory_cells"][n]))]
             row += [*(num(v) for v in f["command"][n]), num(f["compute_ms"][n], 4), num(f["clearance_m"][n], 4)]
             w.writerow(row)
     return path
@@ -263,6 +267,8 @@ def fly(
     perception = DepthPerception(camera.camera, preset, config=config, seed=seed, mode=CONTROLLERS[controller])
     cfg = perception.config.to_dict()
     apf = ApfController(preset, config=config)
+    # The obstacle memory (`flight-memory`; off in the paper's presets) works on the odometry.
+    memory = ObstacleMemory(perception) if cfg["memory"]["enabled"] else None
     v_max = float(cfg["apf"]["v_x_max_m_s"])
     if time_limit_s is None:
         time_limit_s = max(60.0, 4.0 * float(np.linalg.norm(goal - start)) / max(v_max, 1e-3))
@@ -297,14 +303,20 @@ def fly(
             goal_body = odom[:3, :3].T @ (goal - odom[:3, 3])
             tick = time.perf_counter()
             out = perception.update(obs["depth"]["front"])
-            cmd = apf.command(goal_body, out)
+            if memory is None:
+                remembered = None
+                rep = out.repulsive_body
+                cmd = apf.command(goal_body, out)
+            else:
+                remembered = memory.update(out, stamp=obs["time_s"], world_from_body=odom)
+                rep = out.repulsive_body + remembered.repulsive_body
+                cmd = apf.command(goal_body, repulsive_body=rep)
             compute_s = time.perf_counter() - tick
             step = sim.step(cmd, dt, compute_time_s=compute_s)
 
             position = truth_body[:3, 3].copy()
             positions.append(position)
             mp = out.most_probable
-            rep = out.repulsive_body
             truth_min = obs["depth_truth_min"]["front"]
             rows["time_s"].append(obs["time_s"])
             rows["position"].append(position)
@@ -319,6 +331,8 @@ def fly(
             rows["obstacle_in_view"].append(truth_min is not None and truth_min < horizon_m)
             rows["repulsive_body"].append(rep)
             rows["repulsive_norm"].append(float(np.linalg.norm(rep)))
+            rows["memory_repulsive_norm"].append(0.0 if remembered is None else float(np.linalg.norm(remembered.repulsive_body)))
+            rows["memory_cells"].append(0 if remembered is None else remembered.cells)
             rows["command"].append(cmd.as_array())
             rows["compute_ms"].append(compute_s * 1e3)
             rows["clearance_m"].append(step["clearance_m"])
@@ -366,6 +380,8 @@ def fly(
         "obstacle_in_view": np.asarray(rows["obstacle_in_view"], dtype=bool),
         "repulsive_body": np.asarray(rows["repulsive_body"], dtype=np.float64).reshape(-1, 3),
         "repulsive_norm": np.asarray(rows["repulsive_norm"], dtype=np.float64),
+        "memory_repulsive_norm": np.asarray(rows["memory_repulsive_norm"], dtype=np.float64),
+        "memory_cells": np.asarray(rows["memory_cells"], dtype=np.int64),
         "command": np.asarray(rows["command"], dtype=np.float64).reshape(-1, 4),
         "compute_ms": np.asarray(rows["compute_ms"], dtype=np.float64),
         "clearance_m": np.asarray(rows["clearance_m"], dtype=np.float64),

@@ -56,6 +56,8 @@ MPV_MARKER_AREA = (8.0, 140.0)
 CONTROLLER_STYLE = {
     "apf-pf": ("tab:blue", "APF-PF"),
     "raw-apf": ("tab:orange", "raw APF (no filter)"),
+    "apf-pf (flight-memory)": ("tab:green", "APF-PF + obstacle memory (flight-memory)"),
+    "raw-apf (flight-memory)": ("tab:red", "raw APF + obstacle memory (flight-memory)"),
 }
 _OTHER_COLOURS = ("tab:green", "tab:purple", "tab:cyan", "tab:olive", "tab:pink", "tab:brown")
 #: Colours of obstacles on the map, by tag (default for any other tag).
@@ -468,11 +470,17 @@ def _draw_world(ax, spec: dict[str, Any], z_band: tuple[float, float] | None) ->
     return proxies
 
 
+def _controller_key(f: Any) -> str:
+    """The controller's name, with its preset when that is not the paper's `flight`."""
+    preset = str(getattr(f, "preset", "flight"))
+    return str(f.controller) if preset == "flight" else f"{f.controller} ({preset})"
+
+
 def _controller_colours(flights: list[Any]) -> dict[str, tuple[str, str]]:
     out: dict[str, tuple[str, str]] = {}
     others = iter(_OTHER_COLOURS * (1 + len(flights) // len(_OTHER_COLOURS)))
     for f in flights:
-        name = str(f.controller)
+        name = _controller_key(f)
         if name not in out:
             out[name] = CONTROLLER_STYLE.get(name, (next(others), name))
     return out
@@ -489,11 +497,11 @@ def _draw_flights(ax, flights: list[Any], paths: list[np.ndarray], colours: dict
 
     reached = {name: [0, 0] for name in colours}
     for f in flights:
-        reached[str(f.controller)][1] += 1
-        reached[str(f.controller)][0] += _failure(f) is None
+        reached[_controller_key(f)][1] += 1
+        reached[_controller_key(f)][0] += _failure(f) is None
     for f, p in zip(flights, paths, strict=True):
-        colour, label = colours[str(f.controller)]
-        ok, total = reached[str(f.controller)]
+        colour, label = colours[_controller_key(f)]
+        ok, total = reached[_controller_key(f)]
         ax.plot(p[:, 0], p[:, 1], color=colour, lw=1.6, alpha=0.9, zorder=5, label=f"{label}: {ok}/{total} without failure")
         ax.plot(*p[0, :2], "o", color="tab:green", mec="k", mew=0.5, ms=7, zorder=6, label="start")
         ax.plot(*p[-1, :2], "s", color=colour, mec="k", mew=0.5, ms=6, zorder=6, label="end (colour: controller)")
@@ -521,7 +529,7 @@ def _path_title(flights: list[Any]) -> str:
     routes = sorted({str(getattr(f, "route", "")) for f in flights} - {""})
     if routes:
         parts.append("route " + ", ".join(routes))
-    parts.append(" vs ".join(sorted({str(f.controller) for f in flights})))
+    parts.append(" vs ".join(sorted({_controller_key(f) for f in flights})))
     if getattr(f0, "noise", None):
         parts.append(f"noise {f0.noise}")
     return ", ".join(parts)
