@@ -174,6 +174,10 @@ def main() -> None:
     plot_flight_trace(flights[0], FIGURES / "flight-trace-apf-pf.png")
     plot_flight_trace(flights[1], FIGURES / "flight-trace-raw-apf.png")
     plot_compute_time(flights[0], FIGURES / "flight-compute-apf-pf.png")
+    # The obstacle memory (docs/flight.md): highbay A-B, seed 10, the paper's preset grazes a 22 mm pole.
+    pair = [fly("highbay", "A-B", preset=p, noise="d435-phantom", seed=10) for p in ("flight", "flight-memory")]
+    plot_flight_path(pair, FIGURES / "flight-memory-paths.png",
+                     title="highbay A-B, seed 10, D435 + phantom speckle: APF-PF, flight vs flight-memory")
     summary = cable_test(FIGURES / "cable-test-run", frames=150, seed=0, progress=False)
     (FIGURES / "cable-test-run" / "cable-test.png").replace(FIGURES / "cable-test.png")
     for leftover in (FIGURES / "cable-test-run").iterdir():

@@ -57,7 +57,7 @@ CONTROLLER_STYLE = {
     "apf-pf": ("tab:blue", "APF-PF"),
     "raw-apf": ("tab:orange", "raw APF (no filter)"),
     "apf-pf (flight-memory)": ("tab:green", "APF-PF + obstacle memory (flight-memory)"),
-    "raw-apf (flight-memory)": ("tab:red", "raw APF + obstacle memory (flight-memory)"),
+    "raw-apf (flight-memory)": ("tab:purple", "raw APF + obstacle memory (flight-memory)"),
 }
 _OTHER_COLOURS = ("tab:green", "tab:purple", "tab:cyan", "tab:olive", "tab:pink", "tab:brown")
 #: Colours of obstacles on the map, by tag (default for any other tag).
