@@ -545,8 +545,10 @@ class Navigator:
         """The last coarse risk map (None before the first scan)."""
     @property
     def plan_grid(self) -> npt.NDArray[np.float32] | None:
-        """The planner's grid ``(ny, nx)`` on ``risk_map``'s geometry: risk where observed,
-        raised by the hazard memory, NaN where unobserved (None before the first scan)."""
+        """The navigator's grid ``(ny, nx)`` on ``risk_map``'s geometry: risk where observed,
+        raised by the hazard memory, NaN where unobserved (None before the first scan). The
+        MPC, the local risk and ``back_out`` use it as it is; the A* plans on it grown into
+        the unseen and inflated (``crates/subterra/src/plan/navigator.rs``, steps 2-3)."""
     @property
     def remembered_hazards(self) -> int:
         """Cells in the hazard memory (``navigator.hazard_memory``)."""

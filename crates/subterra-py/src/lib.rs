@@ -495,7 +495,8 @@ impl PyObstacleMemory {
     #[pyo3(signature = (output, *, stamp, world_from_body))]
     fn update(&mut self, py: Python<'_>, output: &PyPerceptionOutput, stamp: f64, world_from_body: &Bound<'_, PyAny>) -> PyResult<PyMemoryOutput> {
         let pose = isometry(py, "world_from_body", world_from_body)?;
-        Ok(PyMemoryOutput { inner: self.inner.update(&output.inner, stamp, &pose).py_err(py)? })
+        let (inner, out) = (&mut self.inner, &output.inner);
+        Ok(PyMemoryOutput { inner: py.detach(|| inner.update(out, stamp, &pose)).py_err(py)? })
     }
 
     /// Forgets everything.

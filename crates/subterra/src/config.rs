@@ -181,6 +181,9 @@ impl MemoryConfig {
         }
         require_non_negative("memory.in_view_timeout_s", self.in_view_timeout_s)?;
         require_non_negative("memory.timeout_s", self.timeout_s)?;
+        if self.in_view_timeout_s > self.timeout_s {
+            return Err(Error::config("memory.in_view_timeout_s", format!("must not exceed memory.timeout_s = {}", self.timeout_s), self.in_view_timeout_s));
+        }
         require_positive("memory.rho_0_m", self.rho_0_m)?;
         if self.max_cells == 0 || self.max_cells > MAX_MEMORY_CELLS {
             return Err(Error::config("memory.max_cells", format!("must be in 1..={MAX_MEMORY_CELLS}"), self.max_cells));

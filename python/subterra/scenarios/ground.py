@@ -6,9 +6,10 @@
   climbs the whole recovery ladder (clear map, rotate, raise thresholds, back out),
   gives up the goal and drives home.
 - ``risky-slope``: a 19.5° ramp, 0.5 m up to a plateau, across the whole hall between
-  start and goal (foot and crest rounded over 0.6 m, see :data:`RAMP_ROUNDING_M`). Its tilt risk, about 0.63 (the Husky's tilt ramp is 10°-25°), is above
-  the nominal ``R_inst`` = 0.6: the robot must raise its thresholds to climb, then reaches
-  the goal on the plateau (19.5° is far from the 35° rollover limit).
+  start and goal (foot and crest rounded over 0.6 m, see :data:`RAMP_ROUNDING_M`). Its
+  tilt risk, about 0.63 (the Husky's tilt ramp is 10°-25°), is above the nominal
+  ``R_inst`` = 0.6: the robot must raise its thresholds to climb it (19.5° is far from the
+  35° rollover limit). It does not reach the goal yet (docs/drive.md, the recovery ladder).
 - ``blocked-return``: the dead end, and the base the robot should return to is walled in
   too: after the ladder has run on the way to the goal and again on the way to the base,
   the robot stops (``failed``), without touching anything.

@@ -12,18 +12,23 @@
 //! 2. **Forget.** A cell is forgotten `timeout_s` after the belief last put an obstacle in
 //!    it, or `in_view_timeout_s` after, when its point lies in the camera's view now
 //!    (inside the image and between `grid.depth_min_m` and `grid.depth_max_m` along the
-//!    optical axis): there the filter sees the place, and its belief is the better word.
-//!    Past `max_cells` the oldest cells go first.
+//!    optical axis): there the filter sees the place, and its belief is the better word
+//!    (occlusion is not modelled, and a belief that moved to another obstacle in view also
+//!    lets a cell go after that second). Past `max_cells` the oldest cells go first.
 //! 3. **Repel.** `F = Σ_c w_c·F_rep(p_c) / max(1, Σ_{c: |p_c| < ρ_m} w_c)`: the potential
 //!    of [`repulsive_force`] with the memory's own cut-off `ρ_m = rho_0_m` (the belief's
 //!    `η` and `min_distance_m`), over the cells' points `p_c` in the body frame, weighted
 //!    by their beliefs and normalised like a belief once the weights within `ρ_m` sum past 1.
+//!    Cells the belief holds now count too: an obstacle in view within `ρ_m` is pushed
+//!    against by the belief and by the memory, up to twice as hard.
 //!
 //! Why: the simulated D435's 80° x 64° view (fx = 385 px on 640 x 480) is narrow. A
 //! robot that turns away from a thin pole until the pole leaves the view flies on past it
 //! blind, and grazes it (highbay seeds 13, 15, 17, docs/flight.md); and a belief over one
 //! obstacle can jump to a fuller voxel beyond `ρ_0` and drop a thin pole close ahead
-//! (seeds 10, 14). The cut-off `ρ_m` is short (0.6 m, against the belief's 1.4 m) so that
+//! (seeds 10, 14): the memory keeps the pole for `in_view_timeout_s` more, and the
+//! `flight-memory` preset's σ_o = 300 has the pole believed from farther away, in time to
+//! turn. The cut-off `ρ_m` is short (0.6 m, against the belief's 1.4 m) so that
 //! what is remembered only acts near contact: a long-range memory holds the robot in front
 //! of every large obstacle it has turned away from.
 //!

@@ -100,6 +100,8 @@ SLSQP_FTOL = 1e-13
 SLSQP_MAX_ITERATIONS = 500
 #: SLSQP's exit status "positive directional derivative for linesearch".
 SLSQP_NO_DESCENT = 8
+#: How far a speed row may be violated at a status-8 fixed point that counts as converged [m/s].
+SLSQP_FEASIBILITY_TOL = 1e-7
 
 _TAU, _W = np.polynomial.legendre.leggauss(QUADRATURE_NODES)
 #: Nodes on [0, 1] and weights summing to 1.
@@ -458,8 +460,10 @@ def solve(state, reference_path, *, risk=None, resolution: float | None = None, 
         if change <= FIXED_POINT_TOL:
             # At the fixed point SciPy 1.17's SLSQP may end with status 8 ("positive
             # directional derivative for linesearch"): with ftol 1e-13 no descent is left
-            # at machine precision. The pass did not move the inputs either: converged.
-            converged = bool(out.success) or out.status == SLSQP_NO_DESCENT
+            # at machine precision. The pass did not move the inputs either: converged, if
+            # the speed rows hold there (status 8 also comes from an infeasible start).
+            feasible = all(float(np.min(g["fun"](u.reshape(-1)))) >= -SLSQP_FEASIBILITY_TOL for g in constraints)
+            converged = bool(out.success) or (out.status == SLSQP_NO_DESCENT and feasible)
             break
     x = rollout(x0, u, dt)
     problem, _ = _problem(c, path, s0, desired, x, grid, prev, floor)
