@@ -2312,8 +2312,14 @@ impl TerrainView {
                     for s in s0..=s1 {
                         for (k, b) in view.slopes[s * bins + j0..=s * bins + j1].iter_mut().enumerate() {
                             let range = if per_bin { ranges[k] } else { whole };
-                            b.lo = b.lo.min(range.lo);
-                            b.hi = b.hi.max(range.hi);
+                            // What `min` / `max` give (`b` is never NaN; a NaN bound leaves
+                            // it), as plain selects.
+                            if range.lo < b.lo {
+                                b.lo = range.lo;
+                            }
+                            if range.hi > b.hi {
+                                b.hi = range.hi;
+                            }
                         }
                     }
                 };
