@@ -538,11 +538,11 @@ impl World {
                 break;
             }
             let Some((id, prepared)) = plan.prepared.get(index as usize) else { continue };
-            // Boxes (the common kind) inline, the other kinds out of line: a branch, not a
-            // jump through the kinds.
+            // Boxes (the common kind) matched first, their test inlined here (this form
+            // measured faster than a plain `cast_t`, though the kinds still share one jump).
             let hit = match prepared {
                 Prepared::Box { cos, sin, near, far, .. } => ray_box_t(d, *cos, *sin, *near, *far),
-                other => other.cast_t_out_of_line(d),
+                other => other.cast_t(d),
             };
             if let Some((t, face)) = hit {
                 if t < solid_t || (t == solid_t && *id < solid_id) {
@@ -1618,12 +1618,6 @@ impl Prepared {
             }
             Prepared::Box { cos, sin, near, far, .. } => ray_box_t(d, cos, sin, near, far),
         }
-    }
-
-    /// [`Prepared::cast_t`], not inlined.
-    #[inline(never)]
-    fn cast_t_out_of_line(&self, d: DVec3) -> Option<(f64, u8)> {
-        self.cast_t(d)
     }
 
     /// Outward normal of the hit at `t` on face `face` found by [`Prepared::cast_t`] for the same ray.
