@@ -56,6 +56,24 @@ def test_dead_end_climbs_the_ladder_backs_out_and_goes_home():
     assert raised[-1]["r_inst"] == pytest.approx(0.9) and raised[-1]["r_total"] == pytest.approx(0.95)
 
 
+def test_risky_slope_is_climbed_once_the_thresholds_are_raised():
+    sc = recovery_scenario("risky-slope")
+    result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=90,
+                   navigator_config=sc.navigator_config)
+    m = result.metrics
+    assert m["success"], (m["failure"], result.events[-4:])
+    assert m["collisions"] == 0 and m["failure"] is None
+    raised = [e for e in result.events if e["to"] == "raise_thresholds"]
+    assert raised, _behaviours(result)
+    # The ramp's tilt risk (~0.63) is above the nominal R_inst = 0.6: it was climbed only
+    # after a raise, on the plateau 0.5 m up, at the ramp's tilt.
+    assert raised[0]["r_inst"] > 0.6 and "no path within the risk budget" in raised[0]["reason"]
+    climbing = result.steps["position"][:, 0] > 11.5
+    assert result.steps["time_s"][climbing][0] > raised[0]["time_s"]
+    assert result.steps["position"][-1, 2] == pytest.approx(0.5, abs=0.02)
+    assert 17.0 < m["max_tilt_deg"] < 25.0
+
+
 def test_blocked_return_stops_safely_after_the_ladder_ran_twice():
     sc = recovery_scenario("blocked-return")
     result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=360)
@@ -97,6 +115,10 @@ def test_navigator_bad_inputs_name_the_argument():
     assert out.command == (0.0, 0.0) and nav.risk_map is None
     with pytest.raises(InputError, match="planner"):
         drive("mine", planner="dijkstra")
+    with pytest.raises(InputError, match="terrain.ground"):
+        drive("mine", navigator_config={"terrain": {"ground": 3}})
+    with pytest.raises(ConfigError, match="unseen_rise_min_length_m"):
+        drive("mine", navigator_config={"terrain": {"ground": {"unseen_rise_min_length_m": -2.0}}})
 
 
 def _ground_scan(x_range, y_range, *, box=None, spacing=0.05, sensor_height=0.7):

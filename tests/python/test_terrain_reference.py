@@ -424,3 +424,63 @@ def test_collinear_ground_cells_have_no_plane(config):
     rust, ref = rust_and_reference(points, config=config)
     assert np.isfinite(ref.layer("ground_height")).sum() == 10 and np.isnan(ref.layer("slope")).all()
     assert np.isnan(rust.layer("slope")).all(), f"Rust slopes [deg]: {np.degrees(rust.layer('slope')[np.isfinite(rust.layer('slope'))])}"
+
+
+def _unseen_rise_scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A robot at the foot of a ramp it cannot see (the blind ring): floor behind it, in
+    front (|azimuth| < 60°) a plateau 0.43 m up seen from 2.4 m on. Between 150° and 170° a
+    0.3 m box top seen from 1.4 m to 2.4 m with its face hidden, then the floor again; at
+    -160° a box of the same height 4 m away with its face in view. Returns the points
+    (sensor frame, 0.7 m up), whether each lies on the plateau, on a box."""
+    rng = np.random.default_rng(3)
+    pts, plateau, box = [], [], []
+    for az in np.radians(np.arange(-180.0, 180.0, 0.5)):
+        deg = math.degrees(az)
+        for r in np.arange(1.4, 12.0, 0.1):
+            if abs(deg) < 60.0:
+                if r < 2.4:
+                    continue
+                z, on_plateau, on_box = 0.43, True, False
+            elif 150.0 <= deg <= 170.0 and r < 2.4:
+                z, on_plateau, on_box = 0.3, False, True
+            elif -162.0 <= deg <= -158.0 and 4.0 <= r < 4.6:
+                z, on_plateau, on_box = 0.3, False, True
+            elif r < 2.4:
+                continue
+            else:
+                z, on_plateau, on_box = 0.0, False, False
+            pts.append((r * math.cos(az), r * math.sin(az), z - SENSOR_HEIGHT_M + rng.normal(0.0, 0.002)))
+            plateau.append(on_plateau)
+            box.append(on_box)
+        if -162.0 <= deg <= -158.0:  # the face of the far box: a column of returns at 4 m
+            for h in np.arange(0.02, 0.3, 0.03):
+                pts.append((4.0 * math.cos(az), 4.0 * math.sin(az), h - SENSOR_HEIGHT_M))
+                plateau.append(False)
+                box.append(True)
+    return np.asarray(pts, np.float32), np.asarray(plateau), np.asarray(box)
+
+
+def test_unseen_rise_makes_a_plateau_ground_and_leaves_box_tops_obstacles(config):
+    points, plateau, box = _unseen_rise_scene()
+    off = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M)
+    # The default (off): the plateau is a level line far above the ground, an obstacle's top.
+    assert (~off[plateau]).mean() > 0.95
+    cfg = {**config, "ground": {**config["ground"], "unseen_rise_min_length_m": 2.0}}
+    on = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg["ground"])
+    np.testing.assert_array_equal(on, reference.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg))
+    assert on[plateau].mean() > 0.99
+    # A box top behind a hidden face spans 1 m (< 2 m): still an obstacle; so is the one whose face is seen.
+    high = box & (points[:, 2] + SENSOR_HEIGHT_M > 0.15)  # the lowest face returns are within T_dground of the floor
+    assert (~on[high]).mean() > 0.99
+    floor = ~plateau & ~box
+    assert on[floor].mean() > 0.99 and off[floor].mean() > 0.99
+    with pytest.raises(subterra.errors.ConfigError, match="unseen_rise_min_length_m"):
+        subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config={"unseen_rise_min_length_m": -1.0})
+
+
+@pytest.mark.parametrize("seed", SEEDS[:3])
+def test_labels_match_reference_with_unseen_rises_on(scans, config, seed):
+    cfg = {**config, "ground": {**config["ground"], "unseen_rise_min_length_m": 1.0}}
+    points = scans[seed]
+    rust = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg["ground"])
+    np.testing.assert_array_equal(rust, reference.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg))

@@ -26,10 +26,12 @@
 //! centre of mass). It gives the height `z`, roll and pitch (ZYX Euler angles, REP 103:
 //! **nose up is negative pitch**, left side up is positive roll). Failures, checked in
 //! this order: [`Failure::OutOfWorld`] (no ground under any sample), [`Failure::Fall`]
-//! (a sample over a hole, or an **overhanging** sample more than `max_drop_m` below the
-//! contact plane: part of the footprint sticks out over a drop deeper than the
-//! clearance; a low sample inside the convex hull of the supporting samples is bridged —
-//! the robot spans a valley or a ditch — and is not a fall), [`Failure::Rollover`] (|roll| or |pitch|
+//! (a sample over a hole, or an **overhanging** sample more than `max_drop_m` below both
+//! the contact plane and the lowest supporting sample: part of the footprint sticks out over
+//! a drop deeper than the clearance; a low sample inside the convex hull of the supporting
+//! samples is bridged — the robot spans a valley or a ditch — and is not a fall, nor is a
+//! wheel lifted off ground no lower than the supports, as when one front corner climbs the
+//! foot of a ramp first), [`Failure::Rollover`] (|roll| or |pitch|
 //! beyond the limits), [`Failure::Collision`] (the terrain under a sample rose more than
 //! `max_step_m` above the previous contact plane in one sub-step — the body ran into a
 //! ledge — or a solid lies inside the body box above the ground clearance, see
@@ -631,9 +633,12 @@ pub struct Settle {
     pub gradient: DVec2,
     /// Deepest footprint sample below the contact plane [m] (0 on a plane).
     pub max_gap_m: f64,
-    /// Deepest overhanging sample below the contact plane [m]: one outside the convex
-    /// hull (in x-y) of the supporting samples (those on the plane). Low samples inside
-    /// that hull are bridged (a valley, a ditch under the belly) and do not count.
+    /// Deepest drop under an overhanging sample [m]: over the samples outside the convex
+    /// hull (in x-y) of the supporting samples (those on the plane), the largest of
+    /// `min(gap below the plane, lowest support's height - sample's ground height)`. Low
+    /// samples inside that hull are bridged (a valley, a ditch under the belly) and do not
+    /// count; a lifted wheel over ground as high as the lowest support (one corner on the
+    /// foot of a ramp, the other three on the floor) gives 0.
     pub overhang_gap_m: f64,
     /// Footprint samples with ground under them.
     pub samples_on_ground: usize,
@@ -917,11 +922,12 @@ impl GroundRobot {
         let max_gap_m = gaps.iter().copied().fold(0.0_f64, f64::max);
         let supports: Vec<DVec2> = points.iter().zip(&gaps).filter(|(_, g)| **g <= SUPPORT_TOLERANCE_M).map(|(p, _)| p.truncate()).collect();
         let hull = convex_hull(&supports);
+        let lowest_support_z = points.iter().zip(&gaps).filter(|(_, g)| **g <= SUPPORT_TOLERANCE_M).map(|(p, _)| p.z).fold(f64::INFINITY, f64::min);
         let overhang_gap_m = points
             .iter()
             .zip(&gaps)
             .filter(|(p, g)| **g > SUPPORT_TOLERANCE_M && !hull_contains(&hull, p.truncate()))
-            .map(|(_, g)| *g)
+            .map(|(p, g)| g.min(lowest_support_z - p.z))
             .fold(0.0_f64, f64::max);
         let mut settle = Settle {
             z_m: z0,

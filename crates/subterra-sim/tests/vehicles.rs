@@ -349,6 +349,44 @@ fn ground_robot_falls_at_a_hole_and_a_drop_but_not_at_a_small_dip() {
 }
 
 #[test]
+fn ground_robot_climbs_the_foot_of_a_ramp_at_an_angle_without_a_fall() {
+    // A sharp-footed 19.5° ramp from x = 2 (0.5 m up): crossing its foot at 45°, one front
+    // corner climbs first and the opposite corner lifts off the floor by more than the
+    // clearance. That is a tilt, not a drop: the floor under the lifted corner is as high as
+    // the lowest support.
+    let slope = 19.5f64.to_radians().tan();
+    let ramp = world_with(WorldSpec {
+        heightfield: Some(terrain(-2.0, -6.0, 0.05, 241, 241, |x, _| ((x - 2.0).max(0.0) * slope).min(0.5))),
+        ..WorldSpec::default()
+    });
+    let mut deepest_lift = 0.0_f64;
+    for i in 0..=60 {
+        let x = 1.0 + 0.025 * i as f64;
+        for yaw in [std::f64::consts::FRAC_PI_4, -std::f64::consts::FRAC_PI_4, 0.3] {
+            let mut robot = husky_at(x, 0.0, yaw);
+            assert_eq!(robot.place(&ramp), None, "x = {x}, yaw = {yaw}");
+            let s = robot.last_settle().unwrap();
+            assert_eq!(s.overhang_gap_m, 0.0, "x = {x}, yaw = {yaw}");
+            deepest_lift = deepest_lift.max(s.max_gap_m);
+        }
+    }
+    // The case is a real one: some wheel hangs higher above the floor than the clearance.
+    assert!(deepest_lift > GroundRobotConfig::default().max_drop_m, "deepest lift {deepest_lift}");
+    // Driving across the foot at 45° climbs onto the ramp.
+    let mut robot = husky_at(0.5, -1.5, std::f64::consts::FRAC_PI_4);
+    let (failure, x) = drive_straight(&mut robot, &ramp, 0.5, 3.0);
+    assert_eq!(failure, None, "failed at x = {x}");
+    assert!(robot.last_settle().unwrap().z_m > 0.2);
+    // Off the crest's far side there is still a drop: the plateau ends in a 0.5 m cliff.
+    let mesa = world_with(WorldSpec {
+        heightfield: Some(terrain(-2.0, -6.0, 0.05, 241, 241, |x, _| if x < 5.0 { ((x - 2.0).max(0.0) * slope).min(0.5) } else { 0.0 })),
+        ..WorldSpec::default()
+    });
+    let mut robot = husky_at(4.7, 0.0, std::f64::consts::FRAC_PI_4);
+    assert_eq!(robot.place(&mesa), Some(Failure::Fall));
+}
+
+#[test]
 fn ground_robot_collides_with_a_box_above_its_clearance_not_with_a_bump() {
     let world_with_box = |height: f64| {
         world_with(WorldSpec { planes: vec![floor()], boxes: vec![box_spec([3.0, 0.0, 0.5 * height], [0.2, 2.0, height])], ..WorldSpec::default() })

@@ -43,6 +43,14 @@ def _navigator_config(path: str | None) -> dict[str, Any] | None:
     return config
 
 
+def _merged(base: dict[str, Any], over: dict[str, Any] | None) -> dict[str, Any]:
+    """``over`` laid over ``base``, table by table (a scenario's settings under the user's)."""
+    out = dict(base)
+    for key, value in (over or {}).items():
+        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
 def register_cli(subparsers: argparse._SubParsersAction) -> None:
     """Adds ``drive`` and ``drive-batch`` to ``subparsers``; their handlers are ``args.handler``."""
     from subterra.drive.run import PLANNERS
@@ -85,6 +93,7 @@ def _drive(args: argparse.Namespace) -> int:
     from subterra.viz.rerun import rerun_available
 
     kwargs: dict[str, Any] = {}
+    scenario_config: dict[str, Any] = {}
     if args.world is not None:
         world = load_world(args.world)
         name = world.name or Path(args.world).stem
@@ -92,6 +101,7 @@ def _drive(args: argparse.Namespace) -> int:
         sc = recovery_scenario(args.scenario)
         world, name = sc.world(), sc.name
         kwargs = {"start": sc.start, "yaw": sc.yaw, "goal": sc.goal, "home": sc.home}
+        scenario_config = sc.navigator_config
     else:
         world, name = None, args.scenario
     if args.start is not None:
@@ -101,7 +111,8 @@ def _drive(args: argparse.Namespace) -> int:
     out = Path(args.out or f"runs/drive-{name}-{args.planner}-s{args.seed}")
     rerun = None if args.no_rerun or not rerun_available() else out / "drive.rrd"
     result = drive(name, planner=args.planner, seed=args.seed, world=world, noise=args.noise,
-                   navigator_config=_navigator_config(args.config), rate_hz=args.rate, time_limit_s=args.time_limit,
+                   navigator_config=_merged(scenario_config, _navigator_config(args.config)), rate_hz=args.rate,
+                   time_limit_s=args.time_limit,
                    progress=True, rerun_path=rerun, **kwargs)
     paths = result.save(out, plots=not args.no_plots)
     m = result.summary()

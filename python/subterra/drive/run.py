@@ -221,7 +221,8 @@ def drive(
     :class:`subterra.sim.Lidar` preset, mounted level :data:`LIDAR_HEIGHT_M` above the body
     origin; ``noise``: one of :data:`subterra.sim.LIDAR_NOISE_PRESETS`.
     ``navigator_config``: a (partial) dict laid over the navigator's defaults (sections
-    ``planner``, ``tracker``, ``recovery``, ``navigator``). ``time_limit_s``: default 4x the
+    ``planner``, ``tracker``, ``recovery``, ``navigator``, and ``terrain``: the mapper's
+    settings, laid over the drive's, which turn void detection on). ``time_limit_s``: default 4x the
     straight-line time at half the robot's top speed, at least 90 s. ``progress``: True for a
     live line on stderr, or a callback receiving a dict per step.
     """
@@ -268,8 +269,12 @@ def drive(
     planner_cfg.setdefault("cost_model", "risk" if planner == "risk-aware" else "additive")
     config["planner"] = planner_cfg
     # The simulated lidars are spinning lidars: missing returns mark bottomless holes.
-    nav = Navigator(goal=goal_xy, home=home_xy, config=config,
-                    terrain={"ground": {"void_min_gap_deg": LIDAR_VOID_MIN_GAP_DEG}})
+    terrain = {"ground": {"void_min_gap_deg": LIDAR_VOID_MIN_GAP_DEG}}
+    for section, values in dict(config.pop("terrain", None) or {}).items():
+        if not isinstance(values, dict):
+            raise InputError(f"argument `navigator_config` section terrain.{section} must be a table, got {values!r}")
+        terrain[section] = {**terrain.get(section, {}), **values}
+    nav = Navigator(goal=goal_xy, home=home_xy, config=config, terrain=terrain)
     robot = nav.robot.to_dict()
     v_max = float(robot["max_speed_m_s"])
     if time_limit_s is None:

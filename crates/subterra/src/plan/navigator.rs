@@ -7,7 +7,11 @@
 //! 2. **Risk grid.** The coarse map's `risk` layer, or with `navigator.cvar_alpha` its
 //!    `CVaR_α` (risk-averse planning on the uncertainty of DESIGN §2), where the map has
 //!    observed the cell; NaN (priced by the planner's `unknown_risk`, default
-//!    [`UNSEEN_RISK_PER_M`]) where it has not. With `hazard_memory`, each new map then
+//!    [`UNSEEN_RISK_PER_M`]) where it has not. With `near_memory_m` > 0, a **near memory**
+//!    (world frame, by global cell index) then records the newest rating of every cell
+//!    observed within `near_memory_m` of the robot (with `near_memory_highest`, the highest
+//!    since it came that near: seen from close by, a slope's plane fit rests on fewer cells
+//!    and rates lower), and forgets cells beyond it; it is recalled last (below). With `hazard_memory`, each new map then
 //!    passes through a **hazard memory** kept in the world frame, by global cell index:
 //!    remembered cells farther than `hazard_memory_range_m` from the robot, and those the map
 //!    now rates below `lethal_risk` on at least `hazard_memory_forget_points` ground
@@ -25,7 +29,11 @@
 //!    seed 11: a pit's tip beyond its near rim never got a return, and the footprint went
 //!    over it). The grown cells are a guess, so they steer the plan but are not the MPC's
 //!    hard obstacles: in its grid they boxed in the robot's current state (mine seed 0: the
-//!    backup stop on 11 of 307 ticks). The
+//!    backup stop on 11 of 307 ticks). Last, on both grids, each cell still unobserved
+//!    within `near_memory_m` of the robot takes its rating from the near memory if that is
+//!    above the planner's `unknown_risk` (the unseen is never priced below it): the ground
+//!    under and just ahead of the robot, in the lidar's blind ring, keeps what was seen of
+//!    it (risky-slope: the ramp from its foot). The
 //!    local risk is the grid's value under the robot (`unknown_risk` when NaN or off the map).
 //! 3. **Plan** (only while tracking, and at most every `replan_period_s` unless the last
 //!    plan failed, the thresholds or the target changed): A* with the recovery machine's
@@ -52,7 +60,7 @@
 //!    (step 6) gives the behaviour for this tick.
 //! 5. **Act.** `track`: the MPC on the last path (the risk grid gives its speed limits and
 //!    obstacle polygons); no path yet: stop. `clear_map`: drop the mapper's window and the
-//!    remembered hazards farther than `hazard_memory_keep_m` from the robot, stop.
+//!    remembered hazards and near-memory cells farther than `hazard_memory_keep_m` from the robot, stop.
 //!    `rotate`: `v = 0`, `ω = clamp(k_rot·wrap(ψ* - ψ), ±ω_max)`. `back_out`: reverse toward
 //!    the machine's carrot: with `e = wrap(bearing of the carrot in the body frame - π)`,
 //!    `ω = clamp(k_rot·e, ±ω_max)`, `v = -v_back·max(cos e, 0)`, and `v = 0` while a cell
@@ -151,6 +159,18 @@ pub struct NavigatorSettings {
     pub hazard_memory_record_m: f64,
     /// Remembered cells farther than this from the robot are forgotten [m].
     pub hazard_memory_range_m: f64,
+    /// **Near memory** (step 2): an unobserved cell within this distance of the robot takes
+    /// the rating it had when last observed within it [m]; 0: off. The lidar's blind ring
+    /// (~2.3 m for one 0.7 m up) hides the ground the robot is about to drive on: without
+    /// it a slope seen from afar turns into cheap unseen ground (`UNSEEN_RISK_PER_M`) once
+    /// the robot stands at its foot, and is climbed on nominal thresholds (risky-slope).
+    pub near_memory_m: f64,
+    /// The near memory keeps each cell's highest rating while near instead of its newest.
+    /// Seen from close by, a slope's plane fit rests on fewer cells and rates it lower (the
+    /// risky-slope ramp: ~0.62 from afar, ~0.37 from its foot), so the newest rating lets
+    /// the robot climb it on nominal thresholds; the highest keeps it. Off by default: on
+    /// `mine` it flipped seed 11 (the pit tip never seen) into a fall (docs/drive.md).
+    pub near_memory_highest: bool,
 }
 
 impl Default for NavigatorSettings {
@@ -176,6 +196,8 @@ impl Default for NavigatorSettings {
             hazard_memory_forget_points: 5,
             hazard_memory_record_m: 6.0,
             hazard_memory_range_m: 15.0,
+            near_memory_m: 3.0,
+            near_memory_highest: false,
         }
     }
 }
@@ -196,6 +218,7 @@ impl NavigatorSettings {
         require_non_negative("navigator.inflation_margin_m", self.inflation_margin_m)?;
         require_non_negative("navigator.unseen_growth_m", self.unseen_growth_m)?;
         require_non_negative("navigator.unseen_growth_min_range_m", self.unseen_growth_min_range_m)?;
+        require_non_negative("navigator.near_memory_m", self.near_memory_m)?;
         if !(self.lethal_risk > 0.0 && self.lethal_risk <= 1.0) {
             return Err(Error::config("navigator.lethal_risk", "must be in (0, 1]", self.lethal_risk));
         }
@@ -325,6 +348,8 @@ pub struct Navigator {
     map: Option<RiskMap>,
     plan_risk: Vec<f32>,
     hazards: HashMap<(i64, i64), f32>,
+    /// Step 2's near memory: the last rating of observed cells near the robot, by global cell.
+    near: HashMap<(i64, i64), f32>,
     /// `plan_risk` grown into the unseen (step 2): the A*'s grid before its inflation.
     grown_risk: Vec<f32>,
     astar_risk: Vec<f32>,
@@ -365,6 +390,7 @@ impl Navigator {
             map: None,
             plan_risk: Vec::new(),
             hazards: HashMap::new(),
+            near: HashMap::new(),
             grown_risk: Vec::new(),
             astar_risk: Vec::new(),
             reachable: Vec::new(),
@@ -450,6 +476,10 @@ impl Navigator {
             let observed = map.layer("observed")?;
             self.plan_risk.clear();
             self.plan_risk.extend(risk.iter().zip(observed).map(|(&r, &o)| if o > 0.0 { r } else { f32::NAN }));
+            let near_m = self.config.navigator.near_memory_m;
+            if near_m > 0.0 {
+                remember_near(&mut self.near, &self.plan_risk, map.geometry(), position, near_m, self.config.navigator.near_memory_highest);
+            }
             if self.config.navigator.hazard_memory {
                 let ground_points = map.layer("ground_count")?;
                 remember_hazards(&mut self.hazards, &mut self.plan_risk, ground_points, map.geometry(), position, &self.config.navigator);
@@ -459,6 +489,11 @@ impl Navigator {
             if nav.unseen_growth_m > 0.0 {
                 let growth = Growth { lethal: nav.lethal_risk as f32, min_neighbours: nav.lethal_min_neighbours, radius_m: nav.unseen_growth_m, robot: position, min_range_m: nav.unseen_growth_min_range_m };
                 grow_into_unseen(&mut self.grown_risk, &mut self.astar_risk, map.geometry(), &growth);
+            }
+            if near_m > 0.0 {
+                let above = self.config.planner.unknown_risk as f32;
+                recall_near(&self.near, &mut self.plan_risk, map.geometry(), position, near_m, above);
+                recall_near(&self.near, &mut self.grown_risk, map.geometry(), position, near_m, above);
             }
             self.map = Some(map);
         }
@@ -573,6 +608,7 @@ impl Navigator {
             Behaviour::ClearMap => {
                 self.mapper.reset();
                 forget_beyond(&mut self.hazards, position, map.geometry().resolution_m, self.config.navigator.hazard_memory_keep_m);
+                forget_beyond(&mut self.near, position, map.geometry().resolution_m, self.config.navigator.hazard_memory_keep_m);
                 self.tracker.reset();
                 self.path.clear();
                 self.last_plan_ok = false;
@@ -667,6 +703,52 @@ fn remember_hazards(memory: &mut HashMap<(i64, i64), f32>, risk: &mut [f32], gro
             risk[c] = if risk[c].is_nan() { remembered } else { risk[c].max(remembered) };
         }
     }
+}
+
+/// The cells of geometry `g` whose centres lie within `radius_m` of `position`: `f(global
+/// cell, flat index)` for each.
+fn for_cells_within(g: &GridGeometry, position: DVec2, radius_m: f64, mut f: impl FnMut((i64, i64), usize)) {
+    let (ox, oy) = g.origin_cell;
+    let radius = radius_m / g.resolution_m;
+    let here = position / g.resolution_m - 0.5;
+    let (lo_x, hi_x) = ((here.x - radius).floor() as i64, (here.x + radius).ceil() as i64);
+    let (lo_y, hi_y) = ((here.y - radius).floor() as i64, (here.y + radius).ceil() as i64);
+    for wy in lo_y.max(oy)..=hi_y.min(oy + g.ny as i64 - 1) {
+        for wx in lo_x.max(ox)..=hi_x.min(ox + g.nx as i64 - 1) {
+            if DVec2::new(wx as f64, wy as f64).distance_squared(here) <= radius * radius {
+                f((wx, wy), (wy - oy) as usize * g.nx + (wx - ox) as usize);
+            }
+        }
+    }
+}
+
+/// Step 2's near memory, recording: forgets remembered cells farther than `radius_m` from
+/// `position`, and remembers for each cell within it that the map observed (`risk` not NaN;
+/// the map's ratings only, before the hazard memory) its newest rating, or with `highest`
+/// the highest it got while near.
+fn remember_near(memory: &mut HashMap<(i64, i64), f32>, risk: &[f32], g: &GridGeometry, position: DVec2, radius_m: f64, highest: bool) {
+    let radius = radius_m / g.resolution_m;
+    let here = position / g.resolution_m - 0.5;
+    memory.retain(|&key, _| DVec2::new(key.0 as f64, key.1 as f64).distance_squared(here) <= radius * radius);
+    for_cells_within(g, position, radius_m, |key, c| {
+        if !risk[c].is_nan() {
+            let r = memory.entry(key).or_insert(risk[c]);
+            *r = if highest { r.max(risk[c]) } else { risk[c] };
+        }
+    });
+}
+
+/// Step 2's near memory, recalling: each cell of `risk` still unobserved (NaN: after the
+/// hazard memory and the growth into the unseen) within `radius_m` of `position` whose
+/// remembered rating is above `above` (the planner's price of the unseen) takes it.
+fn recall_near(memory: &HashMap<(i64, i64), f32>, risk: &mut [f32], g: &GridGeometry, position: DVec2, radius_m: f64, above: f32) {
+    for_cells_within(g, position, radius_m, |key, c| {
+        if risk[c].is_nan() {
+            if let Some(&r) = memory.get(&key).filter(|&&r| r > above) {
+                risk[c] = r;
+            }
+        }
+    });
 }
 
 /// Step 2's growth into the unseen, its settings.
@@ -988,6 +1070,50 @@ mod tests {
     /// ground points), every other cell unobserved. Returns the grid after the step.
     fn step(memory: &mut HashMap<(i64, i64), f32>, origin_cell: (i64, i64), cells: &[(usize, usize, f32, f32)], position: DVec2) -> Vec<f32> {
         step_with(memory, origin_cell, cells, position, 0)
+    }
+
+    #[test]
+    fn near_memory_keeps_what_was_seen_near_the_robot_in_the_world_frame() {
+        let mut memory = HashMap::new();
+        let near_with = |memory: &mut HashMap<(i64, i64), f32>, origin_cell: (i64, i64), cells: &[(usize, usize, f32)], position: DVec2, highest: bool| {
+            let mut risk = vec![f32::NAN; N * N];
+            for &(ix, iy, r) in cells {
+                risk[iy * N + ix] = r;
+            }
+            remember_near(memory, &risk, &geometry(origin_cell), position, 0.3, highest);
+            recall_near(memory, &mut risk, &geometry(origin_cell), position, 0.3, 0.05);
+            risk
+        };
+        let near = |memory: &mut HashMap<(i64, i64), f32>, origin_cell: (i64, i64), cells: &[(usize, usize, f32)], position: DVec2| {
+            near_with(memory, origin_cell, cells, position, true)
+        };
+        // Grid at origin cell (0, 0): cell (5, 5) is at (0.55, 0.55) m. The robot at its centre.
+        let robot = DVec2::new(0.55, 0.55);
+        let risk = near(&mut memory, (0, 0), &[(5, 5, 0.6), (6, 5, 0.2), (9, 9, 0.7)], robot);
+        assert_eq!((risk[5 * N + 5], risk[5 * N + 6]), (0.6, 0.2));
+        // (9, 9) is 0.57 m away, beyond 0.3 m: not remembered.
+        assert_eq!(memory.len(), 2);
+        // Next map, shifted by one cell (origin (1, 0)): nothing observed; the same world
+        // cells get their ratings back at their new indices, the rest stay unobserved.
+        let risk = near(&mut memory, (1, 0), &[], robot);
+        assert_eq!((risk[5 * N + 4], risk[5 * N + 5]), (0.6, 0.2));
+        assert_eq!(risk.iter().filter(|r| !r.is_nan()).count(), 2);
+        // A new observation rates the cell on the grid; the memory keeps the highest rating.
+        let risk = near(&mut memory, (1, 0), &[(4, 5, 0.01), (5, 5, 0.9)], robot);
+        assert_eq!((risk[5 * N + 4], risk[5 * N + 5]), (0.01, 0.9));
+        assert_eq!((memory[&(5, 5)], memory[&(6, 5)]), (0.6, 0.9));
+        // Without `highest`, the newest rating.
+        let mut newest = HashMap::new();
+        near_with(&mut newest, (0, 0), &[(5, 5, 0.6)], robot, false);
+        near_with(&mut newest, (0, 0), &[(5, 5, 0.3)], robot, false);
+        assert_eq!(newest[&(5, 5)], 0.3);
+        // A rating at or below the price of the unseen (0.05 here) is not recalled.
+        let mut low = HashMap::new();
+        near(&mut low, (0, 0), &[(5, 5, 0.01)], robot);
+        assert!(near(&mut low, (0, 0), &[], robot)[5 * N + 5].is_nan());
+        // The robot moves 1 m away: everything is forgotten.
+        near(&mut memory, (1, 0), &[], robot + DVec2::new(0.0, 1.0));
+        assert!(memory.is_empty());
     }
 
     fn step_with(memory: &mut HashMap<(i64, i64), f32>, origin_cell: (i64, i64), cells: &[(usize, usize, f32, f32)], position: DVec2, min_neighbours: u32) -> Vec<f32> {

@@ -205,6 +205,16 @@ pub struct GroundConfig {
     /// robot are common and would be marked lethal. subterra.
     #[serde(default)]
     pub void_min_gap_deg: f64,
+    /// Rises over unseen ground: a sector's first line, whose first prototype lies *above*
+    /// the ground under the robot by more than `max_start_height_m`, with nothing seen before
+    /// it lower than that (the blind ring around the robot), starts on the ground if a ramp
+    /// no steeper than `max_slope` could climb there over that stretch and the line is level
+    /// (rising at most `max_start_height_m` over this length) and spans at least this many
+    /// metres: the plateau at the top of a ramp
+    /// whose foot the robot stands on. A box top seen beyond its hidden face looks the same,
+    /// so the span is long (a plateau, not a rock). 0 (the default) turns it off. subterra.
+    #[serde(default)]
+    pub unseen_rise_min_length_m: f64,
 }
 
 /// `ground.void_min_gap_deg` for the simulated spinning lidars (VLP-16, OS1-64): above the
@@ -318,6 +328,7 @@ impl Default for GroundConfig {
             min_line_points: 3,
             max_dist_to_line_m: 0.1,
             void_min_gap_deg: 0.0,
+            unseen_rise_min_length_m: 0.0,
         }
     }
 }
@@ -393,6 +404,9 @@ impl GroundConfig {
         require_positive("ground.max_dist_to_line_m", self.max_dist_to_line_m)?;
         if !(self.void_min_gap_deg.is_finite() && self.void_min_gap_deg >= 0.0 && self.void_min_gap_deg < 90.0) {
             return Err(Error::config("ground.void_min_gap_deg", "must be 0 (off) or in (0, 90) deg", self.void_min_gap_deg));
+        }
+        if !(self.unseen_rise_min_length_m.is_finite() && self.unseen_rise_min_length_m >= 0.0) {
+            return Err(Error::config("ground.unseen_rise_min_length_m", "must be 0 (off) or a finite length > 0 m", self.unseen_rise_min_length_m));
         }
         Ok(())
     }

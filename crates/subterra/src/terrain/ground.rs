@@ -41,6 +41,18 @@
 //!      `seg = [last(seg)]` (the break point starts the next segment) and handle `p` again
 //!      by the rules above (it now meets the `|seg| = 1` rule).
 //!
+//!    With `unseen_rise_min_length_m` = `U` > 0 the sector's first line also *starts on
+//!    the ground over an unseen rise* when no line has been accepted before it (the
+//!    estimate is still the ground under the robot), `max_start_height_m < q.z - z_g <=
+//!    max_start_height_m + max_slope · q.r` for its first prototype `q` (a ramp no steeper
+//!    than `max_slope` hidden in the blind ring could lead up to it) and no prototype of the
+//!    sector before `q` lies more than `max_start_height_m` below `q` (nothing was seen in
+//!    the stretch: no floor, no face of a box). Beyond an accepted line (the far side of a
+//!    hole, a crest) the rule does not apply. While a segment grows this counts as starting
+//!    on the ground; `close` accepts such a line only if it is a plateau, not a box top or a
+//!    slope: its last prototype at least `U` beyond its first, and level (`|m|·U <=
+//!    max_start_height_m`).
+//!
 //!    After the last prototype, `close(seg)`. `close(seg)`: if `|seg| >= min_line_points`
 //!    and the line `(m, b) = fit(seg)` starts on the ground, accept it covering bins
 //!    `[bin(first(seg)), bin(last(seg))]` and set `g = (last(seg).r, m·last(seg).r + b)`;
@@ -554,27 +566,35 @@ impl GroundSegmenter {
         self.bin_lines.clear();
         // The segment: its prototypes' (r, z, bin) and running sums.
         let mut seg: Vec<(f64, f64, u32)> = Vec::with_capacity(bins);
+        let mut seen: Vec<f64> = Vec::with_capacity(bins);
         for s in 0..c.sectors as usize {
             let first_line = self.lines.len();
-            let mut g = GroundEstimate { r: 0.0, z: -self.sensor_height_m };
+            let mut g = GroundEstimate { r: 0.0, z: -self.sensor_height_m, next: 0 };
             seg.clear();
             let mut sums = LineSums::default();
+            // The sector's prototypes so far; `seg` is `seen[seg_start..seg_start + seg.len()]`.
+            seen.clear();
+            let mut seg_start = 0;
             for (k, acc) in self.acc[s * bins..(s + 1) * bins].iter().enumerate() {
                 if !acc.proto_z.is_finite() {
                     continue;
                 }
                 let (r, z) = (acc.proto_r, acc.proto_z as f64);
+                let here = seen.len();
+                seen.push(z);
                 loop {
                     let Some(&(qr, qz, _)) = seg.last() else {
                         seg.push((r, z, k as u32));
                         sums = LineSums::start(r, z);
+                        seg_start = here;
                         break;
                     };
                     if r - qr > c.max_gap_m {
-                        close(&c, &seg, &sums, &mut g, &mut self.lines);
+                        close(&c, &seg, &sums, &mut g, &seen[..seg_start], seg_start, &mut self.lines);
                         seg.clear();
                         seg.push((r, z, k as u32));
                         sums = LineSums::start(r, z);
+                        seg_start = here;
                         break;
                     }
                     if seg.len() == 1 {
@@ -585,6 +605,7 @@ impl GroundSegmenter {
                             seg.clear();
                             seg.push((r, z, k as u32));
                             sums = LineSums::start(r, z);
+                            seg_start = here;
                         }
                         break;
                     }
@@ -594,7 +615,8 @@ impl GroundSegmenter {
                             (z - (m0 * r + b0)).abs() <= c.max_prediction_error_m
                                 && m1.abs() <= c.max_slope
                                 && rmse1 <= c.max_rmse_m
-                                && starts_on_ground(&c, (seg[0].0, seg[0].1), m1, b1, g)
+                                && (starts_on_ground(&c, (seg[0].0, seg[0].1), m1, b1, g)
+                                    || rises_unseen(&c, (seg[0].0, seg[0].1), &seen[..seg_start], g))
                         }
                         _ => false,
                     };
@@ -603,14 +625,15 @@ impl GroundSegmenter {
                         sums = grown;
                         break;
                     }
-                    close(&c, &seg, &sums, &mut g, &mut self.lines);
+                    close(&c, &seg, &sums, &mut g, &seen[..seg_start], seg_start, &mut self.lines);
                     let keep = seg[seg.len() - 1];
+                    seg_start += seg.len() - 1;
                     seg.clear();
                     seg.push(keep);
                     sums = LineSums::start(keep.0, keep.1);
                 }
             }
-            close(&c, &seg, &sums, &mut g, &mut self.lines);
+            close(&c, &seg, &sums, &mut g, &seen[..seg_start], seg_start, &mut self.lines);
             self.sector_lines[s] = (first_line as u32, self.lines.len() as u32);
             self.assign_lines(s);
         }
@@ -721,11 +744,13 @@ fn proto_key(z: f32, index: usize) -> u64 {
 }
 
 /// The ground estimate of a sector while its lines are fitted (module doc, step 3): height
-/// `z` [m] last seen at radius `r` [m].
+/// `z` [m] last seen at radius `r` [m]; `next` is the index (in the sector's visiting order)
+/// of the first prototype after the last accepted line.
 #[derive(Debug, Clone, Copy)]
 struct GroundEstimate {
     r: f64,
     z: f64,
+    next: usize,
 }
 
 /// Whether a segment may start at the prototype `q = (r, z)` (module doc, step 3): within
@@ -749,18 +774,38 @@ fn starts_on_ground(c: &GroundConfig, first: (f64, f64), m: f64, b: f64, g: Grou
     (d_lo <= 0.0) != (d_hi < 0.0) || d_lo.abs().min(d_hi.abs()) <= t
 }
 
-/// `close(seg)` of the module doc.
-fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut GroundEstimate, lines: &mut Vec<GroundLine>) {
+/// Whether a segment whose first prototype is `first = (r, z)` starts over an unseen rise
+/// from `g` (module doc, step 3; off when `unseen_rise_min_length_m` is 0); `before` holds
+/// the heights of the sector's prototypes before `first`, in visiting order.
+#[inline]
+fn rises_unseen(c: &GroundConfig, first: (f64, f64), before: &[f64], g: GroundEstimate) -> bool {
+    let rise = first.1 - g.z;
+    c.unseen_rise_min_length_m > 0.0
+        && g.next == 0
+        && rise > c.max_start_height_m
+        && rise <= c.max_start_height_m + c.max_slope * (first.0 - g.r).max(0.0)
+        && before.get(g.next..).is_some_and(|between| between.iter().all(|&z| z >= first.1 - c.max_start_height_m))
+}
+
+/// `close(seg)` of the module doc; `before` holds the heights of the sector's prototypes
+/// before `seg[0]`, which is prototype number `seg_start` of the sector.
+fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut GroundEstimate, before: &[f64], seg_start: usize, lines: &mut Vec<GroundLine>) {
     if seg.len() < c.min_line_points as usize {
         return;
     }
     let Some((m, b, _)) = sums.fit() else { return };
-    if !starts_on_ground(c, (seg[0].0, seg[0].1), m, b, *g) {
+    let first = (seg[0].0, seg[0].1);
+    let unseen_rise = || {
+        rises_unseen(c, first, before, *g)
+            && seg[seg.len() - 1].0 - first.0 >= c.unseen_rise_min_length_m
+            && m.abs() * c.unseen_rise_min_length_m <= c.max_start_height_m
+    };
+    if !starts_on_ground(c, first, m, b, *g) && !unseen_rise() {
         return;
     }
     let (last_r, _, last_bin) = seg[seg.len() - 1];
     lines.push(GroundLine { m, b, first_bin: seg[0].2, last_bin, first_r_m: seg[0].0, last_r_m: last_r });
-    *g = GroundEstimate { r: last_r, z: m * last_r + b };
+    *g = GroundEstimate { r: last_r, z: m * last_r + b, next: seg_start + seg.len() };
 }
 
 /// Labels each point of `points` (row-major `(N, 3)`, sensor-centred, z up) ground (`true`)

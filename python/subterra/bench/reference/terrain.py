@@ -258,10 +258,22 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
     max_gap, max_slope = ground["max_gap_m"], ground["max_slope"]
     max_start, max_pred, max_rmse = ground["max_start_height_m"], ground["max_prediction_error_m"], ground["max_rmse_m"]
     min_points = int(ground["min_line_points"])
+    unseen_min = float(ground.get("unseen_rise_min_length_m", 0.0))
     lines: list[GroundLine] = []
     g_r, g_z = 0.0, -float(sensor_height_m)  # the ground estimate: height g_z seen at radius g_r
     seg: list[tuple[float, float, int]] = []
     sums: _Sums | None = None
+    seen: list[float] = []  # the heights of the sector's prototypes, in visiting order
+    seg_start = 0  # seg is seen[seg_start : seg_start + len(seg)]
+    g_next = 0  # index of the first prototype after the last accepted line
+
+    def rises_unseen(first_r: float, first_z: float) -> bool:
+        # The sector's first line only: a ramp no steeper than max_slope could climb the rise
+        # over the blind ring, and nothing seen there lies more than T_b below the first prototype.
+        rise = first_z - g_z
+        between = seen[g_next:seg_start] if g_next <= seg_start else None
+        return (unseen_min > 0.0 and g_next == 0 and max_start < rise <= max_start + max_slope * max(first_r - g_r, 0.0)
+                and between is not None and all(z >= first_z - max_start for z in between))
 
     def on_ground(first_r: float, first_z: float, m: float, b: float) -> bool:
         # The first prototype within T_b of the estimate, or the line within T_b of it
@@ -273,34 +285,38 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
         return (d_lo <= 0.0) != (d_hi < 0.0) or min(abs(d_lo), abs(d_hi)) <= max_start
 
     def close() -> None:
-        nonlocal g_r, g_z
+        nonlocal g_r, g_z, g_next
         if len(seg) < min_points or sums is None:
             return
         fit = sums.fit()
         if fit is None:
             return
         m, b, _ = fit
-        if not on_ground(seg[0][0], seg[0][1], m, b):
+        unseen = rises_unseen(seg[0][0], seg[0][1]) and seg[-1][0] - seg[0][0] >= unseen_min and abs(m) * unseen_min <= max_start
+        if not on_ground(seg[0][0], seg[0][1], m, b) and not unseen:
             return
         lines.append(GroundLine(m, b, seg[0][2], seg[-1][2], seg[0][0], seg[-1][0]))
         g_r, g_z = seg[-1][0], m * seg[-1][0] + b
+        g_next = seg_start + len(seg)
 
     for pr, pz, pk in zip(r.tolist(), z.tolist(), bins.tolist()):
+        here = len(seen)
+        seen.append(pz)
         while True:
             if not seg:
-                seg, sums = [(pr, pz, pk)], _Sums(pr, pz)
+                seg, sums, seg_start = [(pr, pz, pk)], _Sums(pr, pz), here
                 break
             qr, qz, _ = seg[-1]
             if pr - qr > max_gap:
                 close()
-                seg, sums = [(pr, pz, pk)], _Sums(pr, pz)
+                seg, sums, seg_start = [(pr, pz, pk)], _Sums(pr, pz), here
                 break
             if len(seg) == 1:
                 if abs(qz - g_z) <= max_start + max_slope * max(qr - g_r, 0.0) and abs(pz - qz) <= max_slope * (pr - qr):
                     seg.append((pr, pz, pk))
                     sums = sums.with_point(pr, pz)
                 else:
-                    seg, sums = [(pr, pz, pk)], _Sums(pr, pz)
+                    seg, sums, seg_start = [(pr, pz, pk)], _Sums(pr, pz), here
                 break
             grown = sums.with_point(pr, pz)
             f0, f1 = sums.fit(), grown.fit()
@@ -310,7 +326,7 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
                 and abs(pz - (f0[0] * pr + f0[1])) <= max_pred
                 and abs(f1[0]) <= max_slope
                 and f1[2] <= max_rmse
-                and on_ground(seg[0][0], seg[0][1], f1[0], f1[1])
+                and (on_ground(seg[0][0], seg[0][1], f1[0], f1[1]) or rises_unseen(seg[0][0], seg[0][1]))
             )
             if accept:
                 seg.append((pr, pz, pk))
@@ -318,6 +334,7 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
                 break
             close()
             keep = seg[-1]
+            seg_start += len(seg) - 1
             seg, sums = [keep], _Sums(keep[0], keep[1])
             # handle p again (it now meets the |seg| = 1 rule)
     close()
