@@ -546,7 +546,9 @@ class Navigator:
     @property
     def plan_grid(self) -> npt.NDArray[np.float32] | None:
         """The navigator's grid ``(ny, nx)`` on ``risk_map``'s geometry: risk where observed,
-        raised by the hazard memory, NaN where unobserved (None before the first scan). The
+        raised by the hazard memory; within ``navigator.near_memory_m`` of the robot, unobserved
+        cells take the near memory's rating; NaN where unobserved otherwise (None before the
+        first scan). The
         MPC, the local risk and ``back_out`` use it as it is; the A* plans on it grown into
         the unseen and inflated (``crates/subterra/src/plan/navigator.rs``, steps 2-3)."""
     @property

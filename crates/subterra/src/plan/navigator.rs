@@ -160,7 +160,8 @@ pub struct NavigatorSettings {
     /// Remembered cells farther than this from the robot are forgotten [m].
     pub hazard_memory_range_m: f64,
     /// **Near memory** (step 2): an unobserved cell within this distance of the robot takes
-    /// the rating it had when last observed within it [m]; 0: off. The lidar's blind ring
+    /// the rating it had when last observed within it (with `near_memory_highest` its highest
+    /// there), if that is above the planner's `unknown_risk` [m]; 0: off. The lidar's blind ring
     /// (~2.3 m for one 0.7 m up) hides the ground the robot is about to drive on: without
     /// it a slope seen from afar turns into cheap unseen ground (`UNSEEN_RISK_PER_M`) once
     /// the robot stands at its foot, and is climbed on nominal thresholds (risky-slope).
@@ -422,7 +423,8 @@ impl Navigator {
     }
 
     /// The planner's grid on the last map's geometry (step 2: risk or CVaR where observed,
-    /// raised by the hazard memory; NaN where unobserved), row-major `ny x nx`; empty before
+    /// raised by the hazard memory; near the robot the near memory's rating where it is
+    /// unobserved; NaN elsewhere unobserved), row-major `ny x nx`; empty before
     /// the first scan.
     pub fn plan_grid(&self) -> &[f32] {
         &self.plan_risk

@@ -569,7 +569,7 @@ impl GroundSegmenter {
         let mut seen: Vec<f64> = Vec::with_capacity(bins);
         for s in 0..c.sectors as usize {
             let first_line = self.lines.len();
-            let mut g = GroundEstimate { r: 0.0, z: -self.sensor_height_m, next: 0 };
+            let mut g = GroundEstimate { r: 0.0, z: -self.sensor_height_m, after_line: false };
             seg.clear();
             let mut sums = LineSums::default();
             // The sector's prototypes so far; `seg` is `seen[seg_start..seg_start + seg.len()]`.
@@ -590,7 +590,7 @@ impl GroundSegmenter {
                         break;
                     };
                     if r - qr > c.max_gap_m {
-                        close(&c, &seg, &sums, &mut g, &seen[..seg_start], seg_start, &mut self.lines);
+                        close(&c, &seg, &sums, &mut g, &seen[..seg_start], &mut self.lines);
                         seg.clear();
                         seg.push((r, z, k as u32));
                         sums = LineSums::start(r, z);
@@ -625,7 +625,7 @@ impl GroundSegmenter {
                         sums = grown;
                         break;
                     }
-                    close(&c, &seg, &sums, &mut g, &seen[..seg_start], seg_start, &mut self.lines);
+                    close(&c, &seg, &sums, &mut g, &seen[..seg_start], &mut self.lines);
                     let keep = seg[seg.len() - 1];
                     seg_start += seg.len() - 1;
                     seg.clear();
@@ -633,7 +633,7 @@ impl GroundSegmenter {
                     sums = LineSums::start(keep.0, keep.1);
                 }
             }
-            close(&c, &seg, &sums, &mut g, &seen[..seg_start], seg_start, &mut self.lines);
+            close(&c, &seg, &sums, &mut g, &seen[..seg_start], &mut self.lines);
             self.sector_lines[s] = (first_line as u32, self.lines.len() as u32);
             self.assign_lines(s);
         }
@@ -744,13 +744,13 @@ fn proto_key(z: f32, index: usize) -> u64 {
 }
 
 /// The ground estimate of a sector while its lines are fitted (module doc, step 3): height
-/// `z` [m] last seen at radius `r` [m]; `next` is the index (in the sector's visiting order)
-/// of the first prototype after the last accepted line.
+/// `z` [m] last seen at radius `r` [m]; `after_line`: the sector has an accepted line (else
+/// the estimate is the ground under the robot).
 #[derive(Debug, Clone, Copy)]
 struct GroundEstimate {
     r: f64,
     z: f64,
-    next: usize,
+    after_line: bool,
 }
 
 /// Whether a segment may start at the prototype `q = (r, z)` (module doc, step 3): within
@@ -776,20 +776,20 @@ fn starts_on_ground(c: &GroundConfig, first: (f64, f64), m: f64, b: f64, g: Grou
 
 /// Whether a segment whose first prototype is `first = (r, z)` starts over an unseen rise
 /// from `g` (module doc, step 3; off when `unseen_rise_min_length_m` is 0); `before` holds
-/// the heights of the sector's prototypes before `first`, in visiting order.
+/// the heights of the sector's prototypes before `first`.
 #[inline]
 fn rises_unseen(c: &GroundConfig, first: (f64, f64), before: &[f64], g: GroundEstimate) -> bool {
     let rise = first.1 - g.z;
     c.unseen_rise_min_length_m > 0.0
-        && g.next == 0
+        && !g.after_line
         && rise > c.max_start_height_m
         && rise <= c.max_start_height_m + c.max_slope * (first.0 - g.r).max(0.0)
-        && before.get(g.next..).is_some_and(|between| between.iter().all(|&z| z >= first.1 - c.max_start_height_m))
+        && before.iter().all(|&z| z >= first.1 - c.max_start_height_m)
 }
 
 /// `close(seg)` of the module doc; `before` holds the heights of the sector's prototypes
-/// before `seg[0]`, which is prototype number `seg_start` of the sector.
-fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut GroundEstimate, before: &[f64], seg_start: usize, lines: &mut Vec<GroundLine>) {
+/// before `seg[0]`.
+fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut GroundEstimate, before: &[f64], lines: &mut Vec<GroundLine>) {
     if seg.len() < c.min_line_points as usize {
         return;
     }
@@ -805,7 +805,7 @@ fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut Gro
     }
     let (last_r, _, last_bin) = seg[seg.len() - 1];
     lines.push(GroundLine { m, b, first_bin: seg[0].2, last_bin, first_r_m: seg[0].0, last_r_m: last_r });
-    *g = GroundEstimate { r: last_r, z: m * last_r + b, next: seg_start + seg.len() };
+    *g = GroundEstimate { r: last_r, z: m * last_r + b, after_line: true };
 }
 
 /// Labels each point of `points` (row-major `(N, 3)`, sensor-centred, z up) ground (`true`)

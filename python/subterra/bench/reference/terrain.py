@@ -265,15 +265,14 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
     sums: _Sums | None = None
     seen: list[float] = []  # the heights of the sector's prototypes, in visiting order
     seg_start = 0  # seg is seen[seg_start : seg_start + len(seg)]
-    g_next = 0  # index of the first prototype after the last accepted line
+    after_line = False  # the sector has an accepted line (else the estimate is the ground under the robot)
 
     def rises_unseen(first_r: float, first_z: float) -> bool:
         # The sector's first line only: a ramp no steeper than max_slope could climb the rise
         # over the blind ring, and nothing seen there lies more than T_b below the first prototype.
         rise = first_z - g_z
-        between = seen[g_next:seg_start] if g_next <= seg_start else None
-        return (unseen_min > 0.0 and g_next == 0 and max_start < rise <= max_start + max_slope * max(first_r - g_r, 0.0)
-                and between is not None and all(z >= first_z - max_start for z in between))
+        return (unseen_min > 0.0 and not after_line and max_start < rise <= max_start + max_slope * max(first_r - g_r, 0.0)
+                and all(z >= first_z - max_start for z in seen[:seg_start]))
 
     def on_ground(first_r: float, first_z: float, m: float, b: float) -> bool:
         # The first prototype within T_b of the estimate, or the line within T_b of it
@@ -285,7 +284,7 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
         return (d_lo <= 0.0) != (d_hi < 0.0) or min(abs(d_lo), abs(d_hi)) <= max_start
 
     def close() -> None:
-        nonlocal g_r, g_z, g_next
+        nonlocal g_r, g_z, after_line
         if len(seg) < min_points or sums is None:
             return
         fit = sums.fit()
@@ -297,7 +296,7 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
             return
         lines.append(GroundLine(m, b, seg[0][2], seg[-1][2], seg[0][0], seg[-1][0]))
         g_r, g_z = seg[-1][0], m * seg[-1][0] + b
-        g_next = seg_start + len(seg)
+        after_line = True
 
     for pr, pz, pk in zip(r.tolist(), z.tolist(), bins.tolist()):
         here = len(seen)
