@@ -401,7 +401,7 @@ impl World {
             return;
         }
         let g = FanGeom::new(axis, dirs, first, range);
-        let plan = FanPlan::new(self, origin, rotation, g, &g.cones());
+        let plan = FanPlan::new(self, origin, rotation, g, &g.cones(), &mut PlanBuffers::default());
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
             let hit = self.fan_ray::<NORMALS, true>(plan.slices(), origin, d, range(first + k), plan.g.bin(*dl), view);
@@ -422,13 +422,17 @@ impl World {
         }
         let view = self.terrain_view(origin, dirs.len());
         let view = view.as_ref();
+        // This thread's plan memory, taken for the call (a sink that casts again, or panics,
+        // leaves fresh buffers to the next call).
+        let mut buffers = PLAN_BUFFERS.with(|b| b.take());
         for (&(first, len, geom), cones) in layout.fans.iter().zip(&layout.cones) {
             let fan = &dirs[first..first + len];
             let bins = &layout.bins[first..first + len];
             match geom {
                 Some(g) if !self.solids.is_empty() => {
-                    let plan = FanPlan::new(self, origin, rotation, g, cones);
+                    let plan = FanPlan::new(self, origin, rotation, g, cones, &mut buffers);
                     self.cast_planned_fan::<NORMALS, R, S>(plan.slices(), origin, rotation, fan, bins, first, range, view, sink);
+                    plan.recycle(&mut buffers);
                 }
                 _ => {
                     for (k, dl) in fan.iter().enumerate() {
@@ -440,17 +444,20 @@ impl World {
                 }
             }
         }
+        PLAN_BUFFERS.with(|b| b.replace(buffers));
     }
 
     /// The per-pose set-up of [`World::cast_fan_cached`] (a plan per fan, the terrain view),
     /// to cast the rays in parts, e.g. from several threads ([`FanCast::cast`]).
     pub(crate) fn fan_cast<'a>(&'a self, origin: DVec3, rotation: DMat3, layout: &'a FanLayout) -> FanCast<'a> {
+        // Scratch memory shared by the plans (each keeps its own lists).
+        let mut buffers = PlanBuffers::default();
         let plans = layout
             .fans
             .iter()
             .zip(&layout.cones)
             .map(|(&(_, _, geom), cones)| match geom {
-                Some(g) if !self.solids.is_empty() => Some(FanPlan::new(self, origin, rotation, g, cones)),
+                Some(g) if !self.solids.is_empty() => Some(FanPlan::new(self, origin, rotation, g, cones, &mut buffers)),
                 _ => None,
             })
             .collect();
@@ -1270,10 +1277,23 @@ impl FanGeom {
 }
 
 impl FanPlan {
-    fn new(world: &World, origin: DVec3, rotation: DMat3, g: FanGeom, cones: &[BinCone]) -> FanPlan {
+    /// The plan of fan `g` (its bins' cones `cones`) from `origin`, in `buffers`' memory
+    /// (give it back with [`FanPlan::recycle`]).
+    fn new(world: &World, origin: DVec3, rotation: DMat3, g: FanGeom, cones: &[BinCone], buffers: &mut PlanBuffers) -> FanPlan {
         let FanGeom { axis, e1, e2, u0, u1, v0, v1, nbx, nby, rmax, .. } = g;
-        let mut plan = FanPlan { g, starts: vec![0; nbx * nby + 1], entries: Vec::new(), prepared: Vec::new(), plane_s: Vec::new(), terrain: false };
-        plan.plane_s = world.planes.iter().map(|p| p.normal.dot(origin - p.point)).collect();
+        let PlanBuffers { ids, visible, triples, counts, cursor, .. } = buffers;
+        let mut plan = FanPlan {
+            g,
+            starts: std::mem::take(&mut buffers.starts),
+            entries: std::mem::take(&mut buffers.entries),
+            prepared: std::mem::take(&mut buffers.prepared),
+            plane_s: std::mem::take(&mut buffers.plane_s),
+            terrain: false,
+        };
+        plan.starts.clear();
+        plan.starts.resize(nbx * nby + 1, 0);
+        plan.plane_s.clear();
+        plan.plane_s.extend(world.planes.iter().map(|p| p.normal.dot(origin - p.point)));
 
         // World frame of the fan, and its pyramid widened by a hair.
         let (wa, w1, w2) = (rotation * axis, rotation * e1, rotation * e2);
@@ -1285,11 +1305,11 @@ impl FanPlan {
         };
         plan.terrain = world.terrain.as_ref().is_some_and(|t| t.any_cell && frustum.meets(t.lo, t.hi));
 
-        let mut ids = Vec::new();
-        world.bvh.visible(&frustum, &mut ids);
+        ids.clear();
+        world.bvh.visible(&frustum, ids);
         // (distance, id, bin rectangle)
-        let mut visible: Vec<(f64, PrimitiveId, [usize; 4])> = Vec::with_capacity(ids.len());
-        for id in ids {
+        visible.clear();
+        for &id in ids.iter() {
             let (lo, hi) = world.bvh.boxes[id as usize];
             let near = box_distance(origin, lo, hi);
             let cells = if near <= FAN_NEAR_M / FAN_MIN_COS {
@@ -1337,15 +1357,15 @@ impl FanPlan {
             visible.push((near, id, cells));
         }
         visible.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        plan.prepared = visible.iter().map(|&(_, id, _)| (id, world.solids[id as usize].prepare(origin))).collect();
+        plan.prepared.clear();
+        plan.prepared.extend(visible.iter().map(|&(_, id, _)| (id, world.solids[id as usize].prepare(origin))));
         // Per (bin, candidate): a lower bound of the distance at which the bin's rays may
         // meet the candidate, from the faces of its box (the box itself for a box, its
         // loosened bounds else) that face the origin: a ray enters each such face's plane no
         // nearer than s / (n · d) (s its distance from the origin, n its normal). A bin whose
         // rays all run parallel to or away from such a plane never meets the candidate.
         let to_local = rotation.transpose();
-        let area: usize = visible.iter().map(|&(_, _, [bx0, bx1, by0, by1])| (bx1 + 1 - bx0) * (by1 + 1 - by0)).sum();
-        let mut triples: Vec<(u32, f64, u32)> = Vec::with_capacity(area);
+        triples.clear();
         for (index, &(near, id, [bx0, bx1, by0, by1])) in visible.iter().enumerate() {
             let mut slabs = [(DVec3::ZERO, 0.0); 3];
             let mut count = 0;
@@ -1396,8 +1416,9 @@ impl FanPlan {
                 }
             }
         }
-        let mut counts = vec![0u32; nbx * nby];
-        for &(bin, _, _) in &triples {
+        counts.clear();
+        counts.resize(nbx * nby, 0);
+        for &(bin, _, _) in triples.iter() {
             counts[bin as usize] += 1;
         }
         let mut total = 0u32;
@@ -1406,9 +1427,11 @@ impl FanPlan {
             total += c;
         }
         plan.starts[nbx * nby] = total;
-        plan.entries = vec![(0.0, 0); total as usize];
-        let mut cursor: Vec<u32> = plan.starts[..nbx * nby].to_vec();
-        for &(bin, bound, index) in &triples {
+        plan.entries.clear();
+        plan.entries.resize(total as usize, (0.0, 0));
+        cursor.clear();
+        cursor.extend_from_slice(&plan.starts[..nbx * nby]);
+        for &(bin, bound, index) in triples.iter() {
             let slot = &mut cursor[bin as usize];
             plan.entries[*slot as usize] = (bound, index);
             *slot += 1;
@@ -1427,11 +1450,44 @@ impl FanPlan {
         plan
     }
 
+    /// Gives the plan's memory back to `buffers`, for the next plan.
+    fn recycle(self, buffers: &mut PlanBuffers) {
+        buffers.starts = self.starts;
+        buffers.entries = self.entries;
+        buffers.prepared = self.prepared;
+        buffers.plane_s = self.plane_s;
+    }
+
     /// The parts of the plan its rays read.
     #[inline]
     fn slices(&self) -> PlanSlices<'_> {
         PlanSlices { starts: &self.starts, entries: &self.entries, prepared: &self.prepared, plane_s: &self.plane_s, terrain: self.terrain }
     }
+}
+
+/// The memory of a [`FanPlan`] and of its making, kept from one plan to the next: a frame's
+/// plans (hundreds of kilobytes for a depth frame of a cluttered world) then reuse the pages
+/// of the last frame's instead of having fresh ones mapped and cleared by the kernel.
+#[derive(Default)]
+struct PlanBuffers {
+    starts: Vec<u32>,
+    entries: Vec<(f64, u32)>,
+    prepared: Vec<(PrimitiveId, Prepared)>,
+    plane_s: Vec<f64>,
+    /// Ids of the primitives in the fan's frustum.
+    ids: Vec<u32>,
+    /// (distance, id, bin rectangle) of those the fan may meet.
+    visible: Vec<(f64, PrimitiveId, [usize; 4])>,
+    /// (bin, bound, candidate), before they are sorted into bins.
+    triples: Vec<(u32, f64, u32)>,
+    counts: Vec<u32>,
+    cursor: Vec<u32>,
+}
+
+thread_local! {
+    /// Each thread's [`PlanBuffers`] for [`World::cast_fan_cached`] (a frame's plans are made
+    /// and used one at a time).
+    static PLAN_BUFFERS: std::cell::RefCell<PlanBuffers> = std::cell::RefCell::new(PlanBuffers::default());
 }
 
 /// The parts of a [`FanPlan`] its rays read, as slices.
