@@ -2316,6 +2316,18 @@ impl TerrainView {
         let inv_w = 1.0 / w;
         let mut view = TerrainView { bins, inv_w, slopes: vec![SlopeRange::EMPTY; TERRAIN_VIEW_SECTORS * bins], groups: 0, group: Vec::new(), tail: Vec::new(), all: SlopeRange::EMPTY };
         let pad = |x: f64| 1.0e-9 * (1.0 + x.abs());
+        // Per corner of the blocks (`[cy * (nx + 1) + cx]`), relative to `o`: its pseudo-angle
+        // and distance (each shared by up to four blocks).
+        let corner_count = (level.nx + 1) * (level.ny + 1);
+        let (mut corner_angle, mut corner_distance) = (Vec::with_capacity(corner_count), Vec::with_capacity(corner_count));
+        for cy in 0..=level.ny {
+            let y = index_f64(cy) * size - oy;
+            for cx in 0..=level.nx {
+                let x = index_f64(cx) * size - ox;
+                corner_angle.push(pseudo_angle(x, y));
+                corner_distance.push((x * x + y * y).sqrt());
+            }
+        }
         for by in 0..level.ny {
             for bx in 0..level.nx {
                 let (zlo, zhi) = level.z[by * level.nx + bx];
@@ -2323,13 +2335,21 @@ impl TerrainView {
                     continue;
                 }
                 let (zlo, zhi) = (zlo - pad(zlo) - o.z, zhi + pad(zhi) - o.z);
-                // The block's square relative to `o`.
-                let (x0, x1) = (bx as f64 * size - ox, (bx + 1) as f64 * size - ox);
-                let (y0, y1) = (by as f64 * size - oy, (by + 1) as f64 * size - oy);
+                // The block's square relative to `o`, and the indices of its corners (in the
+                // order of `corners` below).
+                let (x0, x1) = (index_f64(bx) * size - ox, index_f64(bx + 1) * size - ox);
+                let (y0, y1) = (index_f64(by) * size - oy, index_f64(by + 1) * size - oy);
+                let c00 = by * (level.nx + 1) + bx;
+                let at = [c00, c00 + 1, c00 + level.nx + 1, c00 + level.nx + 2];
                 let dx = if x0 > 0.0 { x0 } else if x1 < 0.0 { -x1 } else { 0.0 };
                 let dy = if y0 > 0.0 { y0 } else if y1 < 0.0 { -y1 } else { 0.0 };
-                let rmin = (dx.hypot(dy) * (1.0 - 1.0e-9) - 1.0e-9).max(0.0);
-                let rmax = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs())) * (1.0 + 1.0e-9) + 1.0e-9;
+                // Nearest point: a corner when beside the block along both axes, else on an
+                // edge (`dx` or `dy` away). Farthest: a corner. Widened by far more than the
+                // rounding of the square roots.
+                let nearest = if dx > 0.0 && dy > 0.0 { at.iter().fold(f64::INFINITY, |m, &c| m.min(corner_distance[c])) } else { dx + dy };
+                let farthest = at.iter().fold(0.0f64, |m, &c| m.max(corner_distance[c]));
+                let rmin = (nearest * (1.0 - 1.0e-9) - 1.0e-9).max(0.0);
+                let rmax = farthest * (1.0 + 1.0e-9) + 1.0e-9;
                 // Slopes (z - o.z) / r over the block's part at distances [r0, r1]: the
                 // extremes at r0 or r1.
                 let slopes = |r0: f64, r1: f64| {
@@ -2382,15 +2402,12 @@ impl TerrainView {
                 const EPS: f64 = 1.0e-9;
                 if y0 < 0.0 && y1 >= 0.0 && x0 > 0.0 {
                     // Across the +x axis, where the pseudo-angle wraps from 4 to 0.
-                    let below = corners.iter().filter(|c| c.1 < 0.0).fold(4.0f64, |a, c| a.min(pseudo_angle(c.0, c.1)));
-                    let above = corners.iter().filter(|c| c.1 >= 0.0).fold(0.0f64, |a, c| a.max(pseudo_angle(c.0, c.1)));
+                    let below = corners.iter().zip(at).filter(|(c, _)| c.1 < 0.0).fold(4.0f64, |a, (_, i)| a.min(corner_angle[i]));
+                    let above = corners.iter().zip(at).filter(|(c, _)| c.1 >= 0.0).fold(0.0f64, |a, (_, i)| a.max(corner_angle[i]));
                     mark(sector_of((below - EPS).max(0.0)), TERRAIN_VIEW_SECTORS - 1);
                     mark(0, sector_of(above + EPS));
                 } else {
-                    let (a, b) = corners.iter().fold((4.0f64, 0.0f64), |(a, b), c| {
-                        let p = pseudo_angle(c.0, c.1);
-                        (a.min(p), b.max(p))
-                    });
+                    let (a, b) = at.iter().fold((4.0f64, 0.0f64), |(a, b), &i| (a.min(corner_angle[i]), b.max(corner_angle[i])));
                     let (a, b) = (a - EPS, b + EPS);
                     mark(sector_of(a.max(0.0)), sector_of(b));
                     // Next to the wrap, a hair on the other side.
