@@ -1,8 +1,9 @@
 //! Sensor simulation speed: a 640x480 D435 depth frame of `highbay` and `tunnel`, a full
 //! OS1-64 scan (64 x 1024 rays) of `mine` and a VLP-16 scan of `highbay`, each on one
 //! core; the depth frame also split over all cores; and the `d435-phantom` noise chain.
-//! Targets (issue 3): depth frame <= 10 ms on one core, lidar scan <= 5 ms. The one-core
-//! depth benches render into reused buffers (`render_into`); the threaded ones allocate.
+//! Targets (issue 3): depth frame <= 10 ms on one core, lidar scan <= 5 ms. The depth benches
+//! render into reused buffers (`render_into`, `render_parallel_into`), as a simulation loop
+//! that keeps its frames would.
 //!
 //! Run: `cargo bench -p subterra-sim --bench sim`.
 
@@ -54,8 +55,9 @@ fn bench_depth(c: &mut Criterion) {
     c.bench_function("depth_d435_highbay_1core", |b| b.iter(|| camera.render_into(black_box(&highbay), black_box(&highbay_pose), &mut out)));
     assert_eq!(out, frame, "render_into differs from render");
     c.bench_function(&format!("depth_d435_highbay_{threads}threads"), |b| {
-        b.iter(|| camera.render_parallel(black_box(&highbay), black_box(&highbay_pose), threads))
+        b.iter(|| camera.render_parallel_into(black_box(&highbay), black_box(&highbay_pose), threads, &mut out))
     });
+    assert_eq!(out, frame, "render_parallel_into differs from render");
 
     let tunnel = scenario("tunnel");
     let tunnel_pose = camera_looking_at(region_centre(&tunnel, "start"), region_centre(&tunnel, "wp1"));
@@ -68,8 +70,9 @@ fn bench_depth(c: &mut Criterion) {
     c.bench_function("depth_d435_tunnel_1core", |b| b.iter(|| camera.render_into(black_box(&tunnel), black_box(&tunnel_pose), &mut out)));
     assert_eq!(out, frame, "render_into differs from render");
     c.bench_function(&format!("depth_d435_tunnel_{threads}threads"), |b| {
-        b.iter(|| camera.render_parallel(black_box(&tunnel), black_box(&tunnel_pose), threads))
+        b.iter(|| camera.render_parallel_into(black_box(&tunnel), black_box(&tunnel_pose), threads, &mut out))
     });
+    assert_eq!(out, frame, "render_parallel_into differs from render");
 
     let noise = DepthNoiseModel::preset("d435-phantom").expect("preset exists");
     let highbay_frame = camera.render(&highbay, &highbay_pose);

@@ -210,18 +210,24 @@ impl DepthCamera {
     /// of rays) is done once, on the calling thread; the output is identical to [`Self::render`].
     pub fn render_parallel(&self, world: &World, world_from_camera: &Isometry3, threads: usize) -> DepthRender {
         let mut out = DepthRender::default();
+        self.render_parallel_into(world, world_from_camera, threads, &mut out);
+        out
+    }
+
+    /// As [`Self::render_parallel`], into `out`'s buffers (as [`Self::render_into`]).
+    pub fn render_parallel_into(&self, world: &World, world_from_camera: &Isometry3, threads: usize, out: &mut DepthRender) {
         if !pose_is_finite(world_from_camera) {
-            self.prepare(&mut out);
-            return out;
+            self.prepare(out);
+            return;
         }
-        self.size(&mut out);
+        self.size(out);
         let width = self.config.camera.width as usize;
         let height = self.config.camera.height as usize;
         let threads = threads.clamp(1, height.max(1));
         let cast = world.fan_cast(world_from_camera.translation, world_from_camera.rotation, &self.layout);
         if threads == 1 {
             self.render_span(&cast, 0, &mut out.depth_m, &mut out.primitive, &mut out.incidence_cos);
-            return out;
+            return;
         }
         let chunk = height.div_ceil(threads) * width;
         let cast = &cast;
@@ -231,7 +237,6 @@ impl DepthCamera {
                 scope.spawn(move || self.render_span(cast, index * chunk, depth, primitive, incidence));
             }
         });
-        out
     }
 
     /// Sizes `out` to the image and clears it to "no return".
@@ -596,6 +601,11 @@ mod tests {
         let fresh = camera.render(&world, &far);
         assert_eq!(out, fresh);
         assert_eq!(fresh, camera.render_parallel(&world, &far, 3));
+        // And threaded, into the used buffer (twice: the second reuses the plans' memory).
+        for _ in 0..2 {
+            camera.render_parallel_into(&world, &near, 2, &mut out);
+            assert_eq!(out, camera.render(&world, &near));
+        }
         // A non-finite pose clears the buffer to "no return".
         camera.render_into(&world, &Isometry3 { rotation: look, translation: DVec3::NAN }, &mut out);
         assert_eq!(out, DepthRender::empty(640, 480));

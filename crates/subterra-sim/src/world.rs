@@ -401,7 +401,7 @@ impl World {
             return;
         }
         let g = FanGeom::new(axis, dirs, first, range);
-        let plan = FanPlan::new(self, origin, rotation, g, &g.cones(), &mut PlanBuffers::default());
+        let plan = FanPlan::new(self, origin, rotation, g, &g.cones(), PlanLists::default(), &mut PlanScratch::default());
         for (k, dl) in dirs.iter().enumerate() {
             let d = rotation * *dl;
             let hit = self.fan_ray::<NORMALS, true>(plan.slices(), origin, d, range(first + k), plan.g.bin(*dl), view);
@@ -423,16 +423,17 @@ impl World {
         let view = self.terrain_view(origin, dirs.len());
         let view = view.as_ref();
         // This thread's plan memory, taken for the call (a sink that casts again, or panics,
-        // leaves fresh buffers to the next call).
-        let mut buffers = PLAN_BUFFERS.with(|b| b.take());
+        // leaves fresh memory to the next call).
+        let mut scratch = PLAN_SCRATCH.with(|s| s.take());
+        let mut lists = PlanLists::take();
         for (&(first, len, geom), cones) in layout.fans.iter().zip(&layout.cones) {
             let fan = &dirs[first..first + len];
             let bins = &layout.bins[first..first + len];
             match geom {
                 Some(g) if !self.solids.is_empty() => {
-                    let plan = FanPlan::new(self, origin, rotation, g, cones, &mut buffers);
+                    let plan = FanPlan::new(self, origin, rotation, g, cones, lists, &mut scratch);
                     self.cast_planned_fan::<NORMALS, R, S>(plan.slices(), origin, rotation, fan, bins, first, range, view, sink);
-                    plan.recycle(&mut buffers);
+                    lists = plan.into_lists();
                 }
                 _ => {
                     for (k, dl) in fan.iter().enumerate() {
@@ -444,23 +445,26 @@ impl World {
                 }
             }
         }
-        PLAN_BUFFERS.with(|b| b.replace(buffers));
+        lists.give();
+        PLAN_SCRATCH.with(|s| s.replace(scratch));
     }
 
     /// The per-pose set-up of [`World::cast_fan_cached`] (a plan per fan, the terrain view),
     /// to cast the rays in parts, e.g. from several threads ([`FanCast::cast`]).
     pub(crate) fn fan_cast<'a>(&'a self, origin: DVec3, rotation: DMat3, layout: &'a FanLayout) -> FanCast<'a> {
-        // Scratch memory shared by the plans (each keeps its own lists).
-        let mut buffers = PlanBuffers::default();
+        // Every plan in lists of its own from this thread's pool (back there when the
+        // `FanCast` is dropped), all made with one scratch.
+        let mut scratch = PLAN_SCRATCH.with(|s| s.take());
         let plans = layout
             .fans
             .iter()
             .zip(&layout.cones)
             .map(|(&(_, _, geom), cones)| match geom {
-                Some(g) if !self.solids.is_empty() => Some(FanPlan::new(self, origin, rotation, g, cones, &mut buffers)),
+                Some(g) if !self.solids.is_empty() => Some(FanPlan::new(self, origin, rotation, g, cones, PlanLists::take(), &mut scratch)),
                 _ => None,
             })
             .collect();
+        PLAN_SCRATCH.with(|s| s.replace(scratch));
         FanCast { world: self, origin, rotation, layout, plans, view: self.terrain_view(origin, layout.len()) }
     }
 
@@ -1037,6 +1041,15 @@ pub(crate) struct FanCast<'a> {
     view: Option<TerrainView>,
 }
 
+impl Drop for FanCast<'_> {
+    /// The plans' lists go back to the pool of the thread that drops the cast.
+    fn drop(&mut self) {
+        for plan in std::mem::take(&mut self.plans).into_iter().flatten() {
+            plan.into_lists().give();
+        }
+    }
+}
+
 impl FanCast<'_> {
     /// Casts the rays `span` of `dirs` (the directions the layout was made of) as
     /// [`World::cast_fan_cached`] does; `range` and `sink` take the index into `dirs`.
@@ -1277,19 +1290,13 @@ impl FanGeom {
 }
 
 impl FanPlan {
-    /// The plan of fan `g` (its bins' cones `cones`) from `origin`, in `buffers`' memory
-    /// (give it back with [`FanPlan::recycle`]).
-    fn new(world: &World, origin: DVec3, rotation: DMat3, g: FanGeom, cones: &[BinCone], buffers: &mut PlanBuffers) -> FanPlan {
+    /// The plan of fan `g` (its bins' cones `cones`) from `origin`, in the memory of `lists`
+    /// (back with [`FanPlan::into_lists`]), made with `scratch`.
+    fn new(world: &World, origin: DVec3, rotation: DMat3, g: FanGeom, cones: &[BinCone], lists: PlanLists, scratch: &mut PlanScratch) -> FanPlan {
         let FanGeom { axis, e1, e2, u0, u1, v0, v1, nbx, nby, rmax, .. } = g;
-        let PlanBuffers { ids, visible, triples, counts, cursor, .. } = buffers;
-        let mut plan = FanPlan {
-            g,
-            starts: std::mem::take(&mut buffers.starts),
-            entries: std::mem::take(&mut buffers.entries),
-            prepared: std::mem::take(&mut buffers.prepared),
-            plane_s: std::mem::take(&mut buffers.plane_s),
-            terrain: false,
-        };
+        let PlanScratch { ids, visible, triples, counts, cursor } = scratch;
+        let PlanLists { starts, entries, prepared, plane_s } = lists;
+        let mut plan = FanPlan { g, starts, entries, prepared, plane_s, terrain: false };
         plan.starts.clear();
         plan.starts.resize(nbx * nby + 1, 0);
         plan.plane_s.clear();
@@ -1450,12 +1457,9 @@ impl FanPlan {
         plan
     }
 
-    /// Gives the plan's memory back to `buffers`, for the next plan.
-    fn recycle(self, buffers: &mut PlanBuffers) {
-        buffers.starts = self.starts;
-        buffers.entries = self.entries;
-        buffers.prepared = self.prepared;
-        buffers.plane_s = self.plane_s;
+    /// The plan's lists, for the next plan.
+    fn into_lists(self) -> PlanLists {
+        PlanLists { starts: self.starts, entries: self.entries, prepared: self.prepared, plane_s: self.plane_s }
     }
 
     /// The parts of the plan its rays read.
@@ -1465,15 +1469,34 @@ impl FanPlan {
     }
 }
 
-/// The memory of a [`FanPlan`] and of its making, kept from one plan to the next: a frame's
-/// plans (hundreds of kilobytes for a depth frame of a cluttered world) then reuse the pages
-/// of the last frame's instead of having fresh ones mapped and cleared by the kernel.
+/// The lists of a [`FanPlan`], kept (per thread, [`PlanLists::take`]) from one plan to the
+/// next: a frame's plans (hundreds of kilobytes for a depth frame of a cluttered world) then
+/// reuse the pages of the last frame's instead of having fresh ones mapped and cleared by
+/// the kernel.
 #[derive(Default)]
-struct PlanBuffers {
+struct PlanLists {
     starts: Vec<u32>,
     entries: Vec<(f64, u32)>,
     prepared: Vec<(PrimitiveId, Prepared)>,
     plane_s: Vec<f64>,
+}
+
+impl PlanLists {
+    /// Lists from this thread's pool (or new ones).
+    fn take() -> PlanLists {
+        PLAN_LISTS.try_with(|pool| pool.borrow_mut().pop()).ok().flatten().unwrap_or_default()
+    }
+
+    /// Back to this thread's pool.
+    fn give(self) {
+        // While the thread ends the pool may be gone: the lists are then dropped.
+        let _ = PLAN_LISTS.try_with(|pool| pool.borrow_mut().push(self));
+    }
+}
+
+/// The scratch memory of making a [`FanPlan`], kept per thread likewise ([`PLAN_SCRATCH`]).
+#[derive(Default)]
+struct PlanScratch {
     /// Ids of the primitives in the fan's frustum.
     ids: Vec<u32>,
     /// (distance, id, bin rectangle) of those the fan may meet.
@@ -1485,9 +1508,10 @@ struct PlanBuffers {
 }
 
 thread_local! {
-    /// Each thread's [`PlanBuffers`] for [`World::cast_fan_cached`] (a frame's plans are made
-    /// and used one at a time).
-    static PLAN_BUFFERS: std::cell::RefCell<PlanBuffers> = std::cell::RefCell::new(PlanBuffers::default());
+    /// Each thread's spare [`PlanLists`] (as many as it last held plans at once).
+    static PLAN_LISTS: std::cell::RefCell<Vec<PlanLists>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// Each thread's [`PlanScratch`] (taken for a call; a call made meanwhile gets fresh).
+    static PLAN_SCRATCH: std::cell::RefCell<PlanScratch> = std::cell::RefCell::new(PlanScratch::default());
 }
 
 /// The parts of a [`FanPlan`] its rays read, as slices.
