@@ -107,6 +107,26 @@ def test_lidar_scan_of_a_wall():
         sim.Lidar("hdl64")
 
 
+def test_sensors_render_into_kept_buffers_without_touching_returned_arrays():
+    # A camera and a lidar render into buffers they keep between calls: what a call returned
+    # stays as it was after later calls from elsewhere, and a pose gives the same arrays
+    # whatever came before (one thread or several, with noise or without).
+    world = sim.World.scenario("mine", 2)
+    camera, lidar = sim.DepthCamera.d435(), sim.Lidar("os1_64")
+    poses = [pose_matrix([5.0, 10.0, 1.2], yaw) for yaw in (0.0, 2.0)]
+    depth = camera.render(world, poses[0] @ BODY_FROM_OPTICAL)
+    points, ring = lidar.scan(world, poses[0])
+    kept = (depth.copy(), points.copy(), ring.copy())
+    other = camera.render(world, poses[1] @ BODY_FROM_OPTICAL, threads=2)
+    lidar.scan(world, poses[1], noise="os1_64", seed=4)
+    assert not np.array_equal(other, depth)
+    for returned, copy in zip((depth, points, ring), kept):
+        assert np.array_equal(returned, copy)
+    assert np.array_equal(camera.render(world, poses[0] @ BODY_FROM_OPTICAL, threads=2), depth)
+    again_points, again_ring = lidar.scan(world, poses[0])
+    assert np.array_equal(again_points, points) and np.array_equal(again_ring, ring)
+
+
 def test_simulation_flies_to_the_goal_and_is_deterministic():
     world = sim.World.from_toml(WALL)
 

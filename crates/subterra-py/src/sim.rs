@@ -7,7 +7,7 @@ use pyo3::types::PyDict;
 use subterra::Isometry3;
 use subterra_sim::noise::{DepthNoiseModel, LidarNoiseModel};
 use subterra_sim::scenarios;
-use subterra_sim::sensors::{depth_to_millimetres, DepthCamera, DepthCameraConfig, Lidar, LidarConfig};
+use subterra_sim::sensors::{depth_to_millimetres, DepthCamera, DepthCameraConfig, DepthRender, Lidar, LidarConfig, LidarScan};
 use subterra_sim::simulation::{Goal, RunStatus, Simulation, Vehicle};
 use subterra_sim::vehicles::{BodyVelocityCommand, GroundRobotConfig, GroundRobotState, QuadrotorConfig, QuadrotorState};
 use subterra_sim::world::World;
@@ -202,10 +202,26 @@ fn lidar_noise(py: Python<'_>, name: &str) -> PyResult<LidarNoiseModel> {
     LidarNoiseModel::preset(name).sim_err(py)
 }
 
+/// A sensor's noise-free frame, kept between calls and rendered into again: a frame's
+/// megabytes then reuse the last frame's pages instead of fresh ones mapped and cleared by
+/// the kernel. A call made while another thread holds it renders into a new one.
+#[derive(Default)]
+struct Scratch<T: Default>(std::sync::Mutex<T>);
+
+impl<T: Default> Scratch<T> {
+    fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
+        match self.0.try_lock() {
+            Ok(mut kept) => f(&mut kept),
+            Err(_) => f(&mut T::default()),
+        }
+    }
+}
+
 /// A simulated pinhole depth camera.
 #[pyclass(name = "DepthCamera", module = "subterra._core.sim", frozen)]
 pub struct PyDepthCamera {
     inner: DepthCamera,
+    truth: Scratch<DepthRender>,
 }
 
 #[pymethods]
@@ -219,13 +235,13 @@ impl PyDepthCamera {
         }
         config.min_range_m = min_range_m;
         config.max_range_m = max_range_m;
-        Ok(Self { inner: DepthCamera::new(config).sim_err(py)? })
+        Ok(Self { inner: DepthCamera::new(config).sim_err(py)?, truth: Scratch::default() })
     }
 
     /// The RealSense D435 preset: 640x480, fx = fy = 385 px, 0.1-10 m.
     #[staticmethod]
     fn d435(py: Python<'_>) -> PyResult<Self> {
-        Ok(Self { inner: DepthCamera::new(DepthCameraConfig::d435()).sim_err(py)? })
+        Ok(Self { inner: DepthCamera::new(DepthCameraConfig::d435()).sim_err(py)?, truth: Scratch::default() })
     }
 
     /// The intrinsics.
@@ -250,9 +266,15 @@ impl PyDepthCamera {
         let (cam, w) = (&self.inner, &world.inner);
         let depth = py
             .detach(|| {
-                let truth = if threads > 1 { cam.render_parallel(w, &pose, threads) } else { cam.render(w, &pose) };
-                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-                model.try_apply(&truth, w, cam.config(), &mut rng)
+                self.truth.with(|truth| {
+                    if threads > 1 {
+                        cam.render_parallel_into(w, &pose, threads, truth);
+                    } else {
+                        cam.render_into(w, &pose, truth);
+                    }
+                    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+                    model.try_apply(truth, w, cam.config(), &mut rng)
+                })
             })
             .sim_err(py)?;
         let c = self.inner.config().camera;
@@ -264,6 +286,7 @@ impl PyDepthCamera {
 #[pyclass(name = "Lidar", module = "subterra._core.sim", frozen)]
 pub struct PyLidar {
     inner: Lidar,
+    truth: Scratch<LidarScan>,
 }
 
 #[pymethods]
@@ -277,7 +300,7 @@ impl PyLidar {
             "os1_64" => LidarConfig::os1_64(),
             _ => return Err(sim_err(py, SimError::Unknown { what: "lidar preset".into(), name: preset.into(), known: "vlp16, os1_64".into() })),
         };
-        Ok(Self { inner: Lidar::new(config).sim_err(py)? })
+        Ok(Self { inner: Lidar::new(config).sim_err(py)?, truth: Scratch::default() })
     }
 
     /// Rays per scan.
@@ -292,14 +315,23 @@ impl PyLidar {
         let pose = isometry(py, "world_from_sensor", world_from_sensor)?;
         let model = lidar_noise(py, noise)?;
         let (lidar, w) = (&self.inner, &world.inner);
-        let scan = py
+        let (flat, ring) = py
             .detach(|| {
-                let truth = lidar.scan(w, &pose);
-                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-                model.try_apply(&truth, &mut rng)
+                self.truth.with(|truth| {
+                    lidar.scan_into(w, &pose, truth);
+                    let flatten = |scan: &LidarScan| scan.points_sensor.iter().flatten().copied().collect::<Vec<f32>>();
+                    if model.stages.is_empty() {
+                        // No noise: the arrays straight from the kept scan.
+                        return Ok((flatten(truth), truth.ring.clone()));
+                    }
+                    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+                    let scan = model.try_apply(truth, &mut rng)?;
+                    Ok((flatten(&scan), scan.ring))
+                })
             })
             .sim_err(py)?;
-        Ok((points(py, &scan.points_sensor)?, scan.ring.into_pyarray(py)))
+        let n = ring.len();
+        Ok((flat.into_pyarray(py).reshape([n, 3])?, ring.into_pyarray(py)))
     }
 }
 
