@@ -22,8 +22,8 @@
 //!   scan). Same answers as [`World::cast_ray`], bit for bit (ties between primitives go to
 //!   the lower id).
 //! - The terrain is a parry3d [`HeightField`] for clearance queries; cells touching a hole are
-//!   removed. Rays walk its grid themselves (blocks of 8 x 8 cells with their height range,
-//!   then cells), testing the two f64 triangles of each cell they may meet; those are the
+//!   removed. Rays walk its grid themselves (a pyramid of blocks of 4 x 4 cells, 16 x 16
+//!   and 64 x 64, each with its height range, then cells), testing the two f64 triangles of each cell they may meet; those are the
 //!   triangles [`World::ground_height`] interpolates. Many rays from one origin (a lidar
 //!   scan, a depth frame) first get a `TerrainView` of the terrain from there: per azimuth
 //!   sector and bin of horizontal distance, the range of slopes under which the terrain is
