@@ -23,12 +23,13 @@
 //!   the lower id).
 //! - The terrain is a parry3d [`HeightField`] for clearance queries; cells touching a hole are
 //!   removed. Rays walk its grid themselves (a pyramid of blocks of 4 x 4 cells, 16 x 16
-//!   and 64 x 64, each with its height range, then cells), testing the two f64 triangles of each cell they may meet; those are the
-//!   triangles [`World::ground_height`] interpolates. Many rays from one origin (a lidar
-//!   scan, a depth frame) first get a `TerrainView` of the terrain from there: per azimuth
-//!   sector and bin of horizontal distance, the range of slopes under which the terrain is
-//!   seen. A ray keeps one sector and one slope, so it walks only the cells of the bins
-//!   whose range holds its slope: no walk at all above the horizon, a short one near its hit.
+//!   and 64 x 64, each with its height range, then cells), testing the two f64 triangles of
+//!   each cell they may meet; those are the triangles [`World::ground_height`] interpolates.
+//!   Many rays from one origin (a lidar scan, a depth frame) first get a `TerrainView` of
+//!   the terrain from there: per azimuth sector and bin of horizontal distance, the range of
+//!   slopes under which the terrain is seen. A ray keeps one sector and one slope, so it
+//!   walks only the cells of the bins whose range holds its slope: no walk at all above the
+//!   horizon, a short one near its hit.
 //! - Planes are few and unbounded: handled analytically.
 //!
 //! Primitive ids ([`PrimitiveId`]) are stable: cylinders, capsules, boxes, spheres and solid
