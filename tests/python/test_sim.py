@@ -118,8 +118,9 @@ def test_sensors_render_into_kept_buffers_without_touching_returned_arrays():
     points, ring = lidar.scan(world, poses[0])
     kept = (depth.copy(), points.copy(), ring.copy())
     other = camera.render(world, poses[1] @ BODY_FROM_OPTICAL, threads=2)
-    lidar.scan(world, poses[1], noise="os1_64", seed=4)
+    other_points, _ = lidar.scan(world, poses[1], noise="os1_64", seed=4)
     assert not np.array_equal(other, depth)
+    assert other_points.shape != points.shape or not np.array_equal(other_points, points)
     for returned, copy in zip((depth, points, ring), kept):
         assert np.array_equal(returned, copy)
     assert np.array_equal(camera.render(world, poses[0] @ BODY_FROM_OPTICAL, threads=2), depth)

@@ -212,7 +212,9 @@ impl<T: Default> Scratch<T> {
     fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
         match self.0.try_lock() {
             Ok(mut kept) => f(&mut kept),
-            Err(_) => f(&mut T::default()),
+            // A call that panicked left it half written: every call overwrites it whole.
+            Err(std::sync::TryLockError::Poisoned(poisoned)) => f(&mut poisoned.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) => f(&mut T::default()),
         }
     }
 }

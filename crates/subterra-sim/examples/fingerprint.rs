@@ -1,7 +1,8 @@
 //! Fingerprints of the sensor simulation: a hash of every bit of depth frames (depth,
 //! primitive, incidence) and lidar scans over seeded poses in each built-in scenario, and of
-//! single `cast_ray` answers. Two builds that print the same lines render the same bits:
-//! run it before and after a change meant to be faster only.
+//! single `cast_ray` answers; it checks that threaded frames equal them. Two builds (with one
+//! toolchain: the hasher may change between Rust versions) that print the same lines render
+//! the same bits: run it before and after a change meant to be faster only.
 //!
 //! Run: `cargo run --release -p subterra-sim --example fingerprint [POSES]`.
 
@@ -30,9 +31,12 @@ fn main() {
         let (lo, hi) = world.bounds();
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
         let (mut depth, mut lidar, mut single) = (DefaultHasher::new(), DefaultHasher::new(), DefaultHasher::new());
+        let mut threaded = Default::default();
         for _ in 0..poses {
             let pose = random_pose(&world, lo, hi, &mut rng);
             let frame = camera.render(&world, &pose);
+            camera.render_parallel_into(&world, &pose, 2, &mut threaded);
+            assert_eq!(threaded, frame, "{name}: a frame on 2 threads differs from one on 1");
             for k in 0..frame.pixel_count() {
                 (frame.depth_m[k].to_bits(), frame.primitive[k], frame.incidence_cos[k].to_bits()).hash(&mut depth);
             }
@@ -40,6 +44,7 @@ fn main() {
             let level = Isometry3 { rotation: DMat3::IDENTITY, translation: pose.translation };
             for (l, p) in lidars.iter().flat_map(|l| [(l, &pose), (l, &level)]) {
                 let scan = l.scan(&world, p);
+                scan.len().hash(&mut lidar);
                 for (p, (ring, id)) in scan.points_sensor.iter().zip(scan.ring.iter().zip(&scan.primitive)) {
                     (p.map(f32::to_bits), ring, id).hash(&mut lidar);
                 }

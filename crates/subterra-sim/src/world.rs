@@ -425,7 +425,7 @@ impl World {
         let view = view.as_ref();
         // This thread's plan memory, taken for the call (a sink that casts again, or panics,
         // leaves fresh memory to the next call).
-        let mut scratch = PLAN_SCRATCH.with(|s| s.take());
+        let mut scratch = PlanScratch::take();
         let mut lists = PlanLists::take();
         for (&(first, len, geom), cones) in layout.fans.iter().zip(&layout.cones) {
             let fan = &dirs[first..first + len];
@@ -447,7 +447,7 @@ impl World {
             }
         }
         lists.give();
-        PLAN_SCRATCH.with(|s| s.replace(scratch));
+        scratch.give();
     }
 
     /// The per-pose set-up of [`World::cast_fan_cached`] (a plan per fan, the terrain view),
@@ -455,7 +455,7 @@ impl World {
     pub(crate) fn fan_cast<'a>(&'a self, origin: DVec3, rotation: DMat3, layout: &'a FanLayout) -> FanCast<'a> {
         // Every plan in lists of its own from this thread's pool (back there when the
         // `FanCast` is dropped), all made with one scratch.
-        let mut scratch = PLAN_SCRATCH.with(|s| s.take());
+        let mut scratch = PlanScratch::take();
         let plans = layout
             .fans
             .iter()
@@ -465,7 +465,7 @@ impl World {
                 _ => None,
             })
             .collect();
-        PLAN_SCRATCH.with(|s| s.replace(scratch));
+        scratch.give();
         FanCast { world: self, origin, rotation, layout, plans, view: self.terrain_view(origin, layout.len()) }
     }
 
@@ -1508,8 +1508,22 @@ struct PlanScratch {
     cursor: Vec<u32>,
 }
 
+impl PlanScratch {
+    /// This thread's scratch, taken (a call made meanwhile gets a new one).
+    fn take() -> PlanScratch {
+        PLAN_SCRATCH.try_with(|s| s.take()).unwrap_or_default()
+    }
+
+    /// Back to this thread.
+    fn give(self) {
+        // While the thread ends the slot may be gone: the scratch is then dropped.
+        let _ = PLAN_SCRATCH.try_with(|s| s.replace(self));
+    }
+}
+
 thread_local! {
-    /// Each thread's spare [`PlanLists`] (as many as it last held plans at once).
+    /// Each thread's spare [`PlanLists`] (as many as it ever held plans at once: a frame's
+    /// worth, kept while the thread lives).
     static PLAN_LISTS: std::cell::RefCell<Vec<PlanLists>> = const { std::cell::RefCell::new(Vec::new()) };
     /// Each thread's [`PlanScratch`] (taken for a call; a call made meanwhile gets fresh).
     static PLAN_SCRATCH: std::cell::RefCell<PlanScratch> = std::cell::RefCell::new(PlanScratch::default());
