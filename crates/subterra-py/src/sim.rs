@@ -84,8 +84,18 @@ fn depth_image<'py>(py: Python<'py>, data: Vec<f32>, width: u32, height: u32, dt
 }
 
 fn points<'py>(py: Python<'py>, pts: &[[f32; 3]]) -> PyResult<Bound<'py, PyArray2<f32>>> {
-    let flat: Vec<f32> = pts.iter().flatten().copied().collect();
-    Ok(flat.into_pyarray(py).reshape([pts.len(), 3])?)
+    points_array(py, flat_points(pts))
+}
+
+/// `(x, y, z)` points as one flat list (the data of an `(N, 3)` array).
+fn flat_points(pts: &[[f32; 3]]) -> Vec<f32> {
+    pts.iter().flatten().copied().collect()
+}
+
+/// The `(N, 3)` array of a [`flat_points`] list.
+fn points_array(py: Python<'_>, flat: Vec<f32>) -> PyResult<Bound<'_, PyArray2<f32>>> {
+    let n = flat.len() / 3;
+    Ok(flat.into_pyarray(py).reshape([n, 3])?)
 }
 
 /// A simulated world: primitives, terrain, regions, routes.
@@ -321,19 +331,17 @@ impl PyLidar {
             .detach(|| {
                 self.truth.with(|truth| {
                     lidar.scan_into(w, &pose, truth);
-                    let flatten = |scan: &LidarScan| scan.points_sensor.iter().flatten().copied().collect::<Vec<f32>>();
                     if model.stages.is_empty() {
                         // No noise: the arrays straight from the kept scan.
-                        return Ok((flatten(truth), truth.ring.clone()));
+                        return Ok((flat_points(&truth.points_sensor), truth.ring.clone()));
                     }
                     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
                     let scan = model.try_apply(truth, &mut rng)?;
-                    Ok((flatten(&scan), scan.ring))
+                    Ok((flat_points(&scan.points_sensor), scan.ring))
                 })
             })
             .sim_err(py)?;
-        let n = ring.len();
-        Ok((flat.into_pyarray(py).reshape([n, 3])?, ring.into_pyarray(py)))
+        Ok((points_array(py, flat)?, ring.into_pyarray(py)))
     }
 }
 
