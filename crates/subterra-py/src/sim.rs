@@ -95,7 +95,7 @@ fn flat_points(pts: &[[f32; 3]]) -> Vec<f32> {
 /// The `(N, 3)` array of a [`flat_points`] list.
 fn points_array(py: Python<'_>, flat: Vec<f32>) -> PyResult<Bound<'_, PyArray2<f32>>> {
     let n = flat.len() / 3;
-    Ok(flat.into_pyarray(py).reshape([n, 3])?)
+    flat.into_pyarray(py).reshape([n, 3])
 }
 
 /// A simulated world: primitives, terrain, regions, routes.
