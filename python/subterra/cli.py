@@ -109,6 +109,10 @@ def _parser() -> argparse.ArgumentParser:
 
     register_drive(sub)
 
+    from subterra.batch.sweep import register_cli as register_sweep
+
+    register_sweep(sub)
+
     demo = sub.add_parser("demo", help="the main job: simulated flights, the cable test and a small batch, with a report")
     demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
     demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")
@@ -213,7 +217,7 @@ def _fly_batch(args: argparse.Namespace) -> int:
     out = out_dir(args, f"fly-batch-{args.scenario}")
     result = fly_batch(args.scenario, args.routes, seeds, controllers=[c.strip() for c in args.controllers.split(",") if c.strip()],
                        noises=[n.strip() for n in args.noise.split(",") if n.strip()], preset=args.preset, rate_hz=args.rate,
-                       log_path=out / "flights.jsonl", **engine_options(args))
+                       keep_records=not args.no_plots, log_path=out / "flights.jsonl", **engine_options(args))
     paths = result.save(out, plots=not args.no_plots)
     print(result.markdown())
     print(f"{len(result.rows)} flights in {result.wall_s:.0f} s")

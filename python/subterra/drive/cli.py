@@ -137,7 +137,7 @@ def _drive_batch(args: argparse.Namespace) -> int:
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
     out = out_dir(args, f"drive-batch-{args.scenario}")
     result = drive_batch(args.scenario, seeds, planners=planners, time_limit_s=args.time_limit,
-                         log_path=out / "drives.jsonl", **engine_options(args))
+                         keep_records=not args.no_plots, log_path=out / "drives.jsonl", **engine_options(args))
     paths = result.save(out, plots=not args.no_plots)
     print(result.markdown())
     print(f"{len(result.rows)} drives in {result.wall_s:.0f} s")
