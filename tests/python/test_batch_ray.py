@@ -7,6 +7,8 @@ aside), so does a small sweep, and a batch resumed on Ray runs only the jobs its
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import pytest
 
@@ -88,3 +90,18 @@ def test_a_sweep_on_ray_gives_the_rows_of_threads(ray_engine):
     assert len(on_ray.rows) == 2 and on_ray.settings["engine"] == "ray"
     assert _outcome(on_ray.rows) == _outcome(threads.rows)
     assert [r["sweep"] for r in on_ray.rows] == [r["sweep"] for r in threads.rows]
+
+
+def test_a_batch_joins_a_running_cluster_with_address(ray_engine, tmp_path):
+    import ray
+
+    address = ray.get_runtime_context().gcs_address
+    out = tmp_path / "joined"
+    argv = ["drive-batch", "--seeds", "1", "--planners", "additive", "--time-limit", "3", "--no-plots",
+            "--engine", "ray", "--address", address, "--out", str(out)]
+    done = subprocess.run([sys.executable, "-m", "subterra.cli", *argv], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    data = json.loads((out / "results.json").read_text())
+    assert data["settings"]["engine"] == "ray" and len(data["drives"]) == 1
+    assert "drive-batch mine: 1/1 drives" in done.stderr  # progress on stderr, the table on stdout
+    assert "| additive | 1 |" in done.stdout

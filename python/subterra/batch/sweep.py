@@ -29,7 +29,6 @@ from subterra.batch.jobs import Job
 from subterra.batch.progress import ProgressArg
 from subterra.batch.results import BatchReport, markdown_table
 from subterra.batch.sweep_spec import RUN_FIELDS, SweepSpec, load_sweep
-from subterra.errors import ConfigError
 
 __all__ = ["SweepResult", "field_stats", "point_params", "register_cli", "sweep", "sweep_jobs"]
 
@@ -227,16 +226,9 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _sweep_cli(args: argparse.Namespace) -> int:
-    from subterra.batch.cli import engine_options, out_dir
+    from subterra.batch.cli import engine_options, out_dir, save_and_report
 
     spec = load_sweep(args.file)
     out = out_dir(args, f"sweep-{Path(args.file).stem}")
-    if not spec.points:
-        raise ConfigError(f"sweep file {args.file} has no point to run")
     result = sweep(spec, log_path=out / "runs.jsonl", **engine_options(args))
-    paths = result.save(out, plots=not args.no_plots)
-    print(result.markdown())
-    print(f"{len(result.rows)} runs ({len(spec.points)} points) in {result.wall_s:.0f} s")
-    for kind, path in paths.items():
-        print(f"  {kind}: {path}")
-    return 0
+    return save_and_report(result, out, args, "run")
