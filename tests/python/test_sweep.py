@@ -8,7 +8,7 @@ import json
 import pytest
 
 from subterra.batch import load_sweep
-from subterra.batch.sweep import point_params, sweep_jobs
+from subterra.batch.sweep import SweepResult, field_stats, point_params, sweep_jobs
 from subterra.cli import main
 from subterra.errors import ConfigError
 
@@ -97,3 +97,27 @@ def test_a_2x2_grid_on_2_seeds_writes_its_table_and_figures(tmp_path):
     assert main(["sweep", str(spec), "--out", str(out), "--resume", "--no-plots"]) == 0
     again = json.loads((out / "results.json").read_text())
     assert again["settings"]["resumed"] == 8 and again["summary"] == data["summary"]
+
+
+def test_field_figures_average_over_the_rest_and_spread_over_seeds(tmp_path):
+    # Two values of a categorical field x two values of another, on seeds 0 and 1.
+    def row(mode, gain, seed, outcome):
+        return {"success": outcome == "ok", "failure": None if outcome == "ok" else outcome,
+                "sweep": {"point": 0, "values": {"mode": mode, "gain": gain}, "world": "w", "noise": "n", "arm": "apf-pf",
+                          "seed": seed}}
+
+    rows = [row("a", 1.0, 0, "ok"), row("a", 2.0, 0, "ok"), row("a", 1.0, 1, "collision"), row("a", 2.0, 1, "ok"),
+            row("b", 1.0, 0, "timeout"), row("b", 2.0, 0, "timeout"), row("b", 1.0, 1, "ok"), row("b", 2.0, 1, "ok")]
+    result = SweepResult(scenario="w", rows=rows, table=[], settings={"noises": ["n"], "fields": ["mode", "gain"],
+                                                                      "kind": "fly", "seeds": [0, 1]})
+    stats = field_stats(result, "mode")["apf-pf"]
+    assert [p["value"] for p in stats] == ["a", "b"]
+    # mode a: seed 0 succeeds twice (1.0), seed 1 once in two (0.5).
+    assert stats[0]["success"] == {"mean": 0.75, "min": 0.5, "max": 1.0}
+    assert stats[0]["collision"] == {"mean": 0.25, "min": 0.0, "max": 0.5}
+    assert stats[1]["success"] == {"mean": 0.5, "min": 0.0, "max": 1.0} and stats[1]["seeds"] == 2
+    gain = field_stats(result, "gain")["apf-pf"]
+    assert [p["value"] for p in gain] == [1.0, 2.0] and gain[1]["success"]["mean"] == 0.75
+    written = result.figures(tmp_path)
+    assert set(written) == {"sweep_mode", "sweep_gain"}
+    assert all(p.read_bytes()[:4] == b"\x89PNG" for p in written.values())

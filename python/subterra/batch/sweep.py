@@ -47,7 +47,7 @@ def _nested(dotted: Mapping[str, Any]) -> dict[str, Any]:
 def point_params(spec: SweepSpec, point: Mapping[str, Any]) -> dict[str, Any]:
     """The run settings of ``point``: the fixed ones, the swept run settings and the config
     fields (flights: ``perception``; drives: ``navigator_config``)."""
-    params = {k: v for k, v in spec.fixed.items() if k != "preset" or spec.kind == "fly"}
+    params = dict(spec.fixed)
     config = {}
     for name, value in point.items():
         if name in RUN_FIELDS[spec.kind]:

@@ -42,7 +42,7 @@ def plot_sweep_field(stats: dict[str, list[dict[str, Any]]], field: str, path: s
             mean = [p[metric]["mean"] for p in points]
             low = [p[metric]["mean"] - p[metric]["min"] for p in points]
             high = [p[metric]["max"] - p[metric]["mean"] for p in points]
-            ax.errorbar(x, mean, yerr=[low, high], marker="o", capsize=4, label=line)
+            ax.errorbar(x, mean, yerr=[low, high], marker="o", capsize=4, label=line, linestyle="-" if numeric else "none")
         ax.set_ylim(-0.05, 1.05)
         ax.set_ylabel(label)
         ax.set_xlabel(field)
