@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -26,9 +25,6 @@ def _goal(text: str) -> tuple[float, float, float]:
     return x, y, z
 
 
-_NOISES = ("none", "paper-every-pixel", "paper-every-2nd", "paper-every-10th", "d435", "d435-phantom")
-
-
 def _flight_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="highbay", help="built-in scenario with routes: highbay (default) or tunnel")
     p.add_argument("--preset", default="flight",
@@ -39,6 +35,9 @@ def _flight_options(p: argparse.ArgumentParser) -> None:
 
 
 def _parser() -> argparse.ArgumentParser:
+    from subterra.batch.cli import add_engine_options
+    from subterra.sim import DEPTH_NOISE_PRESETS
+
     p = argparse.ArgumentParser(prog="subterra", description="Perception and planning for robots underground.")
     p.add_argument("--debug", action="store_true", help="show the traceback on errors")
     sub = p.add_subparsers(dest="command", required=True)
@@ -76,7 +75,7 @@ def _parser() -> argparse.ArgumentParser:
     fly.add_argument("--route", default="A-B", help="route, e.g. A-B (highbay: A-B, B-C, C-D, D-C, D-B)")
     fly.add_argument("--controller", default="apf-pf", choices=["apf-pf", "apf-pf-histogram", "raw-apf"],
                      help="apf-pf (particle filter, the paper), apf-pf-histogram (exact filter) or raw-apf (the baseline)")
-    fly.add_argument("--noise", default="d435", help="depth noise model: " + ", ".join(_NOISES) + " (default d435)")
+    fly.add_argument("--noise", default="d435", help="depth noise model: " + ", ".join(DEPTH_NOISE_PRESETS) + " (default d435)")
     fly.add_argument("--seed", type=int, default=0, help="world layout, noise and filter seed (default 0)")
     fly.add_argument("--time-limit", type=float, default=None, help="seconds of simulated time (default: 4x the straight-line time)")
     fly.add_argument("--world", default=None, help="fly in this world file (TOML) instead of a built-in scenario")
@@ -91,9 +90,8 @@ def _parser() -> argparse.ArgumentParser:
     batch.add_argument("--first-seed", type=int, default=0, help="start the seeds here (default 0)")
     batch.add_argument("--controllers", default="apf-pf,raw-apf", help="comma-separated (default apf-pf,raw-apf)")
     batch.add_argument("--noise", default="d435-phantom", help="comma-separated noise models (default d435-phantom)")
-    batch.add_argument("--workers", type=int, default=None, help="parallel flights (default: CPU count)")
     batch.add_argument("--no-plots", action="store_true", help="skip the path figure")
-    batch.add_argument("--out", default=None, help="output folder (default runs/fly-batch-<scenario>-<time>)")
+    add_engine_options(batch, unit="flight")
 
     from subterra.flight.cable import register_cli as register_cable_test
 
@@ -204,6 +202,7 @@ def _fly(args: argparse.Namespace) -> int:
 
 
 def _fly_batch(args: argparse.Namespace) -> int:
+    from subterra.batch.cli import engine_options, out_dir
     from subterra.flight import fly_batch
 
     if args.config:
@@ -211,10 +210,10 @@ def _fly_batch(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         raise InputError(f"argument --seeds must be >= 1, got {args.seeds}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    out = Path(args.out or f"runs/fly-batch-{args.scenario}-{time.strftime('%Y%m%d-%H%M%S')}")
+    out = out_dir(args, f"fly-batch-{args.scenario}")
     result = fly_batch(args.scenario, args.routes, seeds, controllers=[c.strip() for c in args.controllers.split(",") if c.strip()],
                        noises=[n.strip() for n in args.noise.split(",") if n.strip()], preset=args.preset, rate_hz=args.rate,
-                       workers=args.workers, log_path=out / "flights.jsonl")
+                       log_path=out / "flights.jsonl", **engine_options(args))
     paths = result.save(out, plots=not args.no_plots)
     print(result.markdown())
     print(f"{len(result.rows)} flights in {result.wall_s:.0f} s")

@@ -2,78 +2,60 @@
 risk-aware planner and with the additive-cost baseline, on the same worlds and noise.
 
 Each seed is a new world (the built-in generators are seeded) and a new lidar-noise stream.
-Drives run in parallel threads (the simulator and the navigator release the GIL); results
-do not depend on the number of workers.
+Every drive is one job of the batch engine (:mod:`subterra.batch`: threads here or a Ray
+cluster); results depend on neither the engine nor the number of workers.
 """
 
 from __future__ import annotations
 
-import json
 import os
-import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from subterra.drive.run import PLANNERS, DriveResult, drive
+from subterra.batch import BatchReport, Engine, Job, ProgressArg, check_workers, markdown_table, run_batch, seed_list
+from subterra.drive.run import PLANNERS, DriveResult
 from subterra.errors import InputError
 
-__all__ = ["DriveBatchResult", "FAILURE_CAUSES", "drive_batch", "summarise_drives"]
+__all__ = ["DRIVE_JOB", "DriveBatchResult", "FAILURE_CAUSES", "drive_batch", "summarise_drives"]
+
+#: The job function of a drive: :func:`subterra.drive.drive` with the job's arguments.
+DRIVE_JOB = "subterra.drive.run:drive"
 
 #: Failure causes counted in the table; anything else is "other".
 FAILURE_CAUSES = ("rollover", "fall", "collision", "timeout", "gave_up", "returned_home")
 
 
 @dataclass
-class DriveBatchResult:
+class DriveBatchResult(BatchReport):
     """Per-drive rows (``DriveResult.summary()`` dicts), the summary table, and the full
     records of the first seed (for plotting)."""
 
-    scenario: str
-    rows: list[dict[str, Any]]
-    table: list[dict[str, Any]]
-    kept: list[DriveResult] = field(default_factory=list)
-    wall_s: float = 0.0
-    settings: dict[str, Any] = field(default_factory=dict)
-
-    def to_json(self) -> dict[str, Any]:
-        return {"scenario": self.scenario, "settings": self.settings, "wall_s": round(self.wall_s, 1),
-                "summary": self.table, "drives": self.rows}
+    ROWS = "drives"
 
     def markdown(self) -> str:
         """The results table, one line per planner."""
-        head = ("| planner | drives | success | rollovers | falls | collisions | timeouts | gave up / home "
-                "| accumulated true risk (median / max) | time to goal [s] (median) | recoveries | compute [ms] (median) |")
-        lines = [head, "|" + "---|" * 12]
+        head = ("planner", "drives", "success", "rollovers", "falls", "collisions", "timeouts", "gave up / home",
+                "accumulated true risk (median / max)", "time to goal [s] (median)", "recoveries", "compute [ms] (median)")
+        lines = []
         for r in self.table:
             risk = "-" if r["median_true_risk"] is None else f"{r['median_true_risk']:.3f} / {r['max_true_risk']:.3f}"
             t = "-" if r["median_time_s"] is None else f"{r['median_time_s']:.1f}"
             c = "-" if r["compute_ms_median"] is None else f"{r['compute_ms_median']:.1f}"
-            lines.append(
-                f"| {r['planner']} | {r['drives']} | {r['successes']} ({100 * r['success_rate']:.0f}%) | {r['rollover']} "
-                f"| {r['fall']} | {r['collision']} | {r['timeout']} | {r['gave_up']} / {r['returned_home']} | {risk} | {t} "
-                f"| {r['recoveries']} | {c} |"
-            )
+            lines.append((r["planner"], r["drives"], f"{r['successes']} ({100 * r['success_rate']:.0f}%)", r["rollover"],
+                          r["fall"], r["collision"], r["timeout"], f"{r['gave_up']} / {r['returned_home']}", risk, t,
+                          r["recoveries"], c))
         failed = [f"- {r['planner']}: " + "; ".join(r["failed_drives"]) for r in self.table if r["failed_drives"]]
-        return "\n".join(lines) + "\n" + ("\nFailures:\n" + "\n".join(failed) + "\n" if failed else "")
+        return markdown_table(head, lines) + ("\nFailures:\n" + "\n".join(failed) + "\n" if failed else "")
 
-    def save(self, out_dir: str | os.PathLike[str], *, plots: bool = True) -> dict[str, Path]:
-        """Writes ``results.json``, ``results.md`` and, with ``plots``, the map of every kept drive."""
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        written = {"json": out / "results.json", "markdown": out / "results.md"}
-        written["json"].write_text(json.dumps(self.to_json(), indent=2) + "\n", encoding="utf-8")
-        written["markdown"].write_text(self.markdown(), encoding="utf-8")
-        if plots:
-            from subterra.viz.drive import plot_drive_map
+    def figures(self, out: Path) -> dict[str, Path]:
+        """``map-seed<N>-<planner>.png``: the map of every kept drive."""
+        from subterra.viz.drive import plot_drive_map
 
-            for r in self.kept:
-                written[f"map_{r.planner}"] = plot_drive_map(r, out / f"map-seed{r.seed}-{r.planner}.png")
-        return written
+        return {f"map_{r.planner}": plot_drive_map(r, out / f"map-seed{r.seed}-{r.planner}.png") for r in self.kept}
 
 
 def summarise_drives(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -108,61 +90,33 @@ def drive_batch(
     planners: Sequence[str] = PLANNERS,
     time_limit_s: float | None = None,
     workers: int | None = None,
-    progress: bool | Callable[[int, int, dict[str, Any]], None] = True,
+    progress: ProgressArg = True,
     log_path: str | os.PathLike[str] | None = None,
+    engine: str | Engine = "threads",
+    address: str | None = None,
+    resume: bool = False,
 ) -> DriveBatchResult:
     """Drives every (seed, planner) and summarises. ``seeds``: a count (``0..n-1``) or
-    explicit seeds. ``workers``: parallel drives (default: the CPU count). ``log_path``: a
-    JSON-lines file appended as each drive lands (an interrupted batch keeps what it drove)."""
-    seed_list = list(range(seeds)) if isinstance(seeds, int) else [int(s) for s in seeds]
-    if not seed_list or any(s < 0 for s in seed_list):
-        raise InputError(f"argument `seeds` must be a count >= 1 or non-negative seeds, got {seeds!r}")
+    explicit seeds. ``log_path``: the JSON-lines log, a row per drive as it lands (a fresh
+    file; ``resume``: continue it and drive only what it does not hold). ``engine``:
+    ``"threads"`` or ``"ray"`` (``address``: an existing Ray cluster); ``workers``: parallel
+    drives (default: the CPU count). The first seed's full records are kept for the maps."""
+    seed_values = seed_list(seeds)
     if not planners or any(p not in PLANNERS for p in planners):
         raise InputError(f"argument `planners` must name some of {', '.join(PLANNERS)}, got {list(planners)!r}")
-    if workers is not None and not (isinstance(workers, int) and 1 <= workers <= 256):
-        raise InputError(f"argument `workers` must be an integer in 1..256, got {workers!r}")
-    jobs = [(seed, planner) for seed in seed_list for planner in planners]
-    started = time.perf_counter()
+    check_workers(workers)
+    jobs = [Job(DRIVE_JOB, {"scenario": scenario, "planner": planner, "seed": seed, "time_limit_s": time_limit_s},
+                keep=seed == seed_values[0])
+            for seed in seed_values for planner in planners]
 
-    def run(job: tuple[int, str]) -> DriveResult:
-        seed, planner = job
-        return drive(scenario, planner=planner, seed=seed, time_limit_s=time_limit_s)
+    def status(rows: list[dict[str, Any]]) -> str:
+        r = rows[-1]
+        return f"seed {r['seed']} {r['planner']}: {'ok' if r['success'] else r['failure']}"
 
-    bar, plain_every = None, 0
-    if progress is True:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(jobs), desc=f"drive-batch {scenario}", unit="drive", disable=None)
-        if bar.disable:
-            bar, plain_every = None, max(1, len(jobs) // 20)
-    rows: list[dict[str, Any]] = []
-    kept: list[DriveResult] = []
-    log = None
-    if log_path is not None:
-        Path(log_path).parent.mkdir(parents=True, exist_ok=True)
-        log = Path(log_path).open("a", encoding="utf-8")
-    try:
-        with ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
-            for done, result in enumerate(pool.map(run, jobs), start=1):
-                row = result.summary()
-                rows.append(row)
-                if result.seed == seed_list[0]:
-                    kept.append(result)
-                if log is not None:
-                    log.write(json.dumps(row) + "\n")
-                    log.flush()
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix_str(f"seed {row['seed']} {row['planner']}: {'ok' if row['success'] else row['failure']}")
-                elif plain_every and (done % plain_every == 0 or done == len(jobs)):
-                    print(f"drive-batch {scenario}: {done}/{len(jobs)} drives", flush=True)
-                elif callable(progress):
-                    progress(done, len(jobs), row)
-    finally:
-        if bar is not None:
-            bar.close()
-        if log is not None:
-            log.close()
-    settings = {"seeds": seed_list, "planners": list(planners), "time_limit_s": time_limit_s}
-    return DriveBatchResult(scenario=scenario, rows=rows, table=summarise_drives(rows), kept=kept,
-                            wall_s=time.perf_counter() - started, settings=settings)
+    run = run_batch(jobs, engine=engine, workers=workers, address=address, progress=progress,
+                    desc=f"drive-batch {scenario}", unit="drive", status=status, log_path=log_path, resume=resume)
+    kept = [run.records[job.id] for job in jobs if job.id in run.records]
+    settings = {"seeds": seed_values, "planners": list(planners), "time_limit_s": time_limit_s, "engine": run.engine,
+                "resumed": run.resumed}
+    return DriveBatchResult(scenario=scenario, rows=run.rows, table=summarise_drives(run.rows), kept=kept,
+                            wall_s=run.wall_s, settings=settings)

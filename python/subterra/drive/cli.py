@@ -10,7 +10,6 @@ risk-aware planner and the additive-cost baseline side by side.
 from __future__ import annotations
 
 import argparse
-import time
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -53,6 +52,7 @@ def _merged(base: dict[str, Any], over: dict[str, Any] | None) -> dict[str, Any]
 
 def register_cli(subparsers: argparse._SubParsersAction) -> None:
     """Adds ``drive`` and ``drive-batch`` to ``subparsers``; their handlers are ``args.handler``."""
+    from subterra.batch.cli import add_engine_options
     from subterra.drive.run import PLANNERS
     from subterra.scenarios.ground import RECOVERY_SCENARIOS
     from subterra.sim import LIDAR_NOISE_PRESETS
@@ -80,9 +80,8 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     b.add_argument("--first-seed", type=int, default=0, help="start the seeds here (default 0)")
     b.add_argument("--planners", default=",".join(PLANNERS), help=f"comma-separated (default {','.join(PLANNERS)})")
     b.add_argument("--time-limit", type=float, default=None, help="seconds of simulated time per drive (default as drive)")
-    b.add_argument("--workers", type=int, default=None, help="parallel drives (default: CPU count)")
     b.add_argument("--no-plots", action="store_true", help="skip the maps of the first seed")
-    b.add_argument("--out", default=None, help="output folder (default runs/drive-batch-<scenario>-<time>)")
+    add_engine_options(b, unit="drive")
     b.set_defaults(handler=_drive_batch)
 
 
@@ -129,15 +128,16 @@ def _drive(args: argparse.Namespace) -> int:
 
 
 def _drive_batch(args: argparse.Namespace) -> int:
+    from subterra.batch.cli import engine_options, out_dir
     from subterra.drive.batch import drive_batch
 
     if args.seeds < 1 or args.first_seed < 0:
         raise InputError(f"arguments --seeds must be >= 1 and --first-seed >= 0, got {args.seeds} and {args.first_seed}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
-    out = Path(args.out or f"runs/drive-batch-{args.scenario}-{time.strftime('%Y%m%d-%H%M%S')}")
-    result = drive_batch(args.scenario, seeds, planners=planners, time_limit_s=args.time_limit, workers=args.workers,
-                         log_path=out / "drives.jsonl")
+    out = out_dir(args, f"drive-batch-{args.scenario}")
+    result = drive_batch(args.scenario, seeds, planners=planners, time_limit_s=args.time_limit,
+                         log_path=out / "drives.jsonl", **engine_options(args))
     paths = result.save(out, plots=not args.no_plots)
     print(result.markdown())
     print(f"{len(result.rows)} drives in {result.wall_s:.0f} s")

@@ -1,0 +1,40 @@
+"""The command-line options every batch command shares (``fly-batch``, ``drive-batch``,
+``sweep``): the engine, its workers, the cluster address, the output folder and
+``--resume``."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+from subterra.batch.engine import ENGINES
+from subterra.errors import InputError
+
+__all__ = ["add_engine_options", "engine_options", "out_dir"]
+
+
+def add_engine_options(p: argparse.ArgumentParser, *, unit: str) -> None:
+    """Adds ``--engine``, ``--address``, ``--workers``, ``--resume`` and ``--out``."""
+    p.add_argument("--engine", default="threads", choices=ENGINES,
+                   help="threads (default: a thread pool here) or ray (a Ray cluster; pip install 'subterra[cluster]')")
+    p.add_argument("--address", default=None,
+                   help="ray: join this cluster (e.g. ray://head:10001 or auto) instead of starting a local one")
+    p.add_argument("--workers", type=int, default=None,
+                   help=f"parallel {unit}s (default: the CPU count; ray: the local cluster's CPUs, or no cap on a cluster)")
+    p.add_argument("--resume", action="store_true",
+                   help=f"continue the batch in --out: run only the {unit}s its log does not hold")
+    p.add_argument("--out", default=None, help="output folder (default runs/<command>-<scenario>-<time>)")
+
+
+def engine_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The engine keywords of the batch functions, from the parsed options."""
+    return {"engine": args.engine, "workers": args.workers, "address": args.address, "resume": args.resume}
+
+
+def out_dir(args: argparse.Namespace, default_stem: str) -> Path:
+    """``--out``, or ``runs/<default_stem>-<time>``; ``--resume`` needs ``--out``."""
+    if args.resume and args.out is None:
+        raise InputError("argument --resume needs --out (the folder of the batch to continue)")
+    return Path(args.out or f"runs/{default_stem}-{time.strftime('%Y%m%d-%H%M%S')}")
