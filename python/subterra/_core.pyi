@@ -574,6 +574,8 @@ class _SimModule(ModuleType):
     DepthCamera: Any
     Lidar: Any
     Simulation: Any
+    DEPTH_NOISE_PRESETS: tuple[str, ...]
+    LIDAR_NOISE_PRESETS: tuple[str, ...]
     def scenario_names(self) -> list[str]: ...
 
 sim: _SimModule

@@ -53,13 +53,14 @@ def _parser() -> argparse.ArgumentParser:
     per.add_argument("--out", default="runs/perceive", help="output folder (default runs/perceive)")
 
     bench = sub.add_parser("bench", help="benchmarks against the NumPy reference")
-    bench.add_argument("what", choices=["perception", "plan", "replay", "sim", "terrain"])
+    bench.add_argument("what", choices=["batch", "perception", "plan", "replay", "sim", "terrain"])
     bench.add_argument("--frames", type=int, default=300)
     bench.add_argument("--reference-frames", type=int, default=30)
     bench.add_argument("--repeats", type=int, default=20, help="terrain: timed map updates; plan: timed plans per case (default 20)")
     bench.add_argument("--mode", choices=["particle", "histogram"], default="particle")
     bench.add_argument("--messages", type=int, default=20, help="replay: clouds and images per recording (default 20)")
     bench.add_argument("--seed", type=int, default=0)
+    bench.add_argument("--flights", type=int, default=20, help="batch: flights per engine (default 20)")
     bench.add_argument("--out", help="write the JSON report here too")
 
     sim = sub.add_parser("sim", help="the simulator: look at the built-in scenes")
@@ -109,6 +110,10 @@ def _parser() -> argparse.ArgumentParser:
 
     register_drive(sub)
 
+    from subterra.batch.sweep import register_cli as register_sweep
+
+    register_sweep(sub)
+
     demo = sub.add_parser("demo", help="the main job: simulated flights, the cable test and a small batch, with a report")
     demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
     demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")
@@ -136,7 +141,11 @@ def _perceive(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    if args.what == "sim":
+    if args.what == "batch":
+        from subterra.bench.batch import bench_batch
+
+        report = bench_batch(flights=args.flights, seed=args.seed)
+    elif args.what == "sim":
         from subterra.bench.sim import bench_sim
 
         report = bench_sim(seed=args.seed)
@@ -202,7 +211,7 @@ def _fly(args: argparse.Namespace) -> int:
 
 
 def _fly_batch(args: argparse.Namespace) -> int:
-    from subterra.batch.cli import engine_options, out_dir
+    from subterra.batch.cli import engine_options, out_dir, save_and_report
     from subterra.flight import fly_batch
 
     if args.config:
@@ -213,13 +222,8 @@ def _fly_batch(args: argparse.Namespace) -> int:
     out = out_dir(args, f"fly-batch-{args.scenario}")
     result = fly_batch(args.scenario, args.routes, seeds, controllers=[c.strip() for c in args.controllers.split(",") if c.strip()],
                        noises=[n.strip() for n in args.noise.split(",") if n.strip()], preset=args.preset, rate_hz=args.rate,
-                       log_path=out / "flights.jsonl", **engine_options(args))
-    paths = result.save(out, plots=not args.no_plots)
-    print(result.markdown())
-    print(f"{len(result.rows)} flights in {result.wall_s:.0f} s")
-    for kind, path in paths.items():
-        print(f"  {kind}: {path}")
-    return 0
+                       keep_records=not args.no_plots, log_path=out / "flights.jsonl", **engine_options(args))
+    return save_and_report(result, out, args, "flight")
 
 
 def _demo(args: argparse.Namespace) -> int:

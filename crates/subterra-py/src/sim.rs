@@ -3,7 +3,7 @@
 use glam::DVec3;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyTuple};
 use subterra::Isometry3;
 use subterra_sim::noise::{DepthNoiseModel, LidarNoiseModel};
 use subterra_sim::scenarios;
@@ -582,6 +582,8 @@ pub fn register(parent: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyLidar>()?;
     m.add_class::<PySimulation>()?;
     m.add_function(wrap_pyfunction!(scenario_names, &m)?)?;
+    m.add("DEPTH_NOISE_PRESETS", PyTuple::new(parent.py(), subterra_sim::noise::DEPTH_NOISE_PRESETS)?)?;
+    m.add("LIDAR_NOISE_PRESETS", PyTuple::new(parent.py(), subterra_sim::noise::LIDAR_NOISE_PRESETS)?)?;
     parent.add_submodule(&m)?;
     Ok(())
 }

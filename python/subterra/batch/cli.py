@@ -12,7 +12,7 @@ from typing import Any
 from subterra.batch.engine import ENGINES
 from subterra.errors import InputError
 
-__all__ = ["add_engine_options", "engine_options", "out_dir"]
+__all__ = ["add_engine_options", "engine_options", "out_dir", "save_and_report"]
 
 
 def add_engine_options(p: argparse.ArgumentParser, *, unit: str) -> None:
@@ -38,3 +38,16 @@ def out_dir(args: argparse.Namespace, default_stem: str) -> Path:
     if args.resume and args.out is None:
         raise InputError("argument --resume needs --out (the folder of the batch to continue)")
     return Path(args.out or f"runs/{default_stem}-{time.strftime('%Y%m%d-%H%M%S')}")
+
+
+def save_and_report(result: Any, out: Path, args: argparse.Namespace, unit: str) -> int:
+    """Writes ``result`` into ``out`` (figures unless ``--no-plots``) and prints its table,
+    the count, the time and the files; the command's exit code."""
+    paths = result.save(out, plots=not args.no_plots)
+    print(result.markdown())
+    resumed = result.settings.get("resumed", 0)
+    tail = f" ({resumed} of them from the log)" if resumed else ""
+    print(f"{len(result.rows)} {unit}s in {result.wall_s:.0f} s{tail}")
+    for kind, path in paths.items():
+        print(f"  {kind}: {path}")
+    return 0

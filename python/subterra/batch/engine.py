@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import closing
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -140,13 +141,15 @@ def run_batch(
     try:
         if todo:
             runner = make_engine(engine, workers=workers, address=address)
-            for k, row, record in runner.run([jobs[n] for n in todo]):
-                n = todo[k]
-                rows[n] = row
-                if record is not None:
-                    records[ids[n]] = record
-                log.write(row)
-                bar.update(row)
+            # closing(): a failure here stops the engine's jobs at once, not when the generator is collected.
+            with closing(runner.run([jobs[n] for n in todo])) as finished:
+                for k, row, record in finished:
+                    n = todo[k]
+                    rows[n] = row
+                    if record is not None:
+                        records[ids[n]] = record
+                    log.write(row)
+                    bar.update(row)
     finally:
         bar.close()
         log.close()

@@ -29,6 +29,7 @@ class Progress:
         self.plain_every = 0
         self.started = time.perf_counter()
         self.rows: list[dict[str, Any]] = []
+        self._status, self._status_at = "", -1.0
         if progress is True:
             from tqdm import tqdm
 
@@ -39,16 +40,25 @@ class Progress:
     def update(self, row: dict[str, Any]) -> None:
         self.done += 1
         self.rows.append(row)
-        status = self.status(self.rows) if self.status is not None and (self.bar is not None or self.plain_every) else ""
         if self.bar is not None:
-            self.bar.set_postfix_str(status, refresh=False)
+            self.bar.set_postfix_str(self._status_now(), refresh=False)
             self.bar.update(1)
         elif self.plain_every and (self.done % self.plain_every == 0 or self.done == self.total):
+            status = self.status(self.rows) if self.status is not None else ""
             tail = f"; {status}" if status else ""
             print(f"{self.desc}: {self.done}/{self.total} {self.unit}s, {time.perf_counter() - self.started:.0f} s{tail}",
                   file=sys.stderr, flush=True)
         elif self.callback is not None:
             self.callback(self.done, self.total, row)
+
+    def _status_now(self) -> str:
+        """The bar's status, recomputed at most twice a second (it reads every row so far)."""
+        if self.status is None:
+            return ""
+        now = time.perf_counter()
+        if now - self._status_at >= 0.5 or self.done == self.total:
+            self._status, self._status_at = self.status(self.rows), now
+        return self._status
 
     def close(self) -> None:
         if self.bar is not None:

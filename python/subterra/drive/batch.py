@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from subterra.batch import BatchReport, Engine, Job, ProgressArg, check_workers, markdown_table, run_batch, seed_list
-from subterra.drive.run import PLANNERS, DriveResult
+from subterra.drive.run import PLANNERS
 from subterra.errors import InputError
 
 __all__ = ["DRIVE_JOB", "DriveBatchResult", "FAILURE_CAUSES", "drive_batch", "summarise_drives"]
@@ -90,6 +90,7 @@ def drive_batch(
     planners: Sequence[str] = PLANNERS,
     time_limit_s: float | None = None,
     workers: int | None = None,
+    keep_records: bool = True,
     progress: ProgressArg = True,
     log_path: str | os.PathLike[str] | None = None,
     engine: str | Engine = "threads",
@@ -100,13 +101,14 @@ def drive_batch(
     explicit seeds. ``log_path``: the JSON-lines log, a row per drive as it lands (a fresh
     file; ``resume``: continue it and drive only what it does not hold). ``engine``:
     ``"threads"`` or ``"ray"`` (``address``: an existing Ray cluster); ``workers``: parallel
-    drives (default: the CPU count). The first seed's full records are kept for the maps."""
+    drives (default: the CPU count). The first seed's full records are kept for the maps
+    (``keep_records=False``: rows only, so every drive may run on a remote engine)."""
     seed_values = seed_list(seeds)
     if not planners or any(p not in PLANNERS for p in planners):
         raise InputError(f"argument `planners` must name some of {', '.join(PLANNERS)}, got {list(planners)!r}")
     check_workers(workers)
     jobs = [Job(DRIVE_JOB, {"scenario": scenario, "planner": planner, "seed": seed, "time_limit_s": time_limit_s},
-                keep=seed == seed_values[0])
+                keep=keep_records and seed == seed_values[0])
             for seed in seed_values for planner in planners]
 
     def status(rows: list[dict[str, Any]]) -> str:

@@ -128,7 +128,7 @@ def _drive(args: argparse.Namespace) -> int:
 
 
 def _drive_batch(args: argparse.Namespace) -> int:
-    from subterra.batch.cli import engine_options, out_dir
+    from subterra.batch.cli import engine_options, out_dir, save_and_report
     from subterra.drive.batch import drive_batch
 
     if args.seeds < 1 or args.first_seed < 0:
@@ -137,10 +137,5 @@ def _drive_batch(args: argparse.Namespace) -> int:
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
     out = out_dir(args, f"drive-batch-{args.scenario}")
     result = drive_batch(args.scenario, seeds, planners=planners, time_limit_s=args.time_limit,
-                         log_path=out / "drives.jsonl", **engine_options(args))
-    paths = result.save(out, plots=not args.no_plots)
-    print(result.markdown())
-    print(f"{len(result.rows)} drives in {result.wall_s:.0f} s")
-    for kind, path in paths.items():
-        print(f"  {kind}: {path}")
-    return 0
+                         keep_records=not args.no_plots, log_path=out / "drives.jsonl", **engine_options(args))
+    return save_and_report(result, out, args, "drive")

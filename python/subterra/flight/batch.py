@@ -157,6 +157,7 @@ def fly_batch(
     time_limit_s: float | None = None,
     workers: int | None = None,
     keep_seed: int | None = None,
+    keep_records: bool = True,
     progress: ProgressArg = True,
     log_path: str | os.PathLike[str] | None = None,
     engine: str | Engine = "threads",
@@ -170,7 +171,8 @@ def fly_batch(
 
     ``seeds``: a count (seeds ``0..n-1``) or explicit seeds. ``time_limit_s``: per flight
     (default: :func:`~subterra.flight.fly`'s, from the route length). ``keep_seed``: keep the
-    full records of this seed for plotting (default: the first seed). ``progress``: a
+    full records of this seed for plotting (default: the first seed; ``keep_records=False``:
+    none, rows only, so every flight may run on a remote engine). ``progress``: a
     progress bar on stderr, or a callback ``(done, total, row)``. ``log_path``: the
     JSON-lines log, a row per flight as it lands (a fresh file; ``resume``: continue it and
     fly only the flights it does not hold). ``engine``: ``"threads"`` or ``"ray"``
@@ -198,7 +200,7 @@ def fly_batch(
         if p not in preset_names():
             raise InputError(f"argument `preset`: unknown perception preset {p!r} (known: {', '.join(preset_names())})")
     route_list = _routes(scenario, routes)
-    keep = seed_values[0] if keep_seed is None else keep_seed
+    keep = (seed_values[0] if keep_seed is None else keep_seed) if keep_records else None
     jobs = [Job(FLY_JOB, {"scenario": scenario, "route": route, "controller": controller, "noise": noise, "preset": p,
                           "seed": seed, "rate_hz": rate_hz, "time_limit_s": time_limit_s}, keep=seed == keep)
             for p in presets for noise in noises for seed in seed_values for route in route_list for controller in controllers]

@@ -26,10 +26,10 @@ Lidar = _sim.Lidar
 Simulation = _sim.Simulation
 scenario_names = _sim.scenario_names
 
-#: Depth noise presets of `DepthCamera.render(noise=...)` and `Simulation.add_depth_camera`.
-DEPTH_NOISE_PRESETS = ("none", "paper-every-pixel", "paper-every-2nd", "paper-every-10th", "d435", "d435-phantom")
-#: Lidar noise presets.
-LIDAR_NOISE_PRESETS = ("none", "vlp16", "os1_64")
+#: Depth noise presets of `DepthCamera.render(noise=...)` and `Simulation.add_depth_camera` (the core's list).
+DEPTH_NOISE_PRESETS: tuple[str, ...] = _sim.DEPTH_NOISE_PRESETS
+#: Lidar noise presets (the core's list).
+LIDAR_NOISE_PRESETS: tuple[str, ...] = _sim.LIDAR_NOISE_PRESETS
 
 __all__ = [
     "DEPTH_NOISE_PRESETS",
