@@ -132,7 +132,8 @@ def plan_figures() -> None:
 
 
 def drive_figures() -> None:
-    """docs/drive.md: the ground robot across the mine (seed 0), and the dead end that runs the recovery ladder."""
+    """docs/drive.md: the ground robot across the mine (seed 0), the dead end that runs the recovery ladder, and
+    both planners in the trade-off worlds and the cave (seed 0)."""
     from subterra.drive import drive
     from subterra.scenarios.ground import recovery_scenario
     from subterra.viz.drive import plot_drive_map, plot_speed_risk
@@ -141,8 +142,12 @@ def drive_figures() -> None:
     plot_drive_map(mine, FIGURES / "drive-mine.png")
     plot_speed_risk(mine, FIGURES / "drive-mine-speed.png")
     sc = recovery_scenario("dead-end")
-    dead_end = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=150)
+    dead_end = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=240)
     plot_drive_map(dead_end, FIGURES / "drive-dead-end.png")
+    # The worlds with a trade-off, and the cave: both planners on seed 0.
+    for scenario in ("ledge", "rough", "slopes", "cave"):
+        for planner in ("risk-aware", "additive"):
+            plot_drive_map(drive(scenario, planner=planner, seed=0), FIGURES / f"drive-{scenario}-{planner}.png")
 
 
 def main() -> None:

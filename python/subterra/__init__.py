@@ -13,14 +13,14 @@ artificial potential fields that command an aerial robot.
 Frames and units follow ROS REP 103/105: body FLU, camera optical (x right, y down,
 z forward), metres, seconds, radians. Every error is a :class:`subterra.errors.SubterraError`.
 
-Terrain risk for ground robots (DESIGN §2, :mod:`subterra.terrain`): ``TerrainMapper``
+Terrain risk for ground robots (STEP, Fan et al. 2021; :mod:`subterra.terrain`): ``TerrainMapper``
 turns lidar scans into a multi-layer ``RiskMap``; ``segment_ground`` labels ground points.
 
-Planning (DESIGN §3, ``docs/planning.md``): ``RiskAStar`` finds the least-risk path on a
+Planning (STEP, Fan et al. 2021; ``docs/planning.md``): ``RiskAStar`` finds the least-risk path on a
 ``RiskMap`` or any risk array and returns a ``PlanResult``; ``Navigator`` wires the terrain
 mapper, the planner, the MPC tracker and the recovery behaviours for a robot's own loop.
 
-Path tracking (DESIGN §3): ``MpcTracker`` follows a reference path with a kinodynamic MPC
+Path tracking (STEP, Fan et al. 2021): ``MpcTracker`` follows a reference path with a kinodynamic MPC
 (risk-limited speed, obstacle half-planes, a backup stop); ``solve`` returns an
 ``MpcResult`` with the command ``(v, ω)`` to send (the QP: ``plan/mpc.rs`` module docs).
 """

@@ -208,6 +208,14 @@ class RiskMap:
     def layer_names(self) -> list[str]: ...
     def risk_at(self, x: float, y: float) -> float | None: ...
     def value_at(self, name: str, x: float, y: float) -> float | None: ...
+    @property
+    def lethal_risk(self) -> float:
+        """Risk at or above which a cell is lethal (the mapper's ``risk.lethal_risk``): the
+        one definition of a lethal cell for every output."""
+    def lethal(self) -> npt.NDArray[np.bool_]:
+        """``(ny, nx)``: the lethal cells (combined risk >= ``lethal_risk``, observed or not)."""
+    def lethal_count(self) -> int:
+        """The number of lethal cells."""
     def cvar(self, alpha: float) -> npt.NDArray[np.float32]: ...
     def to_image(self, layer: str = "risk") -> npt.NDArray[np.uint8]: ...
     def cell_of(self, x: float, y: float) -> tuple[int, int] | None: ...
@@ -278,7 +286,7 @@ def segment_ground(
 ) -> npt.NDArray[np.bool_]: ...
 
 class RiskAStar:
-    """Risk-aware A* on an 8-connected grid (DESIGN §3; docs/planning.md).
+    """Risk-aware A* on an 8-connected grid (docs/planning.md).
 
     Cell cost ``c = lam - ln(1 - r)`` [1/m] (NaN risk -> ``unknown_risk``); a move between
     neighbours ``d`` metres apart costs ``d * (c(a) + c(b)) / 2``; cells with ``r >= r_inst``
@@ -289,8 +297,10 @@ class RiskAStar:
     ``carrot_m=1.0``, ``unknown_risk=0.15``, ``allow_corner_cutting=False``
     (``configs/astar.toml``). ``cost_model="additive"`` is the conventional baseline:
     ``c = 1 + additive_weight * r`` (default 2.0, Nav2 Smac's ``cost_penalty``), cells with
-    ``r >= r_inst`` blocked, no budget (always ``"found"`` when reachable). Bad values raise
-    :class:`subterra.errors.ConfigError`.
+    ``r >= r_inst`` blocked, no budget (always ``"found"`` when reachable). Cells with
+    ``r >= lethal_risk`` are untraversable whatever ``r_inst`` is (the navigator sets it to the
+    terrain map's ``risk.lethal_risk``). Risks must lie in [0, 1] (NaN: unknown). Bad values
+    raise :class:`subterra.errors.ConfigError`.
     """
 
     def __init__(
@@ -304,6 +314,7 @@ class RiskAStar:
         allow_corner_cutting: bool = False,
         cost_model: Literal["risk", "additive"] = "risk",
         additive_weight: float = 2.0,
+        lethal_risk: float = 1.0,
     ) -> None: ...
     def plan(
         self,
@@ -433,7 +444,7 @@ class MpcResult:
         """The lethal polygons considered, each ``(K, 2)`` counter-clockwise [m] (for plotting)."""
 
 class MpcTracker:
-    """Kinodynamic MPC path tracker of a ground robot (DESIGN §3; the QP is written out in the module docs of crates/subterra/src/plan/mpc.rs).
+    """Kinodynamic MPC path tracker of a ground robot (the QP is written out in the module docs of crates/subterra/src/plan/mpc.rs).
 
     ``config``: None (the ``configs/mpc.toml`` defaults), a partial nested dict laid over them
     (``{"limits": {"max_speed_m_s": 0.5}}``), or a TOML path. Keeps its last plan to
@@ -505,11 +516,16 @@ class NavigatorOutput:
     def transitions(self) -> list[dict[str, Any]]:
         """The recovery machine's transitions during this step (``time_s``, ``from``, ``to``, ``reason``, ``r_inst``, ``r_total``)."""
     @property
+    def safety(self) -> str | None:
+        """Why the command is not the behaviour's own (its motion would have swept the
+        footprint over a lethal or unknown cell: the tracker's command replaced by a turn,
+        a straight drive or a stop, or a recovery stopped), else None."""
+    @property
     def timings(self) -> dict[str, float]:
         """Wall time per stage [s]: ``map_s``, ``plan_s``, ``track_s``, ``total_s``."""
 
 class Navigator:
-    """The ground robot's navigation stack (DESIGN §3): terrain mapper, risk-aware A*, MPC
+    """The ground robot's navigation stack (STEP, Fan et al. 2021): terrain mapper, risk-aware A*, MPC
     tracker and recovery behaviours, one ``step`` per control tick.
 
     ``goal``, ``home``: world (x, y) [m]; ``home`` defaults to the robot's position at the
@@ -550,7 +566,10 @@ class Navigator:
         cells take the near memory's rating; NaN where unobserved otherwise (None before the
         first scan). The
         MPC, the local risk and ``back_out`` use it as it is; the A* plans on it grown into
-        the unseen and inflated (``crates/subterra/src/plan/navigator.rs``, steps 2-3)."""
+        the unseen and inflated (``crates/subterra/src/plan/navigator/mod.rs``, steps 2-3)."""
+    @property
+    def driven_cells(self) -> int:
+        """Cells the robot's footprint has stood on (the driven memory)."""
     @property
     def remembered_hazards(self) -> int:
         """Cells in the hazard memory (``navigator.hazard_memory``)."""

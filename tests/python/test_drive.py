@@ -42,7 +42,7 @@ def test_mine_drive_reaches_the_goal_and_writes_its_run_folder(tmp_path):
 
 def test_dead_end_climbs_the_ladder_backs_out_and_goes_home():
     sc = recovery_scenario("dead-end")
-    result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=150)
+    result = drive(world=sc.world(), start=sc.start, yaw=sc.yaw, goal=sc.goal, home=sc.home, seed=0, time_limit_s=240)
     used = _behaviours(result)
     for behaviour in sc.expect:
         assert behaviour in used, (behaviour, used)

@@ -1,4 +1,4 @@
-"""The risk-aware A* from Python (DESIGN §3): optimal costs against scikit-image's
+"""The risk-aware A* from Python (STEP, Fan et al. 2021): optimal costs against scikit-image's
 ``MCP_Geometric`` and SciPy's ``csgraph.dijkstra`` (the reference in
 ``subterra.bench.reference.plan``), paths that never enter untraversable cells, the exact
 budget check, shortest paths on riskless grids, the carrot, the outcomes, bad input, a

@@ -1,4 +1,4 @@
-"""The MPC tracker from Python (DESIGN §3, docs/mpc.md).
+"""The MPC tracker from Python (STEP, Fan et al. 2021; docs/mpc.md).
 
 The closed loops below drive a velocity-commanded unicycle simulated in NumPy: each step
 the robot takes the returned command ``(v, ω)`` and holds it for ``dt`` (exact arc

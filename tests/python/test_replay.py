@@ -271,7 +271,7 @@ def test_terrain_replay_with_odometry_matches_the_mapper(tmp_path: Path) -> None
     assert (grid.info.width, grid.info.height, grid.info.resolution) == (risk_map.nx, risk_map.ny, pytest.approx(risk_map.resolution))
     assert (grid.info.origin.position.x, grid.info.origin.position.y) == (risk_map.extent[0], risk_map.extent[2])
     values = np.array(grid.data, np.int8).reshape(risk_map.ny, risk_map.nx)
-    np.testing.assert_array_equal(values, occupancy_values(risk_map.layer("risk"), risk_map.layer("observed")))
+    np.testing.assert_array_equal(values, occupancy_values(risk_map.layer("risk"), risk_map.layer("observed"), risk_map.lethal_risk))
     ix, iy = risk_map.cell_of(3.2, 0.2)
     assert values[iy, ix] == 100  # the box is lethal
     ix, iy = risk_map.cell_of(1.0, -3.0)
@@ -338,7 +338,7 @@ def test_foxglove_writer_round_trip(tmp_path: Path) -> None:
     assert arr.markers[1].text == "P(free) = 0.00"
     (_, _, grid), = out["/subterra/risk"]
     assert grid.header.frame_id == "map"
-    np.testing.assert_array_equal(np.array(grid.data, np.int8), occupancy_values(risk_map.layer("risk"), risk_map.layer("observed")).ravel())
+    np.testing.assert_array_equal(np.array(grid.data, np.int8), occupancy_values(risk_map.layer("risk"), risk_map.layer("observed"), risk_map.lethal_risk).ravel())
     assert sorted(out) == sorted(["/subterra/cmd", "/subterra/belief", "/subterra/risk", "/subterra/layers/risk",
                                   "/subterra/layers/tilt", "/tf", "/subterra/path", "/tf_static"])
     assert len(out["/tf"]) == 2
@@ -349,8 +349,11 @@ def test_foxglove_writer_round_trip(tmp_path: Path) -> None:
         assert rec.topics["/subterra/layers/tilt"].type == "sensor_msgs/msg/Image"
         img = next(iter(rec.messages(["/subterra/layers/tilt"]))).message
         np.testing.assert_array_equal(ros.decode_image(img), risk_map.layer("tilt")[::-1])
-    np.testing.assert_array_equal(occupancy_values(np.array([[0.0, 0.004, 0.5, 1.0, np.nan, 2.0]]), np.array([[1, 1, 1, 1, 1, 0]])),
-                                  [[0, 0, 50, 100, -1, -1]])
+    # Nav2's meaning: lethal (>= 0.9 here) is 100 observed or not, never -1; other observed
+    # cells round(100 r) up to 99; unobserved -1.
+    np.testing.assert_array_equal(
+        occupancy_values(np.array([[0.0, 0.004, 0.5, 0.895, 0.9, 1.0, np.nan, 0.5, 1.0]]), np.array([[1, 1, 1, 1, 1, 1, 1, 0, 0]]), 0.9),
+        [[0, 0, 50, 90, 100, 100, -1, -1, 100]])
 
 
 # ----------------------------------------------------------------------------- bad recordings

@@ -1,4 +1,4 @@
-"""The Python face of terrain risk mapping (issue 5, DESIGN §2).
+"""The Python face of terrain risk mapping (issue 5).
 
 Synthetic clouds with known answers (flat plane, a 0.3 m box, a mission item), the
 ground segmentation on its own, bad input, the committed default config, the

@@ -138,7 +138,7 @@ enum Endpoints {
     Cells(CellIndex, CellIndex),
 }
 
-/// Risk-aware A* on an 8-connected grid (DESIGN §3); holds its search buffers between plans.
+/// Risk-aware A* on an 8-connected grid (STEP, Fan et al. 2021); holds its search buffers between plans.
 #[pyclass(name = "RiskAStar", module = "subterra._core")]
 pub struct PyRiskAStar {
     inner: RiskAStar,
@@ -163,7 +163,7 @@ impl PyRiskAStar {
 #[pymethods]
 impl PyRiskAStar {
     #[new]
-    #[pyo3(signature = (*, lam = None, r_inst = None, r_total = None, carrot_m = None, unknown_risk = None, allow_corner_cutting = None, cost_model = "risk", additive_weight = None))]
+    #[pyo3(signature = (*, lam = None, r_inst = None, r_total = None, carrot_m = None, unknown_risk = None, allow_corner_cutting = None, cost_model = "risk", additive_weight = None, lethal_risk = None))]
     fn new(
         py: Python<'_>,
         lam: Option<&Bound<'_, PyAny>>,
@@ -174,6 +174,7 @@ impl PyRiskAStar {
         allow_corner_cutting: Option<&Bound<'_, PyAny>>,
         cost_model: &str,
         additive_weight: Option<&Bound<'_, PyAny>>,
+        lethal_risk: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let d = RiskAStarConfig::default();
         let cost_model = match cost_model {
@@ -196,6 +197,7 @@ impl PyRiskAStar {
             allow_corner_cutting,
             cost_model,
             additive_weight: float_arg(py, "additive_weight", additive_weight, d.additive_weight)?,
+            lethal_risk: float_arg(py, "lethal_risk", lethal_risk, d.lethal_risk)?,
         };
         Ok(Self { inner: RiskAStar::new(config).py_err(py)? })
     }

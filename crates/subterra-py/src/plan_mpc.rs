@@ -295,7 +295,7 @@ impl PyMpcResult {
 
 // ---------------------------------------------------------------- MpcTracker
 
-/// The MPC path tracker of a ground robot (DESIGN §3): keeps its last plan to warm-start
+/// The MPC path tracker of a ground robot (STEP, Fan et al. 2021): keeps its last plan to warm-start
 /// the next solve.
 #[pyclass(name = "MpcTracker", module = "subterra._core")]
 pub struct PyMpcTracker {

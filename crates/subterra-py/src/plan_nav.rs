@@ -128,6 +128,13 @@ impl PyNavigatorOutput {
     }
 
     /// Wall time per stage [s]: `map_s`, `plan_s`, `track_s`, `total_s`.
+    /// Why the command is not the behaviour's own (the motion it asked for would have swept
+    /// the footprint over a lethal or unknown cell), or `None`.
+    #[getter]
+    fn safety(&self) -> Option<String> {
+        self.inner.safety.clone()
+    }
+
     #[getter]
     fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let t = self.inner.timings;
@@ -151,7 +158,7 @@ impl PyNavigatorOutput {
     }
 }
 
-/// The ground robot's navigation stack (DESIGN §3): terrain mapper, risk-aware A*, MPC
+/// The ground robot's navigation stack (STEP, Fan et al. 2021): terrain mapper, risk-aware A*, MPC
 /// tracker and recovery behaviours, one `step` per control tick.
 #[pyclass(name = "Navigator", module = "subterra._core")]
 pub struct PyNavigator {
@@ -263,6 +270,12 @@ impl PyNavigator {
     }
 
     /// Cells in the hazard memory (`navigator.hazard_memory`).
+    /// Cells the robot's footprint has stood on (the driven memory).
+    #[getter]
+    fn driven_cells(&self) -> usize {
+        self.inner.driven_cells()
+    }
+
     #[getter]
     fn remembered_hazards(&self) -> usize {
         self.inner.remembered_hazards()

@@ -118,7 +118,7 @@ impl PyRobotConfig {
         }
     }
 
-    /// The Clearpath Husky-like robot of DESIGN §2 (0.99 x 0.67 x 0.4 m, clearance 0.13 m).
+    /// The Clearpath Husky-like robot (Clearpath Husky A200) (0.99 x 0.67 x 0.4 m, clearance 0.13 m).
     #[staticmethod]
     fn husky() -> Self {
         Self { inner: RobotConfig::husky() }
@@ -338,16 +338,38 @@ impl PyRiskMap {
         self.grid(py, data)
     }
 
+    /// Risk at or above which a cell is lethal (the mapper's `risk.lethal_risk`): the one
+    /// definition of a lethal cell for every output.
+    #[getter]
+    fn lethal_risk(&self) -> f32 {
+        self.inner.lethal_risk
+    }
+
+    /// A `bool` `(ny, nx)` array: the lethal cells (combined risk at or above `lethal_risk`,
+    /// observed or not).
+    fn lethal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<bool>>> {
+        let lethal: Vec<bool> = (0..self.inner.geometry().cells()).map(|c| self.inner.is_lethal(c)).collect();
+        lethal.into_pyarray(py).reshape(self.dims())
+    }
+
+    /// The number of lethal cells.
+    fn lethal_count(&self) -> usize {
+        self.inner.lethal_count()
+    }
+
     /// An RGB `uint8` `(ny, nx, 3)` image of a risk layer (default the combined `risk`):
-    /// green (0) to red (1) linearly, grey where the cell was not observed. Row 0 is the
+    /// green (0) to red (1) linearly, grey where the cell was not observed; a lethal cell
+    /// (combined risk at or above `lethal_risk`) is red whatever the layer. Row 0 is the
     /// lowest y: show it with `origin="lower"`.
     #[pyo3(signature = (layer = "risk"))]
     fn to_image<'py>(&self, py: Python<'py>, layer: &str) -> PyResult<Bound<'py, PyArray3<u8>>> {
         let values = self.inner.layer(layer).py_err(py)?;
         let observed = self.inner.get(Layer::Observed);
         let mut rgb = Vec::with_capacity(values.len() * 3);
-        for (&v, &seen) in values.iter().zip(observed) {
-            if seen > 0.0 {
+        for (c, (&v, &seen)) in values.iter().zip(observed).enumerate() {
+            if self.inner.is_lethal(c) {
+                rgb.extend(LETHAL_RGB.map(|x| x.round() as u8));
+            } else if seen > 0.0 {
                 let t = if v.is_nan() { 0.0 } else { (v as f64).clamp(0.0, 1.0) };
                 rgb.extend((0..3).map(|c| (SAFE_RGB[c] + t * (LETHAL_RGB[c] - SAFE_RGB[c])).round() as u8));
             } else {

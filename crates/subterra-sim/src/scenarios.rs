@@ -1,5 +1,6 @@
-//! Seeded generators of the built-in worlds: [`highbay`], [`cable`], [`tunnel`], [`mine`]
-//! and [`subway`]; [`generate`] picks one by name.
+//! Seeded generators of the built-in worlds: [`highbay`], [`cable`], [`tunnel`], [`mine`],
+//! [`subway`], and the ground trade-off worlds [`slopes`], [`rough`], [`ledge`] and the
+//! [`cave`] (in `scenarios/tradeoff.rs`); [`generate`] picks one by name.
 //!
 //! In: a scenario name and a seed. Out: a [`WorldSpec`] (plain data; `World::from_spec`
 //! turns it into geometry). Every random draw comes from one
@@ -22,8 +23,12 @@ use crate::spec::{
     WorldSpec,
 };
 
+mod tradeoff;
+
+pub use tradeoff::{cave, ledge, rough, slopes, CAVE_SIZE_M, GROUND_REGION_RADIUS_M, TRADEOFF_SIZE_M};
+
 /// Names of the built-in scenarios, in the order the docs list them.
-pub const SCENARIOS: [&str; 5] = ["highbay", "cable", "tunnel", "mine", "subway"];
+pub const SCENARIOS: [&str; 9] = ["highbay", "cable", "tunnel", "mine", "subway", "slopes", "rough", "ledge", "cave"];
 
 /// The world of the built-in scenario `name` for `seed`.
 ///
@@ -36,6 +41,10 @@ pub fn generate(name: &str, seed: u64) -> SimResult<WorldSpec> {
         "tunnel" => Ok(tunnel(seed)),
         "mine" => Ok(mine(seed)),
         "subway" => Ok(subway(seed)),
+        "slopes" => Ok(slopes(seed)),
+        "rough" => Ok(rough(seed)),
+        "ledge" => Ok(ledge(seed)),
+        "cave" => Ok(cave(seed)),
         _ => Err(SimError::Unknown { what: "scenario".into(), name: name.into(), known: SCENARIOS.join(", ") }),
     }
 }
@@ -1088,9 +1097,10 @@ mod tests {
         let err = generate("moon", 3).expect_err("unknown");
         assert_eq!(
             err,
-            SimError::Unknown { what: "scenario".into(), name: "moon".into(), known: "highbay, cable, tunnel, mine, subway".into() }
+            SimError::Unknown { what: "scenario".into(), name: "moon".into(), known: SCENARIOS.join(", ") }
         );
-        assert_eq!(err.to_string(), "unknown scenario `moon`; known: highbay, cable, tunnel, mine, subway");
+        assert_eq!(err.to_string(), format!("unknown scenario `moon`; known: {}", SCENARIOS.join(", ")));
+        assert!(SCENARIOS.join(", ").starts_with("highbay, cable, tunnel, mine, subway, slopes, rough, ledge, cave"));
         assert!(matches!(generate("Highbay", 0), Err(SimError::Unknown { .. })), "names are case sensitive");
     }
 
@@ -1100,7 +1110,7 @@ mod tests {
             for seed in [0, 9, 123_456_789] {
                 let (a, b) = (generate(name, seed).expect("a"), generate(name, seed).expect("b"));
                 assert_eq!(bits(&a), bits(&b), "{name} seed {seed}");
-                if name != "mine" {
+                if !matches!(name, "mine" | "cave") {
                     assert_eq!(a, b, "{name} seed {seed}"); // no NaN holes: plain equality holds
                 }
             }

@@ -63,7 +63,7 @@ pub const QUADROTOR_YAW_RATE_MAX_RAD_S: f64 = 1.0;
 /// Quadrotor collision-sphere radius [m]: half the 540 mm frame (issue 3).
 pub const QUADROTOR_RADIUS_M: f64 = 0.27;
 
-/// Ground robot footprint length along body x [m] (Clearpath Husky, DESIGN §2).
+/// Ground robot footprint length along body x [m] (Clearpath Husky).
 pub const HUSKY_LENGTH_M: f64 = 0.99;
 /// Ground robot footprint width along body y [m] (Husky).
 pub const HUSKY_WIDTH_M: f64 = 0.67;
@@ -71,7 +71,7 @@ pub const HUSKY_WIDTH_M: f64 = 0.67;
 pub const HUSKY_HEIGHT_M: f64 = 0.4;
 /// Ground robot ground clearance [m] (Husky).
 pub const HUSKY_CLEARANCE_M: f64 = 0.13;
-/// Ground robot speed limit [m/s] (Husky, DESIGN §2).
+/// Ground robot speed limit [m/s] (Husky data sheet).
 pub const HUSKY_V_MAX_M_S: f64 = 1.0;
 /// Ground robot yaw-rate limit [rad/s] (Husky's `husky_control` angular velocity limit).
 pub const HUSKY_YAW_RATE_MAX_RAD_S: f64 = 2.0;
@@ -502,8 +502,7 @@ impl Quadrotor {
 // Ground robot
 // ---------------------------------------------------------------------------------------
 
-/// Ground robot geometry, limits and failure thresholds (defaults: Clearpath Husky-like,
-/// DESIGN §2).
+/// Ground robot geometry, limits and failure thresholds (defaults: Clearpath Husky-like).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct GroundRobotConfig {

@@ -1,6 +1,6 @@
 //! Risk-aware A* benchmarks: seeded random risk grids of 200x200 and 1000x1000 cells (0.1 m),
 //! start and goal in opposite corners, the default config with `r_total = 1` (the search is the
-//! same whatever the budget). DESIGN §6 target: <= 2 ms on 200x200; subterra: <= 100 ms on
+//! same whatever the budget). Project target: <= 2 ms on 200x200; subterra: <= 100 ms on
 //! 1000x1000.
 //!
 //! `cargo bench -p subterra --bench astar`

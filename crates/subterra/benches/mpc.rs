@@ -1,4 +1,4 @@
-//! MPC tracker benchmarks (DESIGN §6 target: one solve, horizon 20, <= 2 ms on one core).
+//! MPC tracker benchmarks (Project target: one solve, horizon 20, <= 2 ms on one core).
 //!
 //! The typical case: a 200 x 200 risk grid at 0.1 m (a coarse terrain map) with a risky band
 //! across a curved reference path and four lethal blocks beside it, one reaching into the

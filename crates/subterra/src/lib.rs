@@ -5,8 +5,8 @@
 //! - [`depth`]: APF-PF, a particle filter over a 2.5D voxel grid of a depth image
 //!   (Ahmad, Sunberg, Humbert, ACC 2021), and [`apf`], the potential fields it weights.
 //! - [`terrain`]: multi-layer terrain risk maps from lidar scans for a ground robot
-//!   (DESIGN §2).
-//! - [`plan`]: planning and control for the ground robot (DESIGN §3).
+//!   (STEP, Fan et al. 2021).
+//! - [`plan`]: planning and control for the ground robot (STEP, Fan et al. 2021).
 //! - [`camera`], [`frames`], [`config`]: the shared vocabulary.
 //!
 //! No I/O, no printing, no global state: every stage takes arrays and returns values,

@@ -95,6 +95,7 @@ fn config_strategy() -> impl Strategy<Value = RiskAStarConfig> {
             allow_corner_cutting,
             cost_model: if additive { CostModel::Additive } else { CostModel::Risk },
             additive_weight,
+            lethal_risk: 1.0,
         },
     )
 }

@@ -1,4 +1,4 @@
-"""The MPC solve benchmark of ``subterra bench plan`` (DESIGN §6: one solve, horizon 20,
+"""The MPC solve benchmark of ``subterra bench plan`` (Project target: one solve, horizon 20,
 <= 2 ms), registered in :data:`subterra.bench.plan.EXTRA_CASES` as ``mpc_h20_200x200``.
 
 The scene is ``crates/subterra/benches/mpc.rs``'s: a 200 x 200 risk grid at 0.1 m (origin
@@ -55,7 +55,7 @@ ORIGIN = (-5.0, -10.0)
 RUN_STEPS = 60
 #: Start state ``[x, y, θ, v]`` of each run.
 START = (0.0, -0.2, 0.0, 0.5)
-#: DESIGN §6: one MPC solve, horizon 20 [ms].
+#: Project target: one MPC solve, horizon 20 [ms].
 TARGET_MS = 2.0
 #: Lethal blocks ``(x0, x1, y0, y1)`` [m] (benches/mpc.rs).
 BLOCKS = ((2.0, 2.5, -1.3, -0.7), (4.0, 4.5, 1.6, 2.1), (5.0, 5.6, 0.6, 1.1), (1.5, 2.0, 0.8, 1.3))

@@ -53,15 +53,15 @@ def _merged(base: dict[str, Any], over: dict[str, Any] | None) -> dict[str, Any]
 def register_cli(subparsers: argparse._SubParsersAction) -> None:
     """Adds ``drive`` and ``drive-batch`` to ``subparsers``; their handlers are ``args.handler``."""
     from subterra.batch.cli import add_engine_options
-    from subterra.drive.run import PLANNERS
+    from subterra.drive.run import GROUND_SCENARIOS, PLANNERS
     from subterra.scenarios.ground import RECOVERY_SCENARIOS
     from subterra.sim import LIDAR_NOISE_PRESETS
 
-    scenarios = ", ".join(("mine", *RECOVERY_SCENARIOS))
+    scenarios = ", ".join((*GROUND_SCENARIOS, *RECOVERY_SCENARIOS))
     p = subparsers.add_parser("drive", help="one closed-loop drive of the ground robot (lidar -> risk map -> A* -> MPC)")
     p.add_argument("--scenario", default="mine", help=f"{scenarios} (default mine)")
     p.add_argument("--world", default=None, help="drive in this world file (TOML, docs/world-format.md) instead")
-    p.add_argument("--planner", default="risk-aware", choices=PLANNERS, help="risk-aware (DESIGN §3, default) or additive (the baseline)")
+    p.add_argument("--planner", default="risk-aware", choices=PLANNERS, help="risk-aware (STEP, Fan et al. 2021; default) or additive (the baseline)")
     p.add_argument("--seed", type=int, default=0, help="world layout and lidar noise seed (default 0)")
     p.add_argument("--start", type=_xy, default=None, help="start x,y [m] (default: the world's start region)")
     p.add_argument("--goal", type=_xy, default=None, help="goal x,y [m] (default: the world's goal region)")
@@ -75,7 +75,7 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_drive)
 
     b = subparsers.add_parser("drive-batch", help="many randomized drives, risk-aware planner and additive baseline side by side")
-    b.add_argument("--scenario", default="mine", help="built-in scenario (default mine)")
+    b.add_argument("--scenario", default="mine", help=f"built-in scenario: {', '.join(GROUND_SCENARIOS)} (default mine)")
     b.add_argument("--seeds", type=int, default=100, help="seeds 0..N-1 from --first-seed, one world each (default 100)")
     b.add_argument("--first-seed", type=int, default=0, help="start the seeds here (default 0)")
     b.add_argument("--planners", default=",".join(PLANNERS), help=f"comma-separated (default {','.join(PLANNERS)})")

@@ -33,17 +33,22 @@ import numpy as np
 from subterra.errors import InputError
 from subterra.sim import LIDAR_NOISE_PRESETS, Lidar, Simulation, World
 
-__all__ = ["PLANNERS", "DriveResult", "drive", "true_risk"]
+__all__ = ["GROUND_SCENARIOS", "PLANNERS", "DriveResult", "drive", "true_risk", "true_terrain_risk"]
 
-#: Planners a drive can use: the risk-aware A* of DESIGN §3, and the baseline with a
+#: The built-in ground scenarios of the simulator (seeded generators): the mine, the three
+#: worlds with a trade-off between a short risky route and a longer safe one, and the cave.
+GROUND_SCENARIOS = ("mine", "slopes", "rough", "ledge", "cave")
+#: Planners a drive can use: the risk-aware A* of STEP, and the baseline with a
 #: conventional additive cost (Nav2-style ``d·(1 + k·r)`` over the same risk map, cells at
 #: or above ``R_inst`` blocked).
 PLANNERS = ("risk-aware", "additive")
 #: Lidar mounting height above the body origin (on the ground) [m].
 LIDAR_HEIGHT_M = 0.7
 #: ``ground.void_min_gap_deg`` of the drive's terrain mapper: void (bottomless hole)
-#: detection on, above the ring spacing of the simulated lidars (VLP-16 2.0°, OS1-64 0.53°)
-#: [deg]. docs/terrain.md.
+#: detection on, above the ring spacing of both simulated lidars (VLP-16 2.0°, OS1-64
+#: 0.53°) [deg]. A gap of under 2 OS1-64 rings was found to flag the shadow of walls and of
+#: single dropped returns as holes: a whole empty stretch of several rings is needed.
+#: docs/terrain.md.
 LIDAR_VOID_MIN_GAP_DEG = 2.5
 #: Per-step arrays of a drive, in CSV column order (see :class:`DriveResult`).
 STEP_FIELDS = (
@@ -54,10 +59,44 @@ STEP_FIELDS = (
 
 
 def true_risk(tilt_rad: np.ndarray | float, *, safe_deg: float, lethal_deg: float) -> np.ndarray:
-    """The risk the robot actually ran at a tilt (angle of its settled z axis from vertical):
+    """The tilt risk the robot actually ran at (angle of its settled z axis from vertical):
     the robot's tilt ramp, ``clamp((tilt - safe) / (lethal - safe), 0, 1)``."""
     t = np.degrees(np.asarray(tilt_rad, dtype=np.float64))
     return np.clip((t - safe_deg) / (lethal_deg - safe_deg), 0.0, 1.0)
+
+
+def _ramp(value: float, ramp: dict[str, float]) -> float:
+    if not math.isfinite(value):
+        return 1.0
+    return min(max((value - ramp["safe"]) / (ramp["lethal"] - ramp["safe"]), 0.0), 1.0)
+
+
+def true_terrain_risk(world: World, position: np.ndarray, yaw: float, robot: dict[str, float], risk: dict[str, Any],
+                      resolution_m: float = 0.1) -> float:
+    """The step and roughness risk of the true ground under the robot's footprint, with the
+    mapper's own ramps (``risk["step_m"]``, ``risk["roughness_m"]``): the world's height field
+    sampled every ``resolution_m`` over the footprint (``robot["length_m"] x
+    robot["width_m"]`` at ``position``, heading ``yaw``); ``step`` the largest height
+    difference between neighbouring samples, ``roughness`` the RMS residual of the
+    least-squares plane through them. ``1 - (1 - step)(1 - roughness)``; 1 where a sample is
+    missing ground (a hole under the footprint)."""
+    hl, hw = 0.5 * float(robot["length_m"]), 0.5 * float(robot["width_m"])
+    us = np.arange(-hl, hl + 1e-9, resolution_m)
+    vs = np.arange(-hw, hw + 1e-9, resolution_m)
+    c, s = math.cos(yaw), math.sin(yaw)
+    z = np.empty((len(vs), len(us)))
+    for i, v in enumerate(vs):
+        for j, u in enumerate(us):
+            h = world.ground_height(float(position[0] + c * u - s * v), float(position[1] + s * u + c * v))
+            z[i, j] = np.nan if h is None else h
+    if not np.all(np.isfinite(z)):
+        return 1.0
+    step = max(float(np.abs(np.diff(z, axis=0)).max(initial=0.0)), float(np.abs(np.diff(z, axis=1)).max(initial=0.0)))
+    uu, vv = np.meshgrid(us, vs)
+    a = np.column_stack([uu.ravel(), vv.ravel(), np.ones(uu.size)])
+    coef, *_ = np.linalg.lstsq(a, z.ravel(), rcond=None)
+    rough = float(np.sqrt(np.mean((z.ravel() - a @ coef) ** 2)))
+    return 1.0 - (1.0 - _ramp(step, risk["step_m"])) * (1.0 - _ramp(rough, risk["roughness_m"]))
 
 
 @dataclass
@@ -68,8 +107,10 @@ class DriveResult:
     (S,) [rad] as settled on the terrain, ``speed_m_s`` (S,), ``command`` (S, 2) ``[v, ω]``,
     ``behaviour``, ``target``, ``plan_status``, ``mpc_status`` (S,) strings (empty when the
     stage did not run), ``local_risk`` (S,) the map's risk under the robot,
-    ``speed_limit_m_s`` (S,) ``v_max·(1 - r)`` there, ``true_risk`` (S,) the tilt-ramp risk of
-    the true pose (:func:`true_risk`), ``clearance_m`` (S,), and the navigator's wall time per
+    ``speed_limit_m_s`` (S,) ``v_max·(1 - r)`` there, ``true_risk`` (S,) the risk the robot
+    really ran: the tilt ramp of its settled pose (:func:`true_risk`) combined with the step
+    and roughness of the true ground under its footprint (:func:`true_terrain_risk`),
+    ``clearance_m`` (S,), and the navigator's wall time per
     stage ``map_ms``, ``plan_ms``, ``track_ms``, ``total_ms``. ``events`` lists the
     recovery machine's transitions (``time_s``, ``from``, ``to``, ``reason``, ``r_inst``,
     ``r_total``); ``path`` is (S + 1, 3).
@@ -185,7 +226,7 @@ def _roll_pitch(world_from_body: np.ndarray) -> tuple[float, float]:
 def accumulated_risk(risks: np.ndarray, positions: np.ndarray) -> float:
     """``1 - exp(-Σ d·(-ln(1 - r)))`` along a driven path: ``d`` the distance between
     consecutive positions, ``r`` the mean of their risks (clamped below 1), as the planner
-    accumulates risk (DESIGN §3)."""
+    accumulates risk (STEP, Fan et al. 2021)."""
     if len(risks) < 2:
         return 0.0
     r = np.clip(np.asarray(risks, dtype=np.float64), 0.0, 1.0 - 1e-9)
@@ -214,7 +255,7 @@ def drive(
 ) -> DriveResult:
     """Drives the ground robot across ``scenario`` (or ``world``) once and returns the record.
 
-    ``planner``: ``"risk-aware"`` (DESIGN §3) or ``"additive"`` (the baseline). ``seed``
+    ``planner``: ``"risk-aware"`` (STEP, Fan et al. 2021) or ``"additive"`` (the baseline). ``seed``
     seeds the world's layout (built-in scenarios) and the lidar noise. ``start``/``yaw``/
     ``goal``: default the world's ``start`` and ``goal`` regions (heading toward the goal);
     ``home`` (where the robot returns when it gives up): default the start. ``lidar``: a
@@ -276,6 +317,9 @@ def drive(
         terrain[section] = {**terrain.get(section, {}), **values}
     nav = Navigator(goal=goal_xy, home=home_xy, config=config, terrain=terrain)
     robot = nav.robot.to_dict()
+    from subterra import TerrainConfig
+
+    risk_ramps = TerrainConfig(terrain).to_dict()["risk"]
     v_max = float(robot["max_speed_m_s"])
     if time_limit_s is None:
         time_limit_s = max(90.0, 4.0 * float(np.linalg.norm(goal_xy - start_xy)) / (0.5 * v_max))
@@ -298,6 +342,7 @@ def drive(
         bar = tqdm(total=round(time_limit_s), unit="s", desc=f"drive {scenario} {planner}", leave=False, disable=None,
                    bar_format="{desc}: {n:.0f}/{total:.0f} s sim {postfix}")
     last_plan = np.zeros((0, 2))
+    last_safety = None
     try:
         while sim.status == "running":
             obs = sim.observe()
@@ -310,6 +355,11 @@ def drive(
             v, w = out.command
             step = sim.step([v, 0.0, 0.0, w], dt, compute_time_s=out.timings["total_s"])
             events.extend(out.transitions)
+            # A safety stop or a replaced command is an event when it starts (not every tick).
+            if out.safety is not None and out.safety != last_safety and not out.transitions:
+                events.append({"time_s": obs["time_s"], "from": out.behaviour, "to": out.behaviour,
+                               "reason": f"safety: {out.safety}", "r_inst": out.thresholds[0], "r_total": out.thresholds[1]})
+            last_safety = out.safety
             if len(out.path_world):
                 last_plan = np.asarray(out.path_world, dtype=np.float64)
             roll, pitch = _roll_pitch(truth)
@@ -327,7 +377,9 @@ def drive(
             rows["mpc_status"].append(out.mpc_status or "")
             rows["local_risk"].append(out.local_risk)
             rows["speed_limit_m_s"].append(out.speed_limit_m_s)
-            rows["true_risk"].append(float(true_risk(tilt, safe_deg=robot["tilt_safe_deg"], lethal_deg=robot["tilt_lethal_deg"])))
+            tilt_risk = float(true_risk(tilt, safe_deg=robot["tilt_safe_deg"], lethal_deg=robot["tilt_lethal_deg"]))
+            terrain_risk = true_terrain_risk(world, truth[:2, 3], rows["yaw"][-1], robot, risk_ramps)
+            rows["true_risk"].append(1.0 - (1.0 - tilt_risk) * (1.0 - terrain_risk))
             rows["clearance_m"].append(step["clearance_m"])
             for stage in ("map", "plan", "track", "total"):
                 rows[f"{stage}_ms"].append(1e3 * out.timings[f"{stage}_s"])

@@ -2,7 +2,7 @@
 
 A point cloud is a ``float32`` ``(N, 3)`` array of x, y, z [m] in the sensor frame and
 any number of extra per-point fields (intensity, ring, time, ...) as separate arrays
-(DESIGN.md, "Conventions"). :func:`read_cloud` returns both in a :class:`PointCloud`.
+(docs/conventions.md). :func:`read_cloud` returns both in a :class:`PointCloud`.
 
 NaN points are kept. Organised clouds (an Ouster or a depth camera writing ``WIDTH x
 HEIGHT``) mark "no return" with a NaN point so that the point at row ``r``, column ``c``

@@ -1,6 +1,6 @@
 """Depth images from files: 16-bit PNG, 16-bit binary PGM, ``.npy`` and ``.npz``.
 
-A depth image is an ``(H, W)`` array in one of the two forms DESIGN.md fixes for the
+A depth image is an ``(H, W)`` array in one of the two forms docs/conventions.md fixes for the
 whole library:
 
 * ``uint16`` raw units with a scale in metres per unit (``metres = raw * scale``);
@@ -57,7 +57,7 @@ PathLike = Union[str, "os.PathLike[str]"]
 #: File extensions :func:`read_depth` understands (lower case, with the dot).
 DEPTH_EXTENSIONS: tuple[str, ...] = (".png", ".pgm", ".npy", ".npz")
 
-#: Default scale of ``uint16`` depth [m/unit]: millimetres (DESIGN.md, "Conventions").
+#: Default scale of ``uint16`` depth [m/unit]: millimetres (docs/conventions.md).
 DEFAULT_UINT16_SCALE_M_PER_UNIT = 0.001
 
 # Pillow modes of a 16-bit single-channel image. "I" (32-bit signed) is what older

@@ -3,7 +3,7 @@
 The decoders take a decoded message object as the readers of :mod:`subterra.io.recordings`
 return it (``rosbags`` dataclasses), or any object with the same attributes (ROS 1 and
 ROS 2 spellings both work: ``K`` / ``k``, ``secs`` / ``sec``), and return NumPy arrays
-in the library's conventions (DESIGN.md, "Conventions"):
+in the library's conventions (docs/conventions.md):
 
 * :func:`decode_image`: ``sensor_msgs/Image`` -> ``(H, W)`` or ``(H, W, C)`` array in
   native byte order; :func:`decode_depth_image` -> a :class:`~subterra.io.DepthImage`

@@ -1,7 +1,7 @@
 """Small hand-made worlds for the ground robot, each built to force one recovery behaviour
-(DESIGN §3, "adaptive thresholds and recovery").
+(STEP, Fan et al. 2021; "adaptive thresholds and recovery").
 
-- ``dead-end``: a wall across the hall with one 1.6 m doorway into a corridor that is
+- ``dead-end``: a wall across the hall with one 2 m doorway into a corridor that is
   closed at its far end; the goal lies beyond. No path to the goal exists: the robot
   climbs the whole recovery ladder (clear map, rotate, raise thresholds, back out),
   gives up the goal and drives home.
@@ -55,8 +55,9 @@ RAMP_ROUNDING_M = 0.6
 #: foot the lidar (0.7 m up, blind within ~2.3 m) sees none of the ramp, and the plateau
 #: beyond is a level line 0.43 m above the robot's ground: by the line fit's start rule the
 #: top of an obstacle, lethal. With this the sector's first line, level and at least this
-#: long, is the plateau. Off in the default navigator: on ``mine`` it changed the ground of
-#: other sectors and flipped seeds 11 (a fall) and 57 (a collision) (docs/drive.md).
+#: long, is the plateau. Off in the default navigator: a level line above the robot's ground
+#: may as well be the top of a box whose face hides in the blind ring, which the default
+#: keeps an obstacle; a world of ramps to plateaus turns it on.
 PLATEAU_MIN_LENGTH_M = 2.0
 
 RECOVERY_SCENARIOS = ("dead-end", "risky-slope", "blocked-return")
@@ -130,8 +131,15 @@ def _regions(start: tuple[float, float], goal: tuple[float, float]) -> str:
     )
 
 
+#: ``dead-end``: width of the doorway and of the corridor behind it, wall centre to wall
+#: centre [m] (1.8 m between the faces). The Husky's corners sweep a circle 1.2 m across
+#: when it turns in place; the recoveries check that circle, 5 cm wider and cell by cell
+#: (0.1 m), against the mapped walls before they turn, which a narrower corridor fails.
+DOORWAY_WIDTH_M = 2.0
+
+
 def _dead_end_walls() -> list[str]:
-    door_lo, door_hi = HALL_WIDTH_M / 2 - 0.8, HALL_WIDTH_M / 2 + 0.8
+    door_lo, door_hi = HALL_WIDTH_M / 2 - DOORWAY_WIDTH_M / 2, HALL_WIDTH_M / 2 + DOORWAY_WIDTH_M / 2
     x_cross, x_end = 10.0, 16.0
     return [
         _wall(x_cross, 0.0, x_cross, door_lo),

@@ -53,7 +53,7 @@ def render_scenario(name: str, out_dir: str | os.PathLike[str], *, seed: int = 0
     out.mkdir(parents=True, exist_ok=True)
     world = World.scenario(name, seed)
     position, yaw, _ = start_pose(world)
-    if name in ("mine", "subway"):
+    if name in ("mine", "subway", "slopes", "rough", "ledge", "cave"):
         ground = world.ground_height(position[0], position[1])
         position = np.array([position[0], position[1], (ground or 0.0) + 0.4])
     world_from_body = pose_matrix(position, yaw)

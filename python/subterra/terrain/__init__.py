@@ -1,4 +1,4 @@
-"""Terrain risk for a ground robot (DESIGN §2): lidar scans in, a multi-layer risk map out.
+"""Terrain risk for a ground robot (STEP, Fan et al. 2021): lidar scans in, a multi-layer risk map out.
 
 >>> import numpy as np, subterra
 >>> from subterra.terrain import translation
@@ -121,6 +121,13 @@ def estimate_sensor_height(points: np.ndarray, *, ring_m: tuple[float, float] = 
 
 
 def lethal_cells(risk_map: RiskMap) -> dict[str, int]:
-    """Number of cells with risk >= 1 in each risk layer and in the combined ``risk``."""
-    names = ("collision", "step", "negative", "tilt", "roughness", "unknown", "mission", "risk")
-    return {name: int(np.count_nonzero(risk_map.layer(name) >= 1.0)) for name in names}
+    """Number of lethal cells: for the combined ``risk`` the map's own count
+    (:meth:`RiskMap.lethal_count`, risk at or above ``risk_map.lethal_risk``, observed or
+    not: the cells the planners never enter, the pictures draw red and an exported
+    ``OccupancyGrid`` marks 100), and per risk layer the cells that layer alone makes lethal
+    (at or above the same level)."""
+    names = ("collision", "step", "negative", "tilt", "roughness", "unknown", "mission")
+    level = np.float32(risk_map.lethal_risk)
+    counts = {name: int(np.count_nonzero(risk_map.layer(name) >= level)) for name in names}
+    counts["risk"] = int(risk_map.lethal_count())
+    return counts

@@ -117,7 +117,7 @@ def plot_speed_risk(result: Any, path: str | os.PathLike[str]) -> Path:
     top.plot(t, s["speed_limit_m_s"], color="tab:red", lw=1.0, ls="--", label="risk limit v_max·(1 - r)")
     top.set_ylabel("speed [m/s]")
     bottom.plot(t, s["local_risk"], color="tab:red", lw=1.0, label="map risk under the robot")
-    bottom.plot(t, s["true_risk"], color="0.3", lw=1.0, label="true risk (tilt ramp of the settled pose)")
+    bottom.plot(t, s["true_risk"], color="0.3", lw=1.0, label="true risk (tilt of the settled pose, steps and roughness of the true ground)")
     bottom.set(ylabel="risk", xlabel="sim time [s]", ylim=(-0.02, 1.02))
     for ax in (top, bottom):
         _shade_behaviours(ax, t, s["behaviour"])

@@ -21,8 +21,10 @@ topic                             type                                frame
 * Belief: marker 0 is a ``SPHERE_LIST`` of the voxel centres with non-zero belief
   (colour yellow -> red and opacity by belief relative to the largest), marker 1 a
   ``TEXT_VIEW_FACING`` with ``P(free)``.
-* Risk: ``OccupancyGrid`` values ``round(100 r)`` for risk ``r`` in [0, 1], -1 where the
-  cell was never observed; ``info.origin`` is the corner of cell (0, 0) (the map's
+* Risk: ``OccupancyGrid`` with Nav2's meaning: 100 for a lethal cell (risk at or above
+  the map's ``lethal_risk``, observed or not: never -1, which Nav2 reads as unknown),
+  ``round(100 r)`` up to 99 for the other observed cells, -1 where the cell was never
+  observed; ``info.origin`` is the corner of cell (0, 0) (the map's
   lowest x and y), rows along world y, as the ROS convention wants.
 * Layers: one 32FC1 image per layer (NaN = no value), ``grid_map`` style, drawn as a top
   view: column = world x increasing to the right, row 0 = the largest world y (north
@@ -84,12 +86,14 @@ DEFAULT_PATH_SPACING_M = 0.05
 DEFAULT_PATH_PERIOD_NS = 1_000_000_000
 
 
-def occupancy_values(risk: np.ndarray, observed: np.ndarray) -> np.ndarray:
-    """``int8`` occupancy of a risk layer: ``round(100 r)`` clipped to 0..100, -1 where
-    not observed or NaN; same shape."""
+def occupancy_values(risk: np.ndarray, observed: np.ndarray, lethal_risk: float) -> np.ndarray:
+    """``int8`` occupancy of a risk layer with Nav2's meaning: 100 where the cell is lethal
+    (``risk >= lethal_risk``, observed or not: a lethal cell is never unknown), -1 where it
+    was not observed (or is NaN), else ``round(100 r)`` clipped to 0..99; same shape."""
     r = np.asarray(risk, dtype=np.float32)
-    out = np.rint(np.clip(np.nan_to_num(r, nan=0.0), 0.0, 1.0) * 100.0).astype(np.int8)
+    out = np.rint(np.clip(np.nan_to_num(r, nan=0.0), 0.0, 0.99) * 100.0).astype(np.int8)
     out[(np.asarray(observed) <= 0) | np.isnan(r)] = -1
+    out[r >= np.float32(lethal_risk)] = 100
     return out
 
 
@@ -245,7 +249,8 @@ class FoxgloveWriter:
             width=nx, height=ny, origin=ros._pose_msg(origin, self._ts),
         )
         grid = t["nav_msgs/msg/OccupancyGrid"](
-            header=self._header(stamp, self.world_frame), info=info, data=occupancy_values(risk, observed).reshape(-1),
+            header=self._header(stamp, self.world_frame), info=info,
+            data=occupancy_values(risk, observed, risk_map.lethal_risk).reshape(-1),
         )
         self._write(topic or TOPICS["risk"], grid, log_ns)
         if not with_layers:

@@ -66,10 +66,14 @@ def plot_terrain_overview(
     cmap = plt.get_cmap("RdYlGn_r").with_extremes(bad=(0.6, 0.6, 0.6))
     image = None
     for ax, name in zip(flat[1:], layers):
-        a = np.where(observed, risk_map.layer(name), np.nan)
+        values = risk_map.layer(name)
+        level = np.float32(risk_map.lethal_risk)
+        # A lethal cell is drawn (at its value) whether observed or not: never as unknown.
+        is_lethal = risk_map.lethal() if name == "risk" else values >= level
+        a = np.where(observed | is_lethal, values, np.nan)
         image = ax.imshow(np.ma.masked_invalid(a), origin="lower", extent=extent, interpolation="nearest",
                           cmap=cmap, vmin=0.0, vmax=1.0)
-        lethal = int(np.count_nonzero(a >= 1.0))
+        lethal = int(np.count_nonzero(is_lethal))
         ax.set_title(f"{name} ({lethal} lethal cells)", fontsize=10)
     for ax in flat[:panels]:
         ax.plot(*robot_xy, "k+", ms=10, mew=2)

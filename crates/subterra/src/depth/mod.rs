@@ -1,4 +1,4 @@
-//! APF-PF depth perception (DESIGN §1).
+//! APF-PF depth perception (Ahmad et al., ACC 2021).
 //!
 //! In: a depth image (`u16` with a scale or `f32` metres) of a [`PinholeCamera`](crate::camera::PinholeCamera).
 //! Out: a belief over where the nearest obstacle probably is — voxels of a 2.5D grid over

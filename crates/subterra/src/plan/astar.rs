@@ -1,6 +1,6 @@
-//! Risk-aware A* on an 8-connected grid (DESIGN §3).
+//! Risk-aware A* on an 8-connected grid (STEP, Fan et al. 2021).
 //!
-//! In: a [`RiskGrid`] (row-major `(ny, nx)` risks, row `iy` along world y, column `ix` along
+//! In: a [`RiskGrid`] ([`crate::plan::grid`]: row-major `(ny, nx)` risks, row `iy` along world y, column `ix` along
 //! world x, the layout of the terrain [`RiskMap`] layers), a start and a goal. Out: a
 //! [`PlanOutcome`]: the least-cost path, its cost, length and accumulated risk, the carrot point,
 //! or the reason there is no path.
@@ -9,7 +9,9 @@
 //!
 //! A cell's risk `r` is the probability of failing per metre travelled in it.
 //! 1. NaN (unknown) is replaced by [`RiskAStarConfig::unknown_risk`].
-//! 2. A cell is **untraversable** iff `r >= r_inst` (`+inf` included).
+//! 2. A cell is **untraversable** iff `r >= min(r_inst, lethal_risk)`: a lethal cell (the
+//!    terrain map's `risk.lethal_risk`) stays untraversable however far the recovery raises
+//!    `r_inst`.
 //! 3. Traversable cells have the hazard `ρ = -ln(1 - r)` [1/m], computed in `f64` as
 //!    `-ln_1p(-r)` with `r` clamped to at most [`MAX_RISK`] `= 1 - 2^-24` (the largest `f32`
 //!    below 1, so the clamp changes no `f32` risk and `ρ <= 16.64`), and the cost
@@ -24,9 +26,14 @@
 //!    `allow_corner_cutting = true` every traversable 8-neighbour is reachable
 //!    (`MCP_Geometric`'s rule).
 //!
+//! 6. Perception-aware prices (optional, [`EntryPrices`]): a move that enters an unknown
+//!    cell the sensor will not have seen on the way ([`crate::plan::coverage`]) adds
+//!    `d·(c(unseen_risk) - c(unknown_risk))` to the cost and `d·(ρ(unseen_risk) -
+//!    ρ(unknown_risk))` to `S`.
+//!
 //! A path's cost is therefore `λ·L + S`, with `L = Σ d` its length [m] and
 //! `S = Σ d·(ρ(a) + ρ(b))/2` its risk integral; its **accumulated risk** is `1 - exp(-S)`
-//! (computed as `-expm1(-S)`), DESIGN §3's `1 - exp(-Σ d·(-ln(1 - r̄)))` with the same
+//! (computed as `-expm1(-S)`), STEP's `1 - exp(-Σ d·(-ln(1 - r̄)))` with the same
 //! cell averaging as the cost.
 //!
 //! # Search
@@ -35,7 +42,7 @@
 //! `h = λ·res·octile(n, goal)` with `octile = max(|Δx|, |Δy|) + (√2 - 1)·min(|Δx|, |Δy|)` cells,
 //! the length of the shortest 8-connected path, so `h` is admissible and consistent (every move
 //! costs at least `λ·d` because `ρ >= 0`): the first time the goal is popped its `g` is the
-//! optimal cost, and a closed cell is never reopened. It is never smaller than DESIGN's
+//! optimal cost, and a closed cell is never reopened. It is never smaller than the paper's
 //! `λ·euclid` bound (a better-informed heuristic: up to ties, A* with it expands a subset of
 //! the cells it would expand with `λ·euclid`). An expanded cell's `g` is set to `-inf`, so one
 //! comparison `g_new < g` skips closed and untraversable neighbours. The open list is an
@@ -68,17 +75,12 @@ use glam::DVec2;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{require_positive, Error, Result};
-use crate::terrain::{CellIndex, GridGeometry, Layer, RiskMap};
+pub use crate::plan::grid::{RiskGrid, MAX_GRID_CELLS, MAX_SIDE};
+use crate::terrain::CellIndex;
 
 /// Largest risk used in `-ln(1 - r)`: `1 - 2^-24`, the largest `f32` below 1. Keeps the hazard
 /// finite (at most `24·ln 2 = 16.64` per metre).
 pub const MAX_RISK: f64 = 1.0 - 1.0 / 16_777_216.0;
-/// Most cells of a grid (2^24 = 4096 x 4096; the search state takes 28 bytes per cell).
-pub const MAX_GRID_CELLS: usize = 1 << 24;
-/// Most cells along one side of a grid (2^16).
-pub const MAX_SIDE: usize = 1 << 16;
-/// Largest cell side accepted [m]; beyond it the geometry is a mistake.
-pub const MAX_RESOLUTION_M: f64 = 1.0e4;
 /// Largest length weight λ accepted [1/m]; keeps every path cost finite.
 pub const MAX_LAMBDA_PER_M: f64 = 1.0e6;
 
@@ -86,7 +88,7 @@ pub const MAX_LAMBDA_PER_M: f64 = 1.0e6;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum CostModel {
-    /// DESIGN §3: `c = λ - ln(1 - r)`; the accumulated-risk budget `R_total` applies.
+    /// STEP: `c = λ - ln(1 - r)`; the accumulated-risk budget `R_total` applies.
     #[default]
     Risk,
     /// The conventional baseline (Nav2 Smac-style): `c = 1 + k·r` with `k` =
@@ -102,13 +104,13 @@ pub enum CostModel {
 pub struct RiskAStarConfig {
     /// λ, the weight of path length in the cost `d·(λ - ln(1 - r̄))` [1/m]: a detour of `x`
     /// metres is worth avoiding a risk integral of `λ·x`. Small, so that risk dominates and
-    /// among riskless paths the shortest wins (DESIGN §3). subterra: 0.1.
+    /// among riskless paths the shortest wins (STEP, Fan et al. 2021). subterra: 0.1.
     pub lam: f64,
     /// `R_inst`: cells with risk `>= r_inst` are untraversable, in (0, 1] [1]. subterra: 0.8.
     pub r_inst: f64,
     /// `R_total`: the largest accumulated risk of an accepted path, in (0, 1] [1]. subterra: 0.5.
     pub r_total: f64,
-    /// Path length from the start to the carrot point [m]. DESIGN §3: 1.
+    /// Path length from the start to the carrot point [m]. STEP: 1.
     pub carrot_m: f64,
     /// Risk of a cell whose risk is NaN (unknown), in [0, 1] [1/m]; `>= r_inst` makes unknown
     /// cells untraversable. subterra: 0.15, the terrain mapper's `risk.unknown`.
@@ -116,12 +118,21 @@ pub struct RiskAStarConfig {
     /// Whether a diagonal move may pass an untraversable cell at the corner it crosses (see the
     /// module docs). subterra: false.
     pub allow_corner_cutting: bool,
-    /// The cost model: `risk` (DESIGN §3) or `additive` (the baseline). subterra: risk.
+    /// The cost model: `risk` (STEP, Fan et al. 2021) or `additive` (the baseline). subterra: risk.
     #[serde(default)]
     pub cost_model: CostModel,
     /// `k` of the additive model `1 + k·r` [1]. Nav2 Smac planner's `cost_penalty`: 2.0.
     #[serde(default = "default_additive_weight")]
     pub additive_weight: f64,
+    /// Cells at or above this risk are lethal and untraversable whatever `r_inst` is, in
+    /// (0, 1] [1]. The navigator sets it to the terrain map's `risk.lethal_risk`, so that
+    /// raised thresholds never open a hole or a wall. subterra: 1.0 (only certain failure).
+    #[serde(default = "default_lethal_risk")]
+    pub lethal_risk: f64,
+}
+
+fn default_lethal_risk() -> f64 {
+    1.0
 }
 
 fn default_additive_weight() -> f64 {
@@ -139,6 +150,7 @@ impl Default for RiskAStarConfig {
             allow_corner_cutting: false,
             cost_model: CostModel::Risk,
             additive_weight: default_additive_weight(),
+            lethal_risk: default_lethal_risk(),
         }
     }
 }
@@ -158,6 +170,7 @@ impl RiskAStarConfig {
         };
         unit("astar.r_inst", self.r_inst)?;
         unit("astar.r_total", self.r_total)?;
+        unit("astar.lethal_risk", self.lethal_risk)?;
         require_positive("astar.carrot_m", self.carrot_m)?;
         if !(0.0..=1.0).contains(&self.unknown_risk) {
             return Err(Error::config("astar.unknown_risk", "must be in [0, 1]", self.unknown_risk));
@@ -179,7 +192,7 @@ impl RiskAStarConfig {
     #[inline]
     pub fn hazard(&self, risk: f32) -> Option<f64> {
         let r = if risk.is_nan() { self.unknown_risk } else { risk as f64 };
-        if r >= self.r_inst {
+        if r >= self.r_inst || r >= self.lethal_risk {
             None
         } else {
             Some(-(-r.min(MAX_RISK)).ln_1p())
@@ -194,7 +207,7 @@ impl RiskAStarConfig {
             CostModel::Risk => self.hazard(risk).map_or(f64::INFINITY, |rho| self.lam + rho),
             CostModel::Additive => {
                 let r = if risk.is_nan() { self.unknown_risk } else { risk as f64 };
-                if r >= self.r_inst { f64::INFINITY } else { 1.0 + self.additive_weight * r.max(0.0) }
+                if r >= self.r_inst || r >= self.lethal_risk { f64::INFINITY } else { 1.0 + self.additive_weight * r.max(0.0) }
             }
         }
     }
@@ -206,139 +219,6 @@ impl RiskAStarConfig {
             CostModel::Risk => self.lam,
             CostModel::Additive => 1.0,
         }
-    }
-}
-
-/// A risk grid: per-cell risks over a world-axis-aligned geometry.
-#[derive(Debug, Clone, Copy)]
-pub struct RiskGrid<'a> {
-    risk: &'a [f32],
-    nx: usize,
-    ny: usize,
-    resolution_m: f64,
-    origin_m: DVec2,
-    /// The terrain map's geometry when the grid is a [`RiskMap`]'s: cells are then found and
-    /// placed exactly as the map does (world-aligned global cells).
-    map_geometry: Option<GridGeometry>,
-}
-
-impl<'a> RiskGrid<'a> {
-    /// A grid of `nx x ny` cells of side `resolution_m`, whose cell `(0, 0)` has its lower-left
-    /// corner at the world position `origin_m`. `risk` is row-major `(ny, nx)`: `risk[iy·nx + ix]`.
-    /// Risks are per metre in [0, 1]; NaN means unknown; values `>= r_inst` (`+inf` included) are
-    /// untraversable; negative values are an error. Checks every value once (O(cells)).
-    pub fn new(risk: &'a [f32], nx: usize, ny: usize, resolution_m: f64, origin_m: DVec2) -> Result<Self> {
-        if nx == 0 || ny == 0 {
-            return Err(Error::input("risk", format!("is empty (shape ({ny}, {nx})); a grid needs at least one cell")));
-        }
-        let cells = nx.checked_mul(ny).filter(|&n| n <= MAX_GRID_CELLS && nx <= MAX_SIDE && ny <= MAX_SIDE).ok_or_else(|| {
-            Error::input("risk", format!("has shape ({ny}, {nx}); at most {MAX_GRID_CELLS} cells and {MAX_SIDE} on a side"))
-        })?;
-        if risk.len() != cells {
-            return Err(Error::input("risk", format!("has {} values but the shape ({ny}, {nx}) needs {cells}", risk.len())));
-        }
-        if !(resolution_m.is_finite() && resolution_m > 0.0 && resolution_m <= MAX_RESOLUTION_M) {
-            return Err(Error::input("resolution", format!("must be in (0, {MAX_RESOLUTION_M:e}] m, got {resolution_m}")));
-        }
-        if !origin_m.is_finite() {
-            return Err(Error::input("origin", format!("must be finite, got ({}, {})", origin_m.x, origin_m.y)));
-        }
-        // `r < 0` is false for NaN: unknown cells pass.
-        if let Some(i) = risk.iter().position(|&r| r < 0.0) {
-            return Err(Error::input(
-                "risk",
-                format!("has the negative value {} at row {}, column {}; risks must be in [0, 1] (NaN = unknown)", risk[i], i / nx, i % nx),
-            ));
-        }
-        Ok(Self { risk, nx, ny, resolution_m, origin_m, map_geometry: None })
-    }
-
-    /// The `risk` layer of a terrain map, with its geometry: a world position is in the cell
-    /// [`GridGeometry::cell_of`] gives, and a cell's centre is [`GridGeometry::centre_of`].
-    pub fn from_map(map: &'a RiskMap) -> Result<Self> {
-        let g = map.geometry();
-        let grid = Self::new(map.get(Layer::Risk), g.nx, g.ny, g.resolution_m, g.origin_m())?;
-        Ok(Self { map_geometry: Some(*g), ..grid })
-    }
-
-    /// Cells along world x.
-    pub fn nx(&self) -> usize {
-        self.nx
-    }
-    /// Cells along world y.
-    pub fn ny(&self) -> usize {
-        self.ny
-    }
-    /// Cell side [m/cell].
-    pub fn resolution_m(&self) -> f64 {
-        self.resolution_m
-    }
-    /// World position of cell `(0, 0)`'s lower-left corner [m].
-    pub fn origin_m(&self) -> DVec2 {
-        self.origin_m
-    }
-    /// The risks, row-major `(ny, nx)`.
-    pub fn risk(&self) -> &'a [f32] {
-        self.risk
-    }
-
-    /// The cell holding the world position `p` (`floor((p - origin)/res)`, or the map's rule),
-    /// if inside the grid.
-    pub fn cell_of(&self, p: DVec2) -> Option<CellIndex> {
-        if let Some(g) = &self.map_geometry {
-            return g.cell_of(p.x, p.y);
-        }
-        let q = ((p - self.origin_m) / self.resolution_m).floor();
-        if q.x >= 0.0 && q.y >= 0.0 && q.x < self.nx as f64 && q.y < self.ny as f64 {
-            Some(CellIndex { ix: q.x as u32, iy: q.y as u32 })
-        } else {
-            None
-        }
-    }
-
-    /// World position of a cell's centre [m].
-    pub fn centre_of(&self, cell: CellIndex) -> DVec2 {
-        if let Some(g) = &self.map_geometry {
-            return g.centre_of(cell);
-        }
-        self.origin_m + (DVec2::new(cell.ix as f64, cell.iy as f64) + 0.5) * self.resolution_m
-    }
-
-    fn flat(&self, cell: CellIndex) -> usize {
-        cell.iy as usize * self.nx + cell.ix as usize
-    }
-
-    fn cell_at(&self, flat: usize) -> CellIndex {
-        CellIndex { ix: (flat % self.nx) as u32, iy: (flat / self.nx) as u32 }
-    }
-
-    fn check_cell(&self, argument: &str, cell: CellIndex) -> Result<()> {
-        if (cell.ix as usize) < self.nx && (cell.iy as usize) < self.ny {
-            Ok(())
-        } else {
-            Err(Error::input(argument, format!("cell (ix={}, iy={}) is outside the grid of {} x {} cells", cell.ix, cell.iy, self.nx, self.ny)))
-        }
-    }
-
-    fn locate(&self, argument: &str, p: DVec2) -> Result<CellIndex> {
-        if !p.is_finite() {
-            return Err(Error::input(argument, format!("must be finite, got ({}, {})", p.x, p.y)));
-        }
-        self.cell_of(p).ok_or_else(|| {
-            let (o, res) = (self.origin_m, self.resolution_m);
-            Error::input(
-                argument,
-                format!(
-                    "({}, {}) lies outside the grid, which covers x in [{}, {}), y in [{}, {}) m",
-                    p.x,
-                    p.y,
-                    o.x,
-                    o.x + self.nx as f64 * res,
-                    o.y,
-                    o.y + self.ny as f64 * res
-                ),
-            )
-        })
     }
 }
 
@@ -555,6 +435,10 @@ struct Search<'a> {
     goal: (usize, usize),
     /// `λ·res` (or `res` with the additive model): the heuristic per cell of octile distance.
     h_scale: f64,
+    /// Per cell, the moves that enter it unseen (bit `k` for move `k`); empty: none.
+    unseen: &'a [u8],
+    /// What such an entry adds to a cell's cost [1/m].
+    unseen_extra: f64,
 }
 
 impl Search<'_> {
@@ -583,10 +467,11 @@ impl Search<'_> {
     #[inline(always)]
     fn relax(&mut self, g_a: f64, cost_a: f64, k: usize, b: usize, bx: usize, by: usize) -> bool {
         let step = self.step[(k >= 4) as usize];
+        let extra = if !self.unseen.is_empty() && self.unseen[b] & (1 << k) != 0 { self.unseen_extra } else { 0.0 };
         let node = self.touch(b);
         let cost_b = node.cost;
         // `+inf` for an untraversable `b`; never below a closed `b`'s CLOSED.
-        let g = g_a + step * (cost_a + cost_b) * 0.5;
+        let g = g_a + step * ((cost_a + cost_b) * 0.5 + extra);
         if g < node.g {
             let open = node.g < f64::INFINITY;
             node.g = g;
@@ -673,6 +558,27 @@ impl Search<'_> {
     }
 }
 
+/// Perception-aware prices for [`RiskAStar::plan_with`] ([`crate::plan::coverage`]): the
+/// moves that would enter an unknown cell before the sensor has seen it cost as if the cell's
+/// risk were `unseen_risk` instead of the planner's `unknown_risk` (in the cost and in the
+/// accumulated risk).
+#[derive(Debug, Clone, Copy)]
+pub struct EntryPrices<'a> {
+    /// One byte per cell, row-major: bit `k` set when move `k` (E, N, W, S, NE, NW, SW, SE)
+    /// into the cell enters it unseen ([`crate::plan::coverage::unseen_entries`]).
+    pub unseen: &'a [u8],
+    /// The risk of an unknown cell entered unseen, in [0, 1] [1/m].
+    pub unseen_risk: f64,
+}
+
+/// [`EntryPrices`] checked against a grid and turned into per-metre additions.
+#[derive(Debug, Clone, Copy)]
+struct Entry<'a> {
+    unseen: &'a [u8],
+    cost_extra: f64,
+    hazard_extra: f64,
+}
+
 /// The risk-aware A* planner (see the module docs for the exact algorithm).
 #[derive(Debug, Clone)]
 pub struct RiskAStar {
@@ -698,20 +604,31 @@ impl RiskAStar {
     /// `goal_world` [m]. Errors (naming `start` or `goal`) if a position is not finite or lies
     /// outside the grid; "no path" is an outcome.
     pub fn plan(&mut self, grid: &RiskGrid<'_>, start_world: DVec2, goal_world: DVec2) -> Result<PlanOutcome> {
+        self.plan_with(grid, start_world, goal_world, None)
+    }
+
+    /// [`RiskAStar::plan`] with perception-aware entry prices (see [`EntryPrices`]).
+    pub fn plan_with(&mut self, grid: &RiskGrid<'_>, start_world: DVec2, goal_world: DVec2, entry: Option<&EntryPrices<'_>>) -> Result<PlanOutcome> {
         let start = grid.locate("start", start_world)?;
         let goal = grid.locate("goal", goal_world)?;
-        self.plan_cells(grid, start, goal)
+        self.plan_cells_with(grid, start, goal, entry)
     }
 
     /// Plans from cell `start` to cell `goal`. Errors (naming `start` or `goal`) if a cell is
     /// outside the grid.
     pub fn plan_cells(&mut self, grid: &RiskGrid<'_>, start: CellIndex, goal: CellIndex) -> Result<PlanOutcome> {
+        self.plan_cells_with(grid, start, goal, None)
+    }
+
+    /// [`RiskAStar::plan_cells`] with perception-aware entry prices.
+    pub fn plan_cells_with(&mut self, grid: &RiskGrid<'_>, start: CellIndex, goal: CellIndex, entry: Option<&EntryPrices<'_>>) -> Result<PlanOutcome> {
         let started = Instant::now();
         grid.check_cell("start", start)?;
         grid.check_cell("goal", goal)?;
-        let (status, expanded) = self.search(grid, grid.flat(start), grid.flat(goal));
+        let entry = self.checked_entry(grid, entry)?;
+        let (status, expanded) = self.search(grid, grid.flat(start), grid.flat(goal), entry);
         let path = match status {
-            PlanStatus::Found | PlanStatus::BudgetExceeded => Some(self.trace(grid, grid.flat(goal))),
+            PlanStatus::Found | PlanStatus::BudgetExceeded => Some(self.trace(grid, grid.flat(goal), entry)),
             _ => None,
         };
         let status = match &path {
@@ -743,7 +660,24 @@ impl RiskAStar {
     /// A* from `start` to `goal` (flat indices). Returns `Found` (the goal's `g` and parents are
     /// set; the budget is checked by the caller), `StartBlocked`, `GoalBlocked` or `NoPath`, and
     /// the number of expanded cells.
-    fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize) -> (PlanStatus, usize) {
+    /// The entry mask and what an unseen entry adds to the cost and to the hazard [1/m]; an
+    /// empty mask without prices.
+    fn checked_entry<'e>(&self, grid: &RiskGrid<'_>, entry: Option<&EntryPrices<'e>>) -> Result<Entry<'e>> {
+        let Some(e) = entry else { return Ok(Entry { unseen: &[], cost_extra: 0.0, hazard_extra: 0.0 }) };
+        if e.unseen.len() != grid.nx * grid.ny {
+            return Err(Error::input("unseen", format!("has {} values, the grid {} cells", e.unseen.len(), grid.nx * grid.ny)));
+        }
+        if !(0.0..=1.0).contains(&e.unseen_risk) {
+            return Err(Error::input("unseen_risk", format!("must be in [0, 1], got {}", e.unseen_risk)));
+        }
+        let unseen = e.unseen_risk as f32;
+        let cost_extra = (self.config.cell_cost(unseen) - self.config.cell_cost(f32::NAN)).max(0.0);
+        let hazard = |r: f32| self.config.hazard(r).unwrap_or(f64::INFINITY);
+        let hazard_extra = (hazard(unseen) - hazard(f32::NAN)).max(0.0);
+        Ok(Entry { unseen: e.unseen, cost_extra, hazard_extra })
+    }
+
+    fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize, entry: Entry<'_>) -> (PlanStatus, usize) {
         let (nx, ny) = (grid.nx, grid.ny);
         self.begin(nx * ny);
         let res = grid.resolution_m;
@@ -756,6 +690,8 @@ impl RiskAStar {
             step: [res, res * std::f64::consts::SQRT_2],
             goal: (goal % nx, goal / nx),
             h_scale: self.config.min_cell_cost() * res,
+            unseen: entry.unseen,
+            unseen_extra: entry.cost_extra,
         };
         if search.touch(start).cost.is_infinite() {
             return (PlanStatus::StartBlocked, 0);
@@ -776,7 +712,7 @@ impl RiskAStar {
 
     /// The path to `goal` through the parents of the last search, with its cost, length, risk
     /// integral and accumulated risk.
-    fn trace(&self, grid: &RiskGrid<'_>, goal: usize) -> PlannedPath {
+    fn trace(&self, grid: &RiskGrid<'_>, goal: usize, entry: Entry<'_>) -> PlannedPath {
         let mut flat = vec![goal];
         let mut i = goal;
         while let Some(&(dx, dy)) = MOVES.get(self.nodes[i].parent as usize) {
@@ -793,7 +729,8 @@ impl RiskAStar {
             let diagonal = w[0] % grid.nx != w[1] % grid.nx && w[0] / grid.nx != w[1] / grid.nx;
             let d = if diagonal { grid.resolution_m * std::f64::consts::SQRT_2 } else { grid.resolution_m };
             length_m += d;
-            risk_integral += d * (hazard(w[0]) + hazard(w[1])) * 0.5;
+            let unseen = !entry.unseen.is_empty() && entry.unseen[w[1]] & (1 << self.nodes[w[1]].parent) != 0;
+            risk_integral += d * ((hazard(w[0]) + hazard(w[1])) * 0.5 + if unseen { entry.hazard_extra } else { 0.0 });
         }
         PlannedPath { cells, points_world, cost: self.nodes[goal].g, length_m, risk_integral, accumulated_risk: -(-risk_integral).exp_m1() }
     }
@@ -960,7 +897,7 @@ mod tests {
 
     #[test]
     fn a_terrain_map_is_planned_on_its_own_cells() {
-        use crate::terrain::{GridGeometry, MapConfig};
+        use crate::terrain::{GridGeometry, Layer, MapConfig, RiskMap};
         let config = MapConfig { resolution_m: 0.1, size_x_m: 2.0, size_y_m: 1.0 };
         let mut map = RiskMap::zeros(GridGeometry::centred_on(&config, 0.37, -0.21), 0.0);
         let geometry = *map.geometry();

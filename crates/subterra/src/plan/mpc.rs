@@ -1,5 +1,5 @@
 //! Kinodynamic MPC that tracks a reference path with risk-limited speed and obstacle
-//! half-planes (DESIGN §3 "MPC tracker").
+//! half-planes (STEP's MPC tracker).
 //!
 //! In: the robot's state `x0 = [x, y, θ, v]`, a reference polyline in world coordinates,
 //! optionally a risk grid ([`RiskGrid`]) and a desired speed. Out: an [`MpcOutput`] — the

@@ -1,4 +1,4 @@
-//! Adaptive thresholds and recovery behaviours (DESIGN §3): what a ground robot does
+//! Adaptive thresholds and recovery behaviours (STEP, Fan et al. 2021): what a ground robot does
 //! when the planner finds no path or the robot stops making progress.
 //!
 //! [`RecoveryMachine`] is a pure state machine: each control tick the navigator tells it
@@ -26,7 +26,9 @@
 //! 4. `BackOut`: with both thresholds at their ceilings, reverse along the driven path
 //!    (the breadcrumb trail, one crumb every `crumb_spacing_m`) for `backout_distance_m`,
 //!    steering at a carrot `backout_carrot_m` back along the trail; ends when that far
-//!    from where it started, at the trail's end, or after `backout_timeout_s`; then `Track`.
+//!    from where it started and there is room to turn in place
+//!    ([`RecoveryInput::room_to_turn`]; without, at `backout_max_distance_m`), at the trail's
+//!    end, or after `backout_timeout_s`; then `Track`.
 //! 5. A trigger after `BackOut` abandons the goal: `ReturnHome` (the target becomes the
 //!    home position given at construction; thresholds and ladder start again from the
 //!    bottom). The same ladder runs on the way home; a trigger after its `BackOut` ends in
@@ -40,7 +42,9 @@
 //! a robot that keeps failing at the same place does reach back-out and giving up. Reaching the
 //! target (distance `<= goal_tolerance_m`) ends in `GoalReached` (or `Home` on the way
 //! back). Every transition is recorded as a [`Transition`] with its time and reason
-//! (a relaxation too, as `track -> track`).
+//! (a relaxation too, as `track -> track`). The navigator may end a `Rotate` or a `BackOut`
+//! early ([`RecoveryMachine::abort`]) when its next motion is not safe; that is an end like
+//! any other, with its reason.
 
 use std::collections::VecDeque;
 use std::f64::consts::PI;
@@ -89,6 +93,10 @@ pub struct RecoveryConfig {
     pub backout_carrot_m: f64,
     /// Longest `BackOut` [s].
     pub backout_timeout_s: f64,
+    /// `BackOut` goes on past `backout_distance_m` while the robot has no room to turn in
+    /// place (a corridor it drove into), up to this distance [m].
+    #[serde(default = "default_backout_max_distance_m")]
+    pub backout_max_distance_m: f64,
     /// Spacing of the breadcrumb trail [m].
     pub crumb_spacing_m: f64,
     /// Longest trail kept [m] (older crumbs are dropped).
@@ -97,6 +105,10 @@ pub struct RecoveryConfig {
     pub relax_after_s: f64,
     /// Distance to the target that counts as reached [m].
     pub goal_tolerance_m: f64,
+}
+
+fn default_backout_max_distance_m() -> f64 {
+    8.0
 }
 
 impl Default for RecoveryConfig {
@@ -115,7 +127,8 @@ impl Default for RecoveryConfig {
             rotate_timeout_s: 8.0,
             backout_distance_m: 2.0,
             backout_carrot_m: 0.6,
-            backout_timeout_s: 12.0,
+            backout_timeout_s: 40.0,
+            backout_max_distance_m: default_backout_max_distance_m(),
             crumb_spacing_m: 0.2,
             trail_length_m: 20.0,
             relax_after_s: 15.0,
@@ -135,6 +148,7 @@ impl RecoveryConfig {
             ("backout_distance_m", self.backout_distance_m),
             ("backout_carrot_m", self.backout_carrot_m),
             ("backout_timeout_s", self.backout_timeout_s),
+            ("backout_max_distance_m", self.backout_max_distance_m),
             ("crumb_spacing_m", self.crumb_spacing_m),
             ("trail_length_m", self.trail_length_m),
             ("relax_after_s", self.relax_after_s),
@@ -162,6 +176,9 @@ impl RecoveryConfig {
             if !(value.is_finite() && value > 0.0 && value <= 1.0) {
                 return Err(Error::config(format!("recovery.{name}"), "must be in (0, 1]", value));
             }
+        }
+        if self.backout_max_distance_m < self.backout_distance_m {
+            return Err(Error::config("recovery.backout_max_distance_m", "must be >= recovery.backout_distance_m", self.backout_max_distance_m));
         }
         if self.trail_length_m < self.backout_distance_m {
             return Err(Error::config("recovery.trail_length_m", "must be >= recovery.backout_distance_m", self.trail_length_m));
@@ -253,6 +270,9 @@ pub struct RecoveryInput {
     /// Heading of most clearance around the robot, world frame [rad], if the navigator
     /// computed one (used when entering `Rotate`).
     pub clearance_heading_rad: Option<f64>,
+    /// Whether the robot could turn in place here (the navigator checked the footprint a full
+    /// turn sweeps): `BackOut` goes on past `backout_distance_m` while it could not.
+    pub room_to_turn: bool,
 }
 
 /// Which target to drive to.
@@ -405,6 +425,17 @@ impl RecoveryMachine {
         self.trail.iter().copied()
     }
 
+    /// Ends the current `Rotate` or `BackOut` at time `time_s` because its motion is not safe
+    /// (the navigator checked the footprint it would sweep): back to `Track`, with `reason`
+    /// in the transition. The robot stops; the ladder climbs on at the next trigger as after
+    /// any other end of the behaviour. Other behaviours are left as they are.
+    pub fn abort(&mut self, time_s: f64, reason: &str) {
+        if matches!(self.behaviour, Behaviour::Rotate | Behaviour::BackOut) {
+            let what = self.behaviour.name();
+            self.enter(time_s, Behaviour::Track, format!("{what} stopped, no safe motion: {reason}"));
+        }
+    }
+
     /// Advances one tick and says what to do.
     pub fn step(&mut self, input: &RecoveryInput) -> Result<Directive> {
         self.check(input)?;
@@ -437,8 +468,9 @@ impl RecoveryMachine {
             Behaviour::BackOut => {
                 let start = self.backout_start.unwrap_or(input.position);
                 let moved = input.position.distance(start);
-                if moved >= self.config.backout_distance_m {
-                    self.enter(t, Behaviour::Track, format!("backed out {moved:.2} m"));
+                if moved >= self.config.backout_distance_m && (input.room_to_turn || moved >= self.config.backout_max_distance_m) {
+                    let room = if input.room_to_turn { "room to turn" } else { "no room to turn yet, the longest back-out" };
+                    self.enter(t, Behaviour::Track, format!("backed out {moved:.2} m ({room})"));
                 } else if self.backout_index == 0 && input.position.distance(self.trail.front().copied().unwrap_or(input.position)) < self.config.crumb_spacing_m {
                     self.enter(t, Behaviour::Track, format!("end of the trail after {moved:.2} m"));
                 } else if t - self.entered_s >= self.config.backout_timeout_s {
@@ -675,6 +707,7 @@ mod tests {
             straight_distance_m: d,
             plan,
             clearance_heading_rad: Some(1.0),
+            room_to_turn: true,
         }
     }
 
@@ -795,6 +828,42 @@ mod tests {
         let out = m.step(&input(t + 0.1, 0.0, d - 0.05, PlanFeedback::Found)).unwrap();
         assert_eq!((out.r_inst, out.r_total), (cfg.r_inst, cfg.r_total));
         assert!(m.transitions().iter().any(|tr| tr.reason.contains("past where it got stuck")), "{:?}", m.transitions().last());
+    }
+
+    /// Drives 5 m along +x, gets stuck, and backs out with `room_to_turn(x)`; the distance
+    /// backed out.
+    fn back_out_until(room_to_turn: impl Fn(f64) -> bool) -> f64 {
+        let mut m = machine();
+        let mut t = 0.0;
+        for k in 0..100 {
+            t = k as f64 * 0.1;
+            m.step(&input(t, 0.05 * k as f64, 10.0 - 0.05 * k as f64, PlanFeedback::Found)).unwrap();
+        }
+        let mut x = 4.95;
+        let mut started = None;
+        for _ in 0..2000 {
+            t += 0.1;
+            let yaw = if m.behaviour() == Behaviour::Rotate { 1.0 } else { 0.0 };
+            let out = m.step(&RecoveryInput { yaw_rad: yaw, room_to_turn: room_to_turn(x), ..input(t, x, 5.05, PlanFeedback::NoPath) }).unwrap();
+            if out.behaviour == Behaviour::BackOut {
+                started.get_or_insert(x);
+                x -= 0.02;
+            } else if let Some(x0) = started {
+                return x0 - x;
+            }
+        }
+        panic!("never backed out");
+    }
+
+    #[test]
+    fn backout_goes_on_until_there_is_room_to_turn() {
+        // Room everywhere: the nominal 2 m.
+        assert!((back_out_until(|_| true) - 2.0).abs() < 0.05);
+        // A corridor: no room to turn until x < 1.5 (3.45 m back).
+        let d = back_out_until(|x| x < 1.5);
+        assert!((d - 3.45).abs() < 0.05, "{d}");
+        // Never room (the trail is 5 m long): at the trail's end, before the 8 m limit.
+        assert!(back_out_until(|_| false) <= 5.0);
     }
 
     #[test]

@@ -1,5 +1,5 @@
 //! Prefilter of a raw point cloud: non-finite points, range limits, the robot's own box,
-//! optional voxel downsampling and sparse-outlier removal (DESIGN §2 step 1).
+//! optional voxel downsampling and sparse-outlier removal (pipeline step 1).
 //!
 //! In: points in the sensor frame, `body_from_sensor`. Out: the kept points in the body
 //! frame, in input order, and how many each rule dropped.

@@ -1,4 +1,4 @@
-//! Typed configuration of the terrain-risk pipeline (DESIGN §2): the robot model and
+//! Typed configuration of the terrain-risk pipeline (STEP, Fan et al. 2021): the robot model and
 //! every stage's settings.
 //!
 //! Each field documents its unit and source. "subterra" as a source means an
@@ -21,7 +21,7 @@ const MAX_SCANS: usize = 1_000;
 /// Largest number of headings the tilt layer settles the footprint at.
 const MAX_TILT_HEADINGS: u32 = 64;
 
-/// The ground robot (a Clearpath Husky by default; DESIGN §2, Husky A200 data sheet).
+/// The ground robot (a Clearpath Husky by default; Husky A200 data sheet).
 ///
 /// The body frame is FLU with its origin at the centre of the footprint on the ground
 /// (REP 120 `base_footprint`): the robot occupies `|x| <= length/2`, `|y| <= width/2`,
@@ -40,9 +40,9 @@ pub struct RobotConfig {
     /// Top speed [m/s]. Husky: 1.0.
     pub max_speed_m_s: f64,
     /// Tilt (angle of the settled body's z axis from vertical) below which the `tilt`
-    /// risk is 0 [deg]. DESIGN §2: 10.
+    /// risk is 0 [deg]. STEP: 10.
     pub tilt_safe_deg: f64,
-    /// Tilt at and beyond which the `tilt` risk is 1 (lethal) [deg]. DESIGN §2: 25.
+    /// Tilt at and beyond which the `tilt` risk is 1 (lethal) [deg]. STEP: 25.
     pub tilt_lethal_deg: f64,
 }
 
@@ -53,7 +53,7 @@ impl Default for RobotConfig {
 }
 
 impl RobotConfig {
-    /// The Husky-like default robot of DESIGN §2.
+    /// The Husky-like default robot (Clearpath Husky A200).
     pub fn husky() -> Self {
         Self {
             length_m: 0.99,
@@ -159,7 +159,7 @@ pub struct PrefilterConfig {
 #[serde(deny_unknown_fields)]
 pub struct FusionConfig {
     /// Window at full odometry confidence [s]; at confidence c only scans at most
-    /// `c·window_s` older than the newest are fused (c = 0: the newest alone). DESIGN §2: 2 (1-5).
+    /// `c·window_s` older than the newest are fused (c = 0: the newest alone). STEP: 2 (1-5).
     pub window_s: f64,
     /// Most scans kept, newest first [scans]. subterra: 20 (2 s of a 10 Hz lidar).
     pub max_scans: usize,
@@ -194,13 +194,13 @@ pub struct GroundConfig {
     /// A point is ground if its height above its sector's ground line is within ±this [m].
     /// Himmelsbach T_dground; subterra: 0.1.
     pub max_dist_to_line_m: f64,
-    /// Void (missing ground, DESIGN §2 `negative`): the empty bins between two returns of a
+    /// Void (missing ground, the STEP `negative` layer): the empty bins between two returns of a
     /// sector are *void* when the rays between them span more than this depression angle
     /// [deg]: beams must have crossed the expected ground there and none came back (a hole
     /// with no floor in range). 0 (the default) turns void detection off. It reads the
     /// absence of returns as evidence, so it suits a spinning lidar, whose beams are evenly
     /// spaced in elevation: set it above the sensor's vertical beam spacing (2.5 for the
-    /// VLP-16's 2.0°, the coarsest DESIGN lidar; OS1-64: 0.53°). On clouds without that
+    /// VLP-16's 2.0°, the coarsest supported lidar; OS1-64: 0.53°). On clouds without that
     /// structure (depth cameras with dropouts, sparse or merged clouds) empty bins near the
     /// robot are common and would be marked lethal. subterra.
     #[serde(default)]
@@ -225,11 +225,11 @@ pub const SPINNING_LIDAR_VOID_MIN_GAP_DEG: f64 = 2.5;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MapConfig {
-    /// Cell side [m/cell]. DESIGN §2: 0.1 (coarse), subterra: 0.05 (fine).
+    /// Cell side [m/cell]. STEP: 0.1 (coarse), subterra: 0.05 (fine).
     pub resolution_m: f64,
-    /// Extent along world x [m]; rounded to whole cells. DESIGN §2: 20 (coarse), subterra: 8 (fine).
+    /// Extent along world x [m]; rounded to whole cells. STEP: 20 (coarse), subterra: 8 (fine).
     pub size_x_m: f64,
-    /// Extent along world y [m]; rounded to whole cells. DESIGN §2: 20 (coarse), subterra: 8 (fine).
+    /// Extent along world y [m]; rounded to whole cells. STEP: 20 (coarse), subterra: 8 (fine).
     pub size_y_m: f64,
 }
 
@@ -273,6 +273,15 @@ pub struct RiskConfig {
     /// `mission`: the risk falls from 1 at an item's radius to 0 this much farther out [m];
     /// 0 gives a hard circle. subterra: 0.
     pub mission_margin_m: f64,
+    /// Combined risk at or above which a cell is lethal, in (0, 1] [1]: the one definition of
+    /// a lethal cell for every output (the planners never enter one, the MPC keeps off it,
+    /// counts, pictures and exported grids mark it). subterra: 0.9.
+    #[serde(default = "default_lethal_risk")]
+    pub lethal_risk: f64,
+}
+
+fn default_lethal_risk() -> f64 {
+    super::grid::DEFAULT_LETHAL_RISK
 }
 
 /// Per-cell uncertainty of the risk (STEP's CVaR needs a mean and a spread).
@@ -363,6 +372,7 @@ impl Default for TerrainConfig {
                 roughness_m: Ramp { safe: 0.02, lethal: 0.1 },
                 unknown: 0.15,
                 mission_margin_m: 0.0,
+                lethal_risk: default_lethal_risk(),
             },
             uncertainty: UncertaintyConfig { range_sigma_m: 0.03, drift_m_per_s: 0.05, height_span_m: 0.1, max_sigma: 0.3 },
         }
@@ -505,6 +515,9 @@ impl TerrainConfig {
             return Err(Error::config("risk.unknown", "must be in [0, 1) (unknown is never lethal)", r.unknown));
         }
         require_non_negative("risk.mission_margin_m", r.mission_margin_m)?;
+        if !(r.lethal_risk > 0.0 && r.lethal_risk <= 1.0) {
+            return Err(Error::config("risk.lethal_risk", "must be in (0, 1]", r.lethal_risk));
+        }
         let u = &self.uncertainty;
         require_non_negative("uncertainty.range_sigma_m", u.range_sigma_m)?;
         require_non_negative("uncertainty.drift_m_per_s", u.drift_m_per_s)?;

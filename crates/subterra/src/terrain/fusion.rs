@@ -1,4 +1,4 @@
-//! Temporal fusion: the window of recent scans with their poses (DESIGN §2 step 2).
+//! Temporal fusion: the window of recent scans with their poses (pipeline step 2).
 //!
 //! Each scan is kept as it was labelled: its points relative to its sensor, in world-aligned
 //! axes, and each point's height above its own ground line. Re-expressing a scan in the

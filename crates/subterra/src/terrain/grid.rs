@@ -22,6 +22,10 @@ pub struct CellIndex {
     pub iy: u32,
 }
 
+/// The default of `risk.lethal_risk`: a cell at or above this risk is lethal [1]. subterra:
+/// 0.9, where the ramps of the risk layers are all but at their lethal end.
+pub const DEFAULT_LETHAL_RISK: f64 = 0.9;
+
 /// Where a map's cells are.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GridGeometry {
@@ -210,12 +214,16 @@ pub struct RiskMap {
     pub scans: usize,
     /// Points binned into the map (inside its extent).
     pub points: usize,
+    /// Risk at or above which a cell is lethal (the mapper's `risk.lethal_risk`) [1]: the one
+    /// definition of a lethal cell for the planners, the counts, the pictures and the
+    /// exported grids ([`RiskMap::is_lethal`]).
+    pub lethal_risk: f32,
 }
 
 impl RiskMap {
     /// A map with every layer zero.
     pub(crate) fn zeros(geometry: GridGeometry, stamp_s: f64) -> Self {
-        Self { geometry, data: Arc::new(vec![0.0; Layer::ALL.len() * geometry.cells()]), stamp_s, scans: 0, points: 0 }
+        Self { geometry, data: Arc::new(vec![0.0; Layer::ALL.len() * geometry.cells()]), stamp_s, scans: 0, points: 0, lethal_risk: DEFAULT_LETHAL_RISK as f32 }
     }
 
     /// A map in `storage` (a previous map's, see [`storage`](Self::storage)) if no copy of
@@ -224,7 +232,7 @@ impl RiskMap {
     pub(crate) fn reusing(storage: Option<Arc<Vec<f32>>>, geometry: GridGeometry, stamp_s: f64) -> Self {
         let len = Layer::ALL.len() * geometry.cells();
         match storage.and_then(|data| Arc::try_unwrap(data).ok()).filter(|data| data.len() == len) {
-            Some(data) => Self { geometry, data: Arc::new(data), stamp_s, scans: 0, points: 0 },
+            Some(data) => Self { geometry, data: Arc::new(data), stamp_s, scans: 0, points: 0, lethal_risk: DEFAULT_LETHAL_RISK as f32 },
             None => Self::zeros(geometry, stamp_s),
         }
     }
@@ -271,6 +279,17 @@ impl RiskMap {
     /// The names of the layers, in storage order.
     pub fn layer_names() -> [&'static str; 21] {
         Layer::ALL.map(Layer::name)
+    }
+
+    /// Whether cell `flat` is lethal: its combined risk is at or above [`RiskMap::lethal_risk`].
+    /// Observed or not: a lethal cell is never unknown.
+    pub fn is_lethal(&self, flat: usize) -> bool {
+        self.get(Layer::Risk)[flat] >= self.lethal_risk
+    }
+
+    /// The number of lethal cells ([`RiskMap::is_lethal`]).
+    pub fn lethal_count(&self) -> usize {
+        self.get(Layer::Risk).iter().filter(|&&r| r >= self.lethal_risk).count()
     }
 
     /// Combined risk at the world position `(x_m, y_m)`; `None` outside the map.

@@ -66,7 +66,10 @@
 //!    it is ground iff `|h| <= max_dist_to_line_m`. Points without a bin are obstacles with
 //!    `h = NaN`.
 //!
-//! Byproducts per bin (not part of the labels): *coverage* of a position at radius r in a
+//! Byproducts per bin (not part of the labels): the *expected ground* at radius r is the
+//! bin's line there, except beyond the last prototype of a rising line (`m > 0`), where it
+//! stays at the line's height at that prototype (past a crest the ground may fall away out of
+//! sight); *coverage* of a position at radius r in a
 //! covered bin holds when r also lies between the radii of the line's first and last
 //! prototype; the lowest point's z (`floor_z`), and the steepest downward ray slope
 //! `min(z / r)` over the prototypes of all *farther* bins of the sector: a ray from the
@@ -75,7 +78,7 @@
 //!
 //! *Void* (missing ground): per sector, visiting its non-empty bins in increasing order, a
 //! run of empty bins between bin `a` and the next non-empty bin `b` is void when the rays
-//! that would meet the run's expected ground (its bins' lines) leave an angular stretch of
+//! that would meet the run's expected ground (its bins' lines, capped as above) leave an angular stretch of
 //! more than `void_min_gap_deg` (depression) with no return: of the depressions between
 //! `hi` = min(`a`'s shallowest ray, the expected ground at the run's start) and `lo` =
 //! max(the steepest ray to a farther bin not steeper than `a`'s shallowest, the expected
@@ -119,7 +122,8 @@ pub struct PolarBin {
     /// Whether an accepted line covers the bin and the queried radius lies between the
     /// line's first and last prototype.
     pub covered: bool,
-    /// Ground height of the bin's line at the queried radius [m, sensor-centred].
+    /// The expected ground at the queried radius: the bin's line, capped beyond a rising line's
+    /// last prototype (module doc) [m, sensor-centred].
     pub ground_z: f64,
     /// Upper bound of the floor at the queried radius: the lower of the bin's lowest point
     /// and the lowest ray that passed over it; `+inf` without evidence [m, sensor-centred].
@@ -155,10 +159,29 @@ struct BinLine {
     b: f64,
     cover_lo: f64,
     cover_hi: f64,
+    /// Beyond this radius the expected ground stays at the line's height there: the radius of
+    /// a rising line's last prototype (`+inf` for a level or falling one).
+    cap_r: f64,
 }
 
 impl BinLine {
-    const NONE: Self = Self { m: 0.0, b: 0.0, cover_lo: f64::INFINITY, cover_hi: f64::NEG_INFINITY };
+    const NONE: Self = Self { m: 0.0, b: 0.0, cover_lo: f64::INFINITY, cover_hi: f64::NEG_INFINITY, cap_r: f64::INFINITY };
+
+    /// The bin's line over its own bins and, uncovered, the nearest line's, capped beyond a
+    /// rising line's last prototype.
+    fn of(line: &GroundLine, covered: bool) -> Self {
+        let cap_r = if line.m > 0.0 { line.last_r_m } else { f64::INFINITY };
+        let (cover_lo, cover_hi) = if covered { (line.first_r_m, line.last_r_m) } else { (f64::INFINITY, f64::NEG_INFINITY) };
+        Self { m: line.m, b: line.b, cover_lo, cover_hi, cap_r }
+    }
+
+    /// The expected ground at radius `r`: the line, but beyond a rising line's last prototype
+    /// no higher than there. Past a crest the ground may fall away out of sight: beams passing
+    /// over the crest below the line's continuation are no evidence of a hole.
+    #[inline]
+    fn expected(&self, r: f64) -> f64 {
+        self.m * if r > self.cap_r { self.cap_r } else { r } + self.b
+    }
 }
 
 /// Running least-squares sums of a segment, centred on its first point.
@@ -385,7 +408,7 @@ impl GroundSegmenter {
         // Both tables have one entry per polar bin: one bounds check for the two.
         let n = self.bin_line.len().min(self.acc.len());
         let (line, acc) = (&self.bin_lines[self.bin_line[..n][sb] as usize], &self.acc[..n][sb]);
-        let ground_z = line.m * r + line.b;
+        let ground_z = line.expected(r);
         // `min` of the two where the prototype's z is never NaN (+inf when empty): the ray
         // bound is taken only when lower (a NaN ray bound, inf·0, leaves the prototype's z).
         let (proto_z, ray_z) = (acc.proto_z as f64, acc.ray_slope as f64 * r);
@@ -498,7 +521,7 @@ impl GroundSegmenter {
             let (row, bin_line) = (&mut self.acc[s * bins..(s + 1) * bins], &self.bin_line[s * bins..(s + 1) * bins]);
             let lines = |k: usize| &self.bin_lines[bin_line[k] as usize];
             // Depression of the expected ground (the bin's line) at radius r.
-            let ground = |k: usize, r: f64| dep((lines(k).m * r + lines(k).b) / r);
+            let ground = |k: usize, r: f64| dep(lines(k).expected(r) / r);
             // Each non-empty bin's rays: (shallowest, steepest) depression. Every gap asks for
             // the spans of the bins beyond it (and maybe of all): each is computed once per
             // sector, in `spans` (the same values, without an `atan` pair per bin and gap).
@@ -655,8 +678,8 @@ impl GroundSegmenter {
             return;
         }
         for line in lines {
-            self.bin_lines.push(BinLine { m: line.m, b: line.b, cover_lo: line.first_r_m, cover_hi: line.last_r_m });
-            self.bin_lines.push(BinLine { m: line.m, b: line.b, ..BinLine::NONE });
+            self.bin_lines.push(BinLine::of(line, true));
+            self.bin_lines.push(BinLine::of(line, false));
         }
         let covered = |j: usize| base + 2 * j as u32;
         let uncovered = |j: usize| base + 2 * j as u32 + 1;
@@ -1128,11 +1151,11 @@ mod tests {
                     return BinLine { b: -h, ..BinLine::NONE };
                 }
                 if let Some(line) = lines.iter().find(|l| l.first_bin as usize <= k && k <= l.last_bin as usize) {
-                    return BinLine { m: line.m, b: line.b, cover_lo: line.first_r_m, cover_hi: line.last_r_m };
+                    return BinLine::of(line, true);
                 }
                 let dist = |l: &GroundLine| if k < l.first_bin as usize { l.first_bin as usize - k } else { k - l.last_bin as usize };
                 let nearest = lines.iter().min_by_key(|l| dist(l)).unwrap();
-                BinLine { m: nearest.m, b: nearest.b, ..BinLine::NONE }
+                BinLine::of(nearest, false)
             })
             .collect()
     }

@@ -1,4 +1,4 @@
-//! Terrain risk for a ground robot (DESIGN §2).
+//! Terrain risk for a ground robot (STEP, Fan et al. 2021).
 //!
 //! In: a point cloud in the sensor frame, `body_from_sensor`, the odometry pose
 //! `world_from_body` and its confidence. Out: robot-centred, world-axis-aligned grid maps
@@ -21,7 +21,7 @@ pub mod risk;
 pub use cloud::{Prefilter, PrefilterStats};
 pub use config::{FusionConfig, GroundConfig, LayerConfig, MapConfig, PrefilterConfig, Ramp, RiskConfig, RobotConfig, TerrainConfig, UncertaintyConfig};
 pub use fusion::{check_rigid, ScanWindow, StoredScan};
-pub use grid::{cvar_factor, CellIndex, GridGeometry, Layer, RiskMap};
+pub use grid::{cvar_factor, CellIndex, GridGeometry, Layer, RiskMap, DEFAULT_LETHAL_RISK};
 pub use ground::{segment_ground, GroundLine, GroundSegmenter, PolarBin};
 pub use mapper::{TerrainMapper, TerrainOutput, TerrainStats, TerrainTimings};
 pub use risk::MissionItem;

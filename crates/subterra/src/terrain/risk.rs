@@ -1,5 +1,5 @@
 //! From labelled points to a [`RiskMap`]: binning, geometric layers, risk layers and
-//! their uncertainty (DESIGN §2 steps 4-6).
+//! their uncertainty (pipeline steps 4-6).
 //!
 //! Every pass is O(points) or O(cells): points are binned into cells once (a fused scan
 //! once in its life, see [`super::fusion`]); the plane fits use summed-area tables, so their
@@ -39,7 +39,9 @@
 //!   ramp(`tilt_angle`) with the robot's tilt ramp, `roughness` = ramp(`plane_residual`),
 //!   `unknown` = `risk.unknown` where not observed, `mission` = 1 within an item's radius of
 //!   its centre, falling linearly to 0 over `risk.mission_margin_m` (NaN inputs give 0).
-//!   `risk = 1 - Π(1 - r_k)`.
+//!   `risk = 1 - Π(1 - r_k)`. A cell whose `negative` risk is above 0 is `observed` (its
+//!   rating comes from ray reasoning: beams passed below where its ground should have been),
+//!   so that a hole's inside is a known hazard, not unknown ground.
 //! - `risk_variance` = σ², `σ = min(sqrt(σ_range²/max(n, 1) + (drift·age)²) / height_span,
 //!   max_sigma)` for observed cells (n = `count`, age = `age` or 0), `max_sigma` otherwise.
 
@@ -336,6 +338,7 @@ impl MapBuilder {
         self.steps(&geometry, &mut map);
         self.tilt(&geometry, &mut map);
         self.risks(&geometry, body_world, missions, &mut map);
+        map.lethal_risk = self.risk.lethal_risk as f32;
         self.recycled = Some(map.storage());
         map
     }
@@ -734,7 +737,7 @@ impl MapBuilder {
             age_l[c] = select_f32(has, cell.min_age, f32::NAN);
         }
         let (residual, step_height, negative_depth, tilt_angle, observed_l) =
-            (&residual[..n], &step_height[..n], &negative_depth[..n], &tilt_angle[..n], &observed_l[..n]);
+            (&residual[..n], &step_height[..n], &negative_depth[..n], &tilt_angle[..n], &mut observed_l[..n]);
         let (collision_l, step_l, negative_l, tilt_l, rough_l, unknown_l, mission_l, risk_l, variance_l) = (
             &mut collision_l[..n],
             &mut step_l[..n],
@@ -763,10 +766,13 @@ impl MapBuilder {
             let cell = &std::mem::replace(&mut cells[c], CellAccumulator::EMPTY);
             let count = cell.count;
             let has = cell.min_z <= cell.max_z;
-            let observed = observed_l[c] > 0.0;
+            let negative = r.negative_m.eval(negative_depth[c] as f64);
+            // A cell rated by ray reasoning (beams passed below where its ground should have
+            // been) is observed: what it says is known, not guessed.
+            let observed = observed_l[c] > 0.0 || negative > 0.0;
+            observed_l[c] = select_f32(observed, 1.0, 0.0);
             let collision = r.collision_points.eval(cell.collision_n as f64);
             let step = r.step_m.eval(step_height[c] as f64);
-            let negative = r.negative_m.eval(negative_depth[c] as f64);
             let tilt = tilt_ramp.eval(tilt_angle[c] as f64);
             let rough = r.roughness_m.eval(residual[c] as f64);
             let unknown = if observed { 0.0 } else { r.unknown };

@@ -1,6 +1,6 @@
 """APF-PF in plain, vectorised NumPy: the reference for parity tests and benchmarks.
 
-This module implements DESIGN.md section 1 (APF-PF: a particle filter over a 2.5D
+This module implements APF-PF (Ahmad et al., ACC 2021) (APF-PF: a particle filter over a 2.5D
 voxel grid of a depth image, whose belief weights artificial potential fields) with the
 exact conventions of the Rust implementation in ``crates/subterra``. It imports only
 NumPy and the standard library, so it also loads without the compiled ``subterra._core``

@@ -1,6 +1,6 @@
 """The MPC tracker's optimal control problem without obstacles, solved plainly with SciPy.
 
-The reference for parity tests and benchmarks of :class:`subterra.MpcTracker` (DESIGN §3;
+The reference for parity tests and benchmarks of :class:`subterra.MpcTracker` (STEP, Fan et al. 2021;
 the Rust module docs of ``crates/subterra/src/plan/mpc.rs`` state the problem exactly). It
 imports NumPy, SciPy and the standard library only, so it loads without the compiled
 ``subterra._core``.

@@ -1,7 +1,7 @@
 """The terrain risk map of one scan in plain NumPy: the reference for parity tests and
 benchmarks.
 
-This module re-implements, from their documentation, DESIGN.md section 2 as the Rust core
+This module re-implements, from their documentation, the terrain-risk pipeline as the Rust core
 (``crates/subterra/src/terrain``) defines it, for the **coarse map made from one scan**:
 
 1. :func:`segment_ground` / :func:`ground_heights`: the ground segmentation by line fits
@@ -134,7 +134,7 @@ __all__ = [
 #: The committed default terrain config (equal to ``TerrainConfig()``).
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parents[4] / "configs" / "terrain.toml"
 
-#: The Husky-like robot of ``RobotConfig::default()`` (DESIGN §2) [m, m/s, deg].
+#: The Husky-like robot of ``RobotConfig::default()`` (STEP, Fan et al. 2021) [m, m/s, deg].
 HUSKY: dict[str, float] = {
     "length_m": 0.99,
     "width_m": 0.67,
@@ -340,14 +340,15 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
     return lines
 
 
-def _bin_lines(lines: list[GroundLine], bins: int, sensor_height_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Step 4 for one sector: ``(m, b, cover_lo, cover_hi)`` per bin (float64 arrays of
+def _bin_lines(lines: list[GroundLine], bins: int, sensor_height_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Step 4 for one sector: ``(m, b, cover_lo, cover_hi, cap_r)`` per bin (float64 arrays of
     length ``bins``): the bin's line and, where a line's bin interval contains the bin
     (*covered*), the radii of that line's first and last prototype (else ``+inf, -inf``:
-    no radius is covered)."""
+    no radius is covered); ``cap_r``: the last prototype's radius of a rising line (beyond it
+    the expected ground stays at its height there), ``+inf`` otherwise."""
     none_lo, none_hi = np.full(bins, np.inf), np.full(bins, -np.inf)
     if not lines:
-        return np.zeros(bins), np.full(bins, -float(sensor_height_m)), none_lo, none_hi
+        return np.zeros(bins), np.full(bins, -float(sensor_height_m)), none_lo, none_hi, np.full(bins, np.inf)
     first = np.array([ln.first_bin for ln in lines])[:, None]
     last = np.array([ln.last_bin for ln in lines])[:, None]
     k = np.arange(bins)[None, :]
@@ -360,7 +361,14 @@ def _bin_lines(lines: list[GroundLine], bins: int, sensor_height_m: float) -> tu
     b = np.array([ln.b for ln in lines])[chosen]
     lo = np.where(covered, np.array([ln.first_r_m for ln in lines])[chosen], none_lo)
     hi = np.where(covered, np.array([ln.last_r_m for ln in lines])[chosen], none_hi)
-    return m, b, lo, hi
+    cap = np.where(m > 0.0, np.array([ln.last_r_m for ln in lines])[chosen], np.inf)
+    return m, b, lo, hi, cap
+
+
+def expected_ground(m: np.ndarray, b: np.ndarray, cap_r: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """ground.rs ``BinLine::expected``: ``m·min(r, cap_r) + b`` (the line, no higher beyond a
+    rising line's last prototype)."""
+    return m * np.where(r > cap_r, cap_r, r) + b
 
 
 @dataclass
@@ -384,6 +392,8 @@ class PolarTable:
     ray_slope: np.ndarray
     #: Per polar bin: void (ground.rs ``mark_voids``, :func:`_void_bins`); ``None``: none.
     void: np.ndarray | None = None
+    #: Per polar bin: where a rising line's expected ground stops rising (:func:`_bin_lines`).
+    cap_r: np.ndarray | None = None
 
 
 @dataclass
@@ -419,7 +429,7 @@ def _ray_slopes(proto_bin: np.ndarray, proto_r: np.ndarray, proto_z: np.ndarray,
 
 
 def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, h: np.ndarray, m_bin: np.ndarray, b_bin: np.ndarray,
-               sectors: int, bins: int, bin_m: float, min_gap_deg: float, max_dist_to_line_m: float) -> np.ndarray:
+               cap_bin: np.ndarray, sectors: int, bins: int, bin_m: float, min_gap_deg: float, max_dist_to_line_m: float) -> np.ndarray:
     """ground.rs ``mark_voids``: per polar bin whether it is void. Each non-empty bin's ray
     span is ``(shallowest, steepest)`` depression ``atan(-slope)`` of its points' ``z/r``
     (float32, points with ``r > 0`` not more than ``max_dist_to_line_m`` below their line:
@@ -427,7 +437,8 @@ def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, h: np.ndarr
     is void when, of the depressions between ``hi = min(shallowest of a, expected ground at
     (a+1)·Δ)`` and ``lo = max(steepest of the farther spans not steeper than a's shallowest,
     expected ground at k·Δ)``, more than ``min_gap`` is left uncovered by every bin's span
-    (the expected ground's depression at ``r``: ``atan(-(m·r + b)/r)`` with the bin's line).
+    (the expected ground's depression at ``r``: ``atan(-z/r)`` with ``z`` the bin's expected
+    ground, :func:`expected_ground`).
     ``min_gap_deg`` 0: off, no bin is void."""
     void = np.zeros(sectors * bins, dtype=bool)
     if min_gap_deg == 0.0:  # void detection off
@@ -448,8 +459,8 @@ def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, h: np.ndarr
             continue
         sh = np.arctan(-top[row].astype(np.float64))
         st = np.arctan(-low[row].astype(np.float64))
-        m, b = m_bin[row], b_bin[row]
-        ground = lambda k, rr: math.atan(-((m[k] * rr + b[k]) / rr))
+        m, b, cap = m_bin[row], b_bin[row], cap_bin[row]
+        ground = lambda k, rr: math.atan(-((m[k] * (cap[k] if rr > cap[k] else rr) + b[k]) / rr))
         for j in range(1, ks.size):
             a, k = int(ks[j - 1]), int(ks[j])
             if k <= a + 1:
@@ -508,6 +519,7 @@ def ground_heights(
     b_bin = np.full(sectors * bins, -float(sensor_height))
     lo_bin = np.full(sectors * bins, np.inf)
     hi_bin = np.full(sectors * bins, -np.inf)
+    cap_bin = np.full(sectors * bins, np.inf)
     all_lines: list[list[GroundLine]] = []
     for s in range(sectors):
         a, e = bounds[s], bounds[s + 1]
@@ -515,7 +527,7 @@ def ground_heights(
         all_lines.append(lines)
         if lines:
             row = slice(s * bins, (s + 1) * bins)
-            m_bin[row], b_bin[row], lo_bin[row], hi_bin[row] = _bin_lines(lines, bins, sensor_height)
+            m_bin[row], b_bin[row], lo_bin[row], hi_bin[row], cap_bin[row] = _bin_lines(lines, bins, sensor_height)
     has = flat_bin >= 0
     fb = np.where(has, flat_bin, 0)
     with np.errstate(invalid="ignore"):
@@ -526,8 +538,9 @@ def ground_heights(
     polar = PolarTable(
         sectors, bins, float(ground["bin_m"]), float(ground["max_range_m"]), m_bin, b_bin, lo_bin, hi_bin, pz,
         _ray_slopes(proto_bin, proto_r, proto_z, sectors, bins),
-        _void_bins(flat_bin, r, z32, h, m_bin, b_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 0.0)),
+        _void_bins(flat_bin, r, z32, h, m_bin, b_bin, cap_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 0.0)),
                    float(ground["max_dist_to_line_m"])),
+        cap_bin,
     )
     return GroundSegmentation(h, all_lines, float(ground["max_dist_to_line_m"]), polar)
 
@@ -788,7 +801,8 @@ def polar_query(polar: PolarTable, x: np.ndarray, y: np.ndarray, *, atan: str = 
     s = np.minimum(np.floor((angle + math.pi) * (polar.sectors / (2.0 * math.pi))), polar.sectors - 1)
     k = np.minimum(np.floor(np.where(inside, r, 0.0) * (1.0 / polar.bin_m)), polar.bins - 1)
     sb = np.where(inside, s * polar.bins + k, 0).astype(np.int64)
-    ground_z = polar.m[sb] * r + polar.b[sb]
+    cap = polar.cap_r[sb] if polar.cap_r is not None else np.full(r.shape, np.inf)
+    ground_z = expected_ground(polar.m[sb], polar.b[sb], cap, r)
     covered = inside & (r >= polar.cover_lo[sb]) & (r <= polar.cover_hi[sb])
     with np.errstate(invalid="ignore"):
         # f64::min ignores a NaN (inf·0 at r = 0); so does fmin.
@@ -987,7 +1001,8 @@ def risk_layers(layers: dict[str, np.ndarray], config: dict[str, Any], robot: di
     """The risk layers from the geometric ones (float32 ``(ny, nx)`` in, float32 out):
     ``step``, ``negative``, ``tilt``, ``roughness`` = ramps of ``step_height``,
     ``negative_depth``, ``tilt_angle`` (the robot's tilt limits in radians),
-    ``plane_residual``; ``unknown = risk.unknown`` where not ``observed``; ``risk = 1 -
+    ``plane_residual``; ``observed`` also where ``negative > 0`` (rated by ray reasoning,
+    written back into ``layers``); ``unknown = risk.unknown`` where not ``observed``; ``risk = 1 -
     Π(1 - r_k)`` over ``collision, step, negative, tilt, roughness, unknown, mission`` (that
     order, float64); ``risk_variance = σ²``, ``σ = min(sqrt(σ_range²/max(count, 1) +
     (drift·age)²)/height_span, max_sigma)`` where observed (age 0 in a cell without points),
@@ -995,11 +1010,14 @@ def risk_layers(layers: dict[str, np.ndarray], config: dict[str, Any], robot: di
     named above."""
     r, u = config["risk"], config["uncertainty"]
     tilt_ramp = {"safe": math.radians(robot["tilt_safe_deg"]), "lethal": math.radians(robot["tilt_lethal_deg"])}
-    observed = layers["observed"] > 0.0
+    negative = _ramp(layers["negative_depth"], r["negative_m"])
+    # A cell rated by ray reasoning (negative > 0) is observed.
+    observed = (layers["observed"] > 0.0) | (negative > 0.0)
+    layers["observed"] = observed.astype(np.float32)
     risks = {
         "collision": np.asarray(layers["collision"], dtype=np.float64),
         "step": _ramp(layers["step_height"], r["step_m"]),
-        "negative": _ramp(layers["negative_depth"], r["negative_m"]),
+        "negative": negative,
         "tilt": _ramp(layers["tilt_angle"], tilt_ramp),
         "roughness": _ramp(layers["plane_residual"], r["roughness_m"]),
         "unknown": np.where(observed, 0.0, float(r["unknown"])),

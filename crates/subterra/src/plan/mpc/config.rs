@@ -1,6 +1,6 @@
 //! Typed configuration of the MPC tracker (layout of `configs/mpc.toml`).
 //!
-//! Each field documents its unit and source. "Husky" means the default robot of DESIGN §2
+//! Each field documents its unit and source. "Husky" means the default robot (Clearpath Husky A200)
 //! ([`RobotConfig::husky`](crate::terrain::RobotConfig::husky)); "subterra" an engineering
 //! choice of this library, not a published value.
 
@@ -142,7 +142,7 @@ pub struct MpcObstacles {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MpcSolver {
-    /// Most QPs (re-linearisations) per solve. DESIGN §3: 1-3; subterra: 2 (each solve goes
+    /// Most QPs (re-linearisations) per solve. STEP: 1-3; subterra: 2 (each solve goes
     /// on from the previous plan, so the iterations continue across solves; docs/mpc.md has
     /// what a third QP changes on the benchmark run, and costs).
     pub sqp_iterations: u32,
@@ -163,9 +163,9 @@ pub struct MpcSolver {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MpcConfig {
-    /// Step of the discrete dynamics [s]. DESIGN §3: 0.1.
+    /// Step of the discrete dynamics [s]. STEP: 0.1.
     pub dt_s: f64,
-    /// Number of steps N of the horizon [steps]. DESIGN §3: 20.
+    /// Number of steps N of the horizon [steps]. STEP: 20.
     pub horizon: usize,
     /// Actuator and speed limits.
     pub limits: MpcLimits,
