@@ -160,6 +160,9 @@ class EscapeOutput:
     @property
     def boundary_world(self) -> npt.NDArray[np.float64] | None: ...
     @property
+    def repulsive_body(self) -> npt.NDArray[np.float64]:
+        """The repulsion the command should use, body frame [N] (capped while following)."""
+    @property
     def engagements(self) -> int: ...
 
 class Escape:

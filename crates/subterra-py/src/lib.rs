@@ -664,6 +664,11 @@ impl PyEscapeOutput {
     fn boundary_world<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
         self.inner.boundary_world.map(|p| array3(py, p))
     }
+    /// The repulsion the command should use, body frame [N] (capped while following).
+    #[getter]
+    fn repulsive_body<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.repulsive_body)
+    }
     /// How many times following has engaged so far.
     #[getter]
     fn engagements(&self) -> u32 {
@@ -687,7 +692,7 @@ impl PyEscape {
     #[pyo3(signature = (preset = "flight", *, config = None))]
     fn new(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
         let config = resolve_config(py, preset, config)?;
-        Ok(Self { inner: Escape::new(config.escape).py_err(py)? })
+        Ok(Self { inner: Escape::new(config.escape, &config.apf).py_err(py)? })
     }
 
     /// One step at `stamp` [s] with the odometry pose `world_from_body` (4x4), the goal (or
@@ -785,7 +790,7 @@ impl PyPathFollower {
     /// The path's points, shape `(N, 3)`.
     fn points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let flat: Vec<f64> = self.inner.points().iter().flat_map(|p| [p.x, p.y, p.z]).collect();
-        Ok(flat.into_pyarray(py).reshape([self.inner.points().len(), 3])?)
+        flat.into_pyarray(py).reshape([self.inner.points().len(), 3])
     }
 
     /// The path's length [m].

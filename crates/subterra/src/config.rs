@@ -260,6 +260,9 @@ pub struct EscapeConfig {
     pub side_timeout_s: f64,
     /// Flips after which following stops and the stall must be detected afresh.
     pub max_flips: u32,
+    /// While following, the repulsion is capped at this times the attraction's full
+    /// strength `ρ_r·ξ` (the boundary term keeps the distance instead).
+    pub follow_repulsion_ratio: f64,
 }
 
 impl Default for EscapeConfig {
@@ -276,6 +279,7 @@ impl Default for EscapeConfig {
             release_m: 0.3,
             side_timeout_s: 25.0,
             max_flips: 1,
+            follow_repulsion_ratio: 0.5,
         }
     }
 }
@@ -298,6 +302,7 @@ impl EscapeConfig {
         require_non_negative("escape.gain_per_m", self.gain_per_m)?;
         require_non_negative("escape.release_m", self.release_m)?;
         require_positive("escape.side_timeout_s", self.side_timeout_s)?;
+        require_non_negative("escape.follow_repulsion_ratio", self.follow_repulsion_ratio)?;
         Ok(())
     }
 }

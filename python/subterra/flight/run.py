@@ -371,7 +371,7 @@ def fly(
             else:
                 e = escape.step(stamp=obs["time_s"], world_from_body=odom, goal_world=target, remaining_m=remaining,
                                 memory=memory, repulsive_body=rep)
-                escaping, goal_body = e.active, e.goal_body
+                escaping, goal_body, rep = e.active, e.goal_body, e.repulsive_body
             cmd = apf.command(goal_body, repulsive_body=rep)
             compute_s = time.perf_counter() - tick
             step = sim.step(cmd, dt, compute_time_s=compute_s)

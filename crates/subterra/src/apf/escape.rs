@@ -15,7 +15,8 @@
 //! path's carrot) in the world frame, the remaining distance to the goal along the way,
 //! the obstacle points the robot remembers in the world frame (the obstacle memory's
 //! cells) and the repulsive force in the body frame. Out: the goal to attract toward, in
-//! the body frame — the real goal, or the boundary target while escaping — and the mode.
+//! the body frame — the real goal, or the boundary target while escaping — the repulsion
+//! the command should use, and the mode.
 //!
 //! # One step, exactly
 //! 1. **Progress.** When the remaining distance falls `progress_m` below its reference,
@@ -36,11 +37,14 @@
 //!    else away from the goal) at distance `d`, and `t = side·(ẑ × n)` the tangent, the
 //!    target lies 1 m along `t + clamp(gain·(standoff - d), -1, 1)·n` (normalised), at the
 //!    goal's height difference capped to that metre: the robot circles the boundary at the
-//!    standoff, the repulsion still acting on it.
+//!    standoff. The repulsion still acts, capped at `follow_repulsion_ratio` times the
+//!    attraction's full strength `ρ_r·ξ`: near an obstacle the field's push is what held
+//!    the robot in the minimum (0.3-0.7 N against a 0.2 N pull, so the forward speed of
+//!    eq. 10 is 0), and the boundary term keeps the distance instead.
 
 use glam::DVec3;
 
-use crate::config::EscapeConfig;
+use crate::config::{ApfConfig, EscapeConfig};
 use crate::error::{Error, Result};
 use crate::frames::Isometry3;
 
@@ -72,6 +76,9 @@ pub struct EscapeOutput {
     pub mode: EscapeMode,
     /// The boundary point followed, in the world frame [m] (while following).
     pub boundary_world: Option<DVec3>,
+    /// The repulsion the command should use, body frame [N]: the one given, or while
+    /// following, that one capped (module docs, step 4).
+    pub repulsive_body: DVec3,
     /// How many times following has engaged so far.
     pub engagements: u32,
 }
@@ -80,6 +87,8 @@ pub struct EscapeOutput {
 #[derive(Debug, Clone)]
 pub struct Escape {
     config: EscapeConfig,
+    /// Full strength of the attraction, `ρ_r·ξ` [N].
+    attraction_n: f64,
     /// Progress reference: remaining distance and its time.
     reference: Option<(f64, f64)>,
     mode: EscapeMode,
@@ -97,15 +106,16 @@ fn horizontal(v: DVec3) -> DVec3 {
 }
 
 impl Escape {
-    /// An escape with `config` (validated here).
-    pub fn new(config: EscapeConfig) -> Result<Self> {
+    /// An escape with `config` (validated here) for the attraction of `apf`.
+    pub fn new(config: EscapeConfig, apf: &ApfConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self::fresh(config))
+        Ok(Self::fresh(config, apf.rho_r_m * apf.xi))
     }
 
-    fn fresh(config: EscapeConfig) -> Self {
+    fn fresh(config: EscapeConfig, attraction_n: f64) -> Self {
         Self {
             config,
+            attraction_n,
             reference: None,
             mode: EscapeMode::Goal,
             hit_remaining_m: 0.0,
@@ -130,7 +140,7 @@ impl Escape {
 
     /// Starts afresh (a new flight, or odometry that jumped).
     pub fn reset(&mut self) {
-        *self = Self::fresh(self.config);
+        *self = Self::fresh(self.config, self.attraction_n);
     }
 
     /// The nearest known point within the follow range: `(point, horizontal distance)`.
@@ -246,6 +256,7 @@ impl Escape {
                     goal_body: body_from_world.transform_point(goal_world),
                     mode: self.mode,
                     boundary_world: None,
+                    repulsive_body,
                     engagements: self.engagements,
                 });
             }
@@ -263,10 +274,14 @@ impl Escape {
         let direction = (tangent + pull * n).normalize_or_zero();
         let climb = (goal_world.z - position.z).clamp(-TARGET_DISTANCE_M, TARGET_DISTANCE_M);
         let target_world = position + TARGET_DISTANCE_M * direction + DVec3::new(0.0, 0.0, climb);
+        let cap = c.follow_repulsion_ratio * self.attraction_n;
+        let push = repulsive_body.length();
+        let repulsive_body = if push > cap { repulsive_body * (cap / push) } else { repulsive_body };
         Ok(EscapeOutput {
             goal_body: body_from_world.transform_point(target_world),
             mode: self.mode,
             boundary_world: self.last_boundary,
+            repulsive_body,
             engagements: self.engagements,
         })
     }
@@ -333,7 +348,7 @@ mod tests {
         let controller = ApfController::new(apf);
         let mut config = EscapeConfig::default();
         config.enabled = escape_on;
-        let mut escape = Escape::new(config).unwrap();
+        let mut escape = Escape::new(config, &apf).unwrap();
         let goal_world = DVec3::new(goal.0, goal.1, 1.0);
         let mut position = DVec3::new(start.0, start.1, 1.0);
         let mut yaw = (goal.1 - start.1).atan2(goal.0 - start.0);
@@ -359,7 +374,7 @@ mod tests {
             let repulsive_body = sum / f64::max(near, 1.0);
             let remaining = (goal_world - position).length();
             let out = escape.step(t, &pose, goal_world, remaining, points, repulsive_body).unwrap();
-            let cmd = controller.command(out.goal_body, repulsive_body).unwrap();
+            let cmd = controller.command(out.goal_body, out.repulsive_body).unwrap();
             if cmd.reached {
                 return Flight { reached: true, closest_m: closest, engagements: out.engagements, time_s: t };
             }
@@ -410,7 +425,7 @@ mod tests {
         // Stalled with nothing known (e.g. turning toward a goal behind): no engagement.
         let mut config = EscapeConfig::default();
         config.enabled = true;
-        let mut e = Escape::new(config).unwrap();
+        let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
         let pose = Isometry3 { rotation: DMat3::IDENTITY, translation: DVec3::ZERO };
         for k in 0..100 {
             let out = e.step(f64::from(k) * 0.1, &pose, DVec3::new(-3.0, 0.0, 0.0), 3.0, &[], DVec3::ZERO).unwrap();
@@ -423,7 +438,7 @@ mod tests {
     fn engages_after_the_stall_time_on_the_side_toward_the_goal_and_releases_on_progress() {
         let mut config = EscapeConfig::default();
         config.enabled = true;
-        let mut e = Escape::new(config).unwrap();
+        let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
         let pose = |x: f64, y: f64| Isometry3 { rotation: DMat3::IDENTITY, translation: DVec3::new(x, y, 1.0) };
         // A wall point ahead and a little right of the robot; the goal ahead and left.
         let wall = [DVec3::new(0.7, -0.2, 1.0)];
