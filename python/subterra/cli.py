@@ -27,9 +27,11 @@ def _goal(text: str) -> tuple[float, float, float]:
 
 def _flight_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="highbay", help="built-in scenario with routes: highbay (default) or tunnel")
-    p.add_argument("--preset", default="flight",
-                   help="perception preset: flight (default, the paper's), flight-memory (sigma_o 300 and an obstacle "
-                        "memory), cable; fly-batch takes a comma-separated list")
+    p.add_argument("--preset", default="flight-escape",
+                   help="perception preset: flight-escape (default: flight-memory with the escape from local minima), "
+                        "acc2021 (the paper exactly, with the authors' conventions), flight (the paper's values with "
+                        "subterra's conventions), flight-memory (sigma_o 300 and an obstacle memory), cable; "
+                        "fly-batch takes a comma-separated list")
     p.add_argument("--config", default=None, help="perception config TOML, instead of --preset")
     p.add_argument("--rate", type=float, default=15.0, help="camera and control rate [Hz] (default 15)")
 

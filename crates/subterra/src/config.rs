@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{require_non_negative, require_positive, Error, Result};
 
 /// Names of the built-in presets, the default first.
-pub const PRESET_NAMES: [&str; 4] = ["flight", "cable", "flight-memory", "acc2021"];
+pub const PRESET_NAMES: [&str; 5] = ["flight", "cable", "flight-memory", "acc2021", "flight-escape"];
 
 /// Largest number of states (voxels + free) accepted; past this the grid is a mistake.
 const MAX_STATES: usize = 4_000_000;
@@ -258,6 +258,8 @@ pub struct EscapeConfig {
     pub release_m: f64,
     /// Following one side this long without release flips the side [s].
     pub side_timeout_s: f64,
+    /// A side that takes the remaining distance this much above where it began is flipped [m].
+    pub max_detour_m: f64,
     /// Flips after which following stops and the stall must be detected afresh.
     pub max_flips: u32,
     /// While following, the repulsion is capped at this times the attraction's full
@@ -278,6 +280,7 @@ impl Default for EscapeConfig {
             gain_per_m: 3.0,
             release_m: 0.3,
             side_timeout_s: 25.0,
+            max_detour_m: 3.0,
             max_flips: 1,
             follow_repulsion_ratio: 0.5,
         }
@@ -302,6 +305,7 @@ impl EscapeConfig {
         require_non_negative("escape.gain_per_m", self.gain_per_m)?;
         require_non_negative("escape.release_m", self.release_m)?;
         require_positive("escape.side_timeout_s", self.side_timeout_s)?;
+        require_positive("escape.max_detour_m", self.max_detour_m)?;
         require_non_negative("escape.follow_repulsion_ratio", self.follow_repulsion_ratio)?;
         Ok(())
     }
@@ -398,6 +402,15 @@ impl PerceptionConfig {
         config
     }
 
+    /// Preset `flight-escape` (subterra, the default of `subterra fly`): `flight-memory`
+    /// with the escape from local minima on ([`crate::apf::escape`]). With the waypoint
+    /// carrot of `subterra fly` it is the configuration measured best (docs/flight.md).
+    pub fn flight_escape() -> Self {
+        let mut config = Self::flight_memory();
+        config.escape.enabled = true;
+        config
+    }
+
     /// A preset by name (see [`PRESET_NAMES`]).
     pub fn preset(name: &str) -> Result<Self> {
         match name {
@@ -405,6 +418,7 @@ impl PerceptionConfig {
             "cable" => Ok(Self::cable()),
             "flight-memory" => Ok(Self::flight_memory()),
             "acc2021" => Ok(Self::acc2021()),
+            "flight-escape" => Ok(Self::flight_escape()),
             _ => Err(Error::UnknownPreset { name: name.to_owned(), known: PRESET_NAMES.join(", ") }),
         }
     }

@@ -46,7 +46,7 @@ def perception_config(preset: str, overrides: dict[str, Any] | None) -> Any:
     return PerceptionConfig.from_dict(_laid_over(PerceptionConfig.preset(preset).to_dict(), overrides))
 
 
-def fly_job(*, perception: dict[str, Any] | None = None, preset: str = "flight", **params: Any) -> FlightResult:
+def fly_job(*, perception: dict[str, Any] | None = None, preset: str = "flight-escape", **params: Any) -> FlightResult:
     """One flight of a batch: :func:`subterra.flight.fly` with ``params``, the perception
     config of ``preset`` with the ``perception`` overrides laid over it (a sweep's fields)."""
     return fly(preset=preset, config=perception_config(preset, perception), **params)
@@ -152,7 +152,7 @@ def fly_batch(
     *,
     controllers: Sequence[str] = ("apf-pf", "raw-apf"),
     noises: Sequence[str] = ("d435-phantom",),
-    preset: str | Sequence[str] = "flight",
+    preset: str | Sequence[str] = "flight-escape",
     rate_hz: float = 15.0,
     time_limit_s: float | None = None,
     workers: int | None = None,

@@ -248,7 +248,7 @@ def fly(
     *,
     controller: str = "apf-pf",
     noise: str = "d435",
-    preset: str = "flight",
+    preset: str = "flight-escape",
     config: PerceptionConfig | None = None,
     seed: int = 0,
     world: World | None = None,

@@ -29,9 +29,11 @@
 //!    points more toward the goal (the boundary on the robot's left, i.e. counter-clockwise
 //!    round it, on a tie, as in front of a pole straight ahead).
 //! 3. **Release** (following on): when the remaining distance is `release_m` below the
-//!    hit distance; the progress reference restarts from there. After `side_timeout_s`
-//!    without release the side flips (a U entered from the wrong side), and after
-//!    `max_flips` flips following stops and the stall must be detected afresh.
+//!    hit distance; the progress reference restarts from there. The side flips when it
+//!    leads away — the remaining distance `max_detour_m` above where this side began (a
+//!    tunnel wall followed back up the tunnel, a long wall's far end) — or after
+//!    `side_timeout_s` on it; after `max_flips` flips following stops and the stall must
+//!    be detected afresh.
 //! 4. **Follow.** With `n` the horizontal unit vector from the nearest known point to
 //!    the robot (the last one kept when none is in range; else the repulsion's direction;
 //!    else away from the goal) at distance `d`, and `t = side·(ẑ × n)` the tangent, the
@@ -95,6 +97,8 @@ pub struct Escape {
     hit_remaining_m: f64,
     standoff_m: f64,
     side_since_s: f64,
+    /// Remaining distance when the current side began.
+    side_remaining_m: f64,
     flips: u32,
     last_boundary: Option<DVec3>,
     engagements: u32,
@@ -121,6 +125,7 @@ impl Escape {
             hit_remaining_m: 0.0,
             standoff_m: 0.0,
             side_since_s: 0.0,
+            side_remaining_m: 0.0,
             flips: 0,
             last_boundary: None,
             engagements: 0,
@@ -225,6 +230,7 @@ impl Escape {
                         let d = nearest.map_or(c.max_standoff_m, |(_, d)| d);
                         self.standoff_m = d.clamp(c.min_standoff_m, c.max_standoff_m);
                         self.side_since_s = stamp_s;
+                        self.side_remaining_m = remaining_m;
                         self.flips = 0;
                         self.engagements += 1;
                         if let Some((p, _)) = nearest {
@@ -236,12 +242,13 @@ impl Escape {
                     // 3. Release.
                     if remaining_m < self.hit_remaining_m - c.release_m {
                         self.release(remaining_m, stamp_s);
-                    } else if stamp_s - self.side_since_s > c.side_timeout_s {
+                    } else if stamp_s - self.side_since_s > c.side_timeout_s || remaining_m > self.side_remaining_m + c.max_detour_m {
                         if self.flips >= c.max_flips {
                             self.release(remaining_m, stamp_s);
                         } else {
                             self.flips += 1;
                             self.side_since_s = stamp_s;
+                            self.side_remaining_m = remaining_m;
                             self.mode = if self.mode == EscapeMode::FollowLeft { EscapeMode::FollowRight } else { EscapeMode::FollowLeft };
                         }
                     }
@@ -412,6 +419,17 @@ mod tests {
         u.extend(segment((1.5, 1.5), (3.0, 1.5)));
         u.extend(segment((1.5, -1.5), (3.0, -1.5)));
         assert_trap("U", &u, (0.0, 0.0), (6.0, 0.0));
+    }
+
+    #[test]
+    fn a_long_wall_on_the_side_toward_the_goal_is_given_up_for_the_short_way() {
+        // The goal lies a little left, so the escape first follows the wall left, where it
+        // runs on for 8 m; past the detour limit it turns back and goes round the right end.
+        let points = segment((3.0, -1.0), (3.0, 8.0));
+        let plain = fly(&points, (0.0, 0.3), (6.0, 0.6), false, 150.0);
+        assert!(!plain.reached);
+        let free = fly(&points, (0.0, 0.3), (6.0, 0.6), true, 150.0);
+        assert!(free.reached && free.closest_m > ROBOT_RADIUS_M + 0.1, "reached {} closest {}", free.reached, free.closest_m);
     }
 
     #[test]
