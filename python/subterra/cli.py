@@ -91,7 +91,9 @@ def _parser() -> argparse.ArgumentParser:
     batch.add_argument("--routes", default="all", help="comma-separated routes or 'all' (default)")
     batch.add_argument("--seeds", type=int, default=50, help="seeds 0..N-1, one obstacle layout each (default 50)")
     batch.add_argument("--first-seed", type=int, default=0, help="start the seeds here (default 0)")
-    batch.add_argument("--controllers", default="apf-pf,raw-apf", help="comma-separated (default apf-pf,raw-apf)")
+    batch.add_argument("--controllers", default="apf-pf,raw-apf@flight",
+                       help="comma-separated; name@preset flies that preset whatever --preset says "
+                            "(default apf-pf,raw-apf@flight: the paper's raw-APF baseline beside --preset's APF-PF)")
     batch.add_argument("--noise", default="d435-phantom", help="comma-separated noise models (default d435-phantom)")
     batch.add_argument("--no-plots", action="store_true", help="skip the path figure")
     add_engine_options(batch, unit="flight")

@@ -173,9 +173,11 @@ def test_run_folder_has_every_file(easy_flight, tmp_path):
 def test_batch_summarises_both_controllers(tmp_path):
     world_routes = ["A-B"]
     log = tmp_path / "flights.jsonl"
-    b = flight.fly_batch("highbay", world_routes, [7], controllers=("apf-pf", "raw-apf"), noises=("none",),
+    b = flight.fly_batch("highbay", world_routes, [7], controllers=("apf-pf", "raw-apf@flight"), noises=("none",),
                          workers=2, progress=False, rate_hz=10.0, time_limit_s=25.0, log_path=log)
     assert len(b.rows) == 2
+    # The default preset for apf-pf; raw-apf pinned to the paper's (no memory, no escape).
+    assert {(r["controller"], r["preset"]) for r in b.rows} == {("apf-pf", "flight-escape"), ("raw-apf", "flight")}
     # Every flight is logged as it finishes (an interrupted batch keeps what it flew).
     logged = [json.loads(line) for line in log.read_text().splitlines()]
     assert sorted(logged, key=lambda r: r["job"]) == sorted(b.rows, key=lambda r: r["job"])

@@ -39,7 +39,8 @@
 //!    else away from the goal) at distance `d`, and `t = side·(ẑ × n)` the tangent, the
 //!    target lies 1 m along `t + clamp(gain·(standoff - d), -1, 1)·n` (normalised), at the
 //!    goal's height difference capped to that metre: the robot circles the boundary at the
-//!    standoff. The repulsion still acts, capped at `follow_repulsion_ratio` times the
+//!    standoff. When the nearest point jumps to another obstacle (a tube's far wall) the
+//!    tangent that keeps the direction of travel is taken, and the side with it. The repulsion still acts, capped at `follow_repulsion_ratio` times the
 //!    attraction's full strength `ρ_r·ξ`: near an obstacle the field's push is what held
 //!    the robot in the minimum (0.3-0.7 N against a 0.2 N pull, so the forward speed of
 //!    eq. 10 is 0), and the boundary term keeps the distance instead.
@@ -101,6 +102,8 @@ pub struct Escape {
     side_remaining_m: f64,
     flips: u32,
     last_boundary: Option<DVec3>,
+    /// The tangent followed on the last step (horizontal, unit).
+    heading: Option<DVec3>,
     engagements: u32,
     last_stamp_s: Option<f64>,
 }
@@ -128,6 +131,7 @@ impl Escape {
             side_remaining_m: 0.0,
             flips: 0,
             last_boundary: None,
+            heading: None,
             engagements: 0,
             last_stamp_s: None,
         }
@@ -232,6 +236,7 @@ impl Escape {
                         self.side_since_s = stamp_s;
                         self.side_remaining_m = remaining_m;
                         self.flips = 0;
+                        self.heading = None;
                         self.engagements += 1;
                         if let Some((p, _)) = nearest {
                             self.last_boundary = Some(p);
@@ -250,6 +255,7 @@ impl Escape {
                             self.side_since_s = stamp_s;
                             self.side_remaining_m = remaining_m;
                             self.mode = if self.mode == EscapeMode::FollowLeft { EscapeMode::FollowRight } else { EscapeMode::FollowLeft };
+                            self.heading = self.heading.map(|h| -h);
                         }
                     }
                 }
@@ -276,7 +282,16 @@ impl Escape {
         let to_goal = horizontal(goal_world - position);
         let n = self.normal(position, nearest.or(self.last_boundary.map(|p| (p, horizontal(position - p).length()))), repulsive_world, to_goal);
         let d = self.last_boundary.map_or(self.standoff_m, |p| horizontal(position - p).length());
-        let tangent = side * DVec3::Z.cross(n);
+        let mut tangent = side * DVec3::Z.cross(n);
+        // The way round goes on: when the nearest point jumps to another obstacle (the far
+        // wall of a tube), keep the direction of travel, not the side the boundary is on.
+        if let Some(heading) = self.heading {
+            if tangent.dot(heading) < 0.0 {
+                tangent = -tangent;
+                self.mode = if self.mode == EscapeMode::FollowLeft { EscapeMode::FollowRight } else { EscapeMode::FollowLeft };
+            }
+        }
+        self.heading = Some(tangent);
         let pull = (c.gain_per_m * (self.standoff_m - d)).clamp(-1.0, 1.0);
         let direction = (tangent + pull * n).normalize_or_zero();
         let climb = (goal_world.z - position.z).clamp(-TARGET_DISTANCE_M, TARGET_DISTANCE_M);
@@ -297,6 +312,7 @@ impl Escape {
         self.mode = EscapeMode::Goal;
         self.reference = Some((remaining_m, stamp_s));
         self.last_boundary = None;
+        self.heading = None;
     }
 
     /// The horizontal unit vector from the boundary to the robot (module docs, step 4).
