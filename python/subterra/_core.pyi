@@ -148,6 +148,57 @@ class ObstacleMemory:
     def weights(self) -> npt.NDArray[np.float64]: ...
     def __len__(self) -> int: ...
 
+class EscapeOutput:
+    @property
+    def goal_body(self) -> npt.NDArray[np.float64]:
+        """The goal to attract toward, body frame [m]: the real goal, or the boundary target."""
+    @property
+    def mode(self) -> str:
+        """``"goal"``, ``"follow-left"`` or ``"follow-right"``."""
+    @property
+    def active(self) -> bool: ...
+    @property
+    def boundary_world(self) -> npt.NDArray[np.float64] | None: ...
+    @property
+    def repulsive_body(self) -> npt.NDArray[np.float64]:
+        """The repulsion the command should use, body frame [N] (capped while following)."""
+    @property
+    def engagements(self) -> int: ...
+
+class Escape:
+    """Escape from local minima by boundary following (settings: the config's ``escape`` section)."""
+
+    def __init__(self, preset: str = "flight", *, config: PerceptionConfig | None = None) -> None: ...
+    def step(
+        self,
+        *,
+        stamp: float,
+        world_from_body: npt.ArrayLike,
+        goal_world: npt.ArrayLike,
+        remaining_m: float,
+        memory: ObstacleMemory | None = None,
+        repulsive_body: npt.ArrayLike | None = None,
+    ) -> EscapeOutput: ...
+    def reset(self) -> None: ...
+
+class CarrotOutput:
+    @property
+    def carrot_world(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def progress_m(self) -> float: ...
+    @property
+    def remaining_m(self) -> float: ...
+
+class PathFollower:
+    """A carrot ``lookahead_m`` ahead along a path of waypoints (world frame)."""
+
+    def __init__(self, path: npt.ArrayLike, *, lookahead_m: float = 1.5) -> None: ...
+    def update(self, position_world: npt.ArrayLike) -> CarrotOutput: ...
+    def points(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def length_m(self) -> float: ...
+    def reset(self) -> None: ...
+
 class Command:
     @property
     def v_x(self) -> float: ...

@@ -27,9 +27,11 @@ def _goal(text: str) -> tuple[float, float, float]:
 
 def _flight_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="highbay", help="built-in scenario with routes: highbay (default) or tunnel")
-    p.add_argument("--preset", default="flight",
-                   help="perception preset: flight (default, the paper's), flight-memory (sigma_o 300 and an obstacle "
-                        "memory), cable; fly-batch takes a comma-separated list")
+    p.add_argument("--preset", default="flight-escape",
+                   help="perception preset: flight-escape (default: flight-memory with the escape from local minima), "
+                        "acc2021 (the paper exactly, with the authors' conventions), flight (the paper's values with "
+                        "subterra's conventions), flight-memory (sigma_o 300 and an obstacle memory), cable; "
+                        "fly-batch takes a comma-separated list")
     p.add_argument("--config", default=None, help="perception config TOML, instead of --preset")
     p.add_argument("--rate", type=float, default=15.0, help="camera and control rate [Hz] (default 15)")
 
@@ -89,7 +91,9 @@ def _parser() -> argparse.ArgumentParser:
     batch.add_argument("--routes", default="all", help="comma-separated routes or 'all' (default)")
     batch.add_argument("--seeds", type=int, default=50, help="seeds 0..N-1, one obstacle layout each (default 50)")
     batch.add_argument("--first-seed", type=int, default=0, help="start the seeds here (default 0)")
-    batch.add_argument("--controllers", default="apf-pf,raw-apf", help="comma-separated (default apf-pf,raw-apf)")
+    batch.add_argument("--controllers", default="apf-pf,raw-apf@flight",
+                       help="comma-separated; name@preset flies that preset whatever --preset says "
+                            "(default apf-pf,raw-apf@flight: the paper's raw-APF baseline beside --preset's APF-PF)")
     batch.add_argument("--noise", default="d435-phantom", help="comma-separated noise models (default d435-phantom)")
     batch.add_argument("--no-plots", action="store_true", help="skip the path figure")
     add_engine_options(batch, unit="flight")

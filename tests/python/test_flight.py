@@ -104,7 +104,9 @@ def test_same_seed_same_flight():
 @pytest.mark.parametrize("controller", ["apf-pf", "raw-apf"])
 def test_wall_ahead_stops_or_turns_before_contact(controller):
     world = sim.World.from_toml(WALL_AHEAD)
-    r = flight.fly(world=world, route="S-G", controller=controller, noise="none", seed=0, time_limit_s=30.0, stall_window_s=5.0)
+    # The paper's plain field (no escape): it stalls in front of the wall.
+    r = flight.fly(world=world, route="S-G", controller=controller, noise="none", seed=0, time_limit_s=30.0, stall_window_s=5.0,
+                   preset="flight")
     assert r.metrics["collisions"] == 0, r.summary()
     assert not r.success
     assert r.failure in ("local_minimum", "timeout")
@@ -113,6 +115,30 @@ def test_wall_ahead_stops_or_turns_before_contact(controller):
     assert r.path[:, 0].max() < 2.9 - 0.27
     # The repulsion acted: the last commands do not push forward into the wall.
     assert r.frames["repulsive_norm"][-10:].min() > 0.0
+
+
+#: A wall 2 m wide across the way in a room 8 m wide: there is a way round it.
+SHORT_WALL_AHEAD = (
+    EASY_ROOM.replace("centre = [4.0, -0.1, 1.5]", "centre = [4.0, -2.1, 1.5]")
+    .replace("centre = [4.0, 4.1, 1.5]", "centre = [4.0, 6.1, 1.5]")
+    .replace("centre = [-0.1, 2.0, 1.5]\nsize = [0.2, 4.0, 3.0]", "centre = [-0.1, 2.0, 1.5]\nsize = [0.2, 8.0, 3.0]")
+    .replace("centre = [8.1, 2.0, 1.5]\nsize = [0.2, 4.0, 3.0]", "centre = [8.1, 2.0, 1.5]\nsize = [0.2, 8.0, 3.0]")
+    .replace('[[cylinder]]\na = [4.0, 2.35, 0.0]\nb = [4.0, 2.35, 3.0]\nradius = 0.045\ntag = "pole"',
+             '[[box]]\ncentre = [3.0, 2.0, 1.5]\nsize = [0.2, 2.0, 3.0]\ntag = "wall"')
+)
+
+
+def test_the_escape_goes_round_a_wall_the_plain_field_stalls_at():
+    world = sim.World.from_toml(SHORT_WALL_AHEAD)
+    plain = flight.fly(world=world, route="S-G", noise="none", seed=0, time_limit_s=60.0, stall_window_s=5.0, preset="flight")
+    assert not plain.success and plain.failure == "local_minimum", plain.summary()
+    r = flight.fly(world=world, route="S-G", noise="none", seed=0, time_limit_s=60.0, preset="flight-escape")
+    assert r.metrics["collisions"] == 0, r.summary()
+    assert r.frames["escape_active"].any() and r.metrics["escape_frames"] > 0
+    assert r.success, r.summary()
+    # Round one of the wall's ends (y = 1 or 3 m), not through it.
+    crossing = r.path[np.argmax(r.path[:, 0] > 3.0)]
+    assert abs(crossing[1] - 2.0) > 1.0 + 0.27, crossing
 
 
 def test_raw_apf_runs_through_the_same_interface(easy_flight):
@@ -147,9 +173,11 @@ def test_run_folder_has_every_file(easy_flight, tmp_path):
 def test_batch_summarises_both_controllers(tmp_path):
     world_routes = ["A-B"]
     log = tmp_path / "flights.jsonl"
-    b = flight.fly_batch("highbay", world_routes, [7], controllers=("apf-pf", "raw-apf"), noises=("none",),
+    b = flight.fly_batch("highbay", world_routes, [7], controllers=("apf-pf", "raw-apf@flight"), noises=("none",),
                          workers=2, progress=False, rate_hz=10.0, time_limit_s=25.0, log_path=log)
     assert len(b.rows) == 2
+    # The default preset for apf-pf; raw-apf pinned to the paper's (no memory, no escape).
+    assert {(r["controller"], r["preset"]) for r in b.rows} == {("apf-pf", "flight-escape"), ("raw-apf", "flight")}
     # Every flight is logged as it finishes (an interrupted batch keeps what it flew).
     logged = [json.loads(line) for line in log.read_text().splitlines()]
     assert sorted(logged, key=lambda r: r["job"]) == sorted(b.rows, key=lambda r: r["job"])

@@ -67,10 +67,15 @@ class Setup:
         return apf_pf.ReferencePipeline(self.camera_dict, with_changes(self.cfg, **changes), self.body_from_camera)
 
 
-@pytest.fixture(scope="module", params=["flight-d435", "small"])
+@pytest.fixture(scope="module", params=["flight-d435", "small", "small-acc2021"])
 def setup(request, d435):
     if request.param == "flight-d435":
         return Setup(camera_dict(d435), config_dict("flight"))
+    if request.param == "small-acc2021":
+        # The authors' conventions: s_free at depth 0, repulsion from the near corner.
+        sections = {**SMALL_SECTIONS, "transition": {**SMALL_SECTIONS["transition"], "free_state_depth": "zero"},
+                    "apf": {**SMALL_SECTIONS["apf"], "voxel_position": "near-corner"}}
+        return Setup(SMALL_CAMERA, config_dict("acc2021", **sections), SMALL_BODY_FROM_CAMERA)
     return Setup(SMALL_CAMERA, config_dict("flight", **SMALL_SECTIONS), SMALL_BODY_FROM_CAMERA)
 
 

@@ -339,6 +339,33 @@ def test_empty_frame_bootstrap_misses_free_state(flight):
     assert min(defensive) > 0.99
 
 
+def test_empty_frame_bootstrap_with_free_state_at_depth_zero():
+    """The authors' convention (preset acc2021: s_free at depth 0, the plain bootstrap
+    filter, multinomial): ~90 particles reach the free state per frame, so one empty frame
+    gives P(free) = 1 for every seed without any extra proposal."""
+    acc = apf_pf.preset("acc2021")
+    assert acc["filter"]["free_proposal_min"] == 0.0 and acc["transition"]["free_state_depth"] == "zero"
+    p_free = [apf_pf.ReferencePipeline(CAM, acc, seed=s).update(blank(), 0.001)["p_free"] for s in range(10)]
+    assert min(p_free) > 0.99
+    T = apf_pf.transition_matrix(acc, CAM)
+    T_horizon = apf_pf.transition_matrix(with_changes(acc, transition={"free_state_depth": "horizon"}), CAM)
+    # Voxel -> free is e^{+4.5}-ish more likely at depth 0 than at the horizon (d_max = 1.2, sigma_z = 0.4).
+    ratio = T[:-1, -1].mean() / T_horizon[:-1, -1].mean()
+    assert 40 < ratio < 120, ratio
+
+
+def test_near_corner_voxel_points(flight):
+    """apf.voxel_position = near-corner: the block's top-left pixel at the bin's near edge."""
+    acc = with_changes(flight, apf={"voxel_position": "near-corner"})
+    pts = apf_pf.voxel_points_body(acc, CAM, np.eye(4))
+    s = apf_pf.state_id(6, 4, 9, flight, CAM)
+    fx, fy, cx, cy = (CAM[k] for k in ("fx", "fy", "cx", "cy"))
+    np.testing.assert_allclose(pts[s], [(300 - cx) * 1.0 / fx, (200 - cy) * 1.0 / fy, 1.0], atol=1e-12)
+    np.testing.assert_allclose(apf_pf.voxel_points_body(flight, CAM, np.eye(4)), apf_pf.voxel_centers_body(flight, CAM, np.eye(4)))
+    with pytest.raises(ValueError, match="voxel_position"):
+        apf_pf.voxel_points_body(with_changes(flight, apf={"voxel_position": "middle"}), CAM)
+
+
 def test_histogram_update_by_hand():
     T = np.array([[0.5, 0.5], [0.25, 0.75]])
     b = apf_pf.histogram_update(np.array([1.0, 0.0]), T, np.log([2.0, 1.0]))

@@ -15,6 +15,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use subterra::config::{FilterMode, PerceptionConfig, PRESET_NAMES};
 use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, VoxelIndex};
+use subterra::apf::carrot::{CarrotOutput, PathFollower};
+use subterra::apf::escape::{Escape, EscapeMode, EscapeOutput};
 use subterra::apf::memory::{MemoryOutput, ObstacleMemory};
 use subterra::{ApfController, Command, Isometry3, PinholeCamera};
 
@@ -630,6 +632,183 @@ impl PyApfController {
     }
 }
 
+/// What one `Escape.step` gives.
+#[pyclass(name = "EscapeOutput", module = "subterra._core", frozen)]
+struct PyEscapeOutput {
+    inner: EscapeOutput,
+}
+
+#[pymethods]
+impl PyEscapeOutput {
+    /// The goal to attract toward, body frame [m]: the real goal, or the boundary target.
+    #[getter]
+    fn goal_body<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.goal_body)
+    }
+    /// `"goal"`, `"follow-left"` or `"follow-right"`.
+    #[getter]
+    fn mode(&self) -> &'static str {
+        match self.inner.mode {
+            EscapeMode::Goal => "goal",
+            EscapeMode::FollowLeft => "follow-left",
+            EscapeMode::FollowRight => "follow-right",
+        }
+    }
+    /// Whether the boundary is being followed.
+    #[getter]
+    fn active(&self) -> bool {
+        self.inner.mode != EscapeMode::Goal
+    }
+    /// The boundary point followed, world frame [m], or None.
+    #[getter]
+    fn boundary_world<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
+        self.inner.boundary_world.map(|p| array3(py, p))
+    }
+    /// The repulsion the command should use, body frame [N] (capped while following).
+    #[getter]
+    fn repulsive_body<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.repulsive_body)
+    }
+    /// How many times following has engaged so far.
+    #[getter]
+    fn engagements(&self) -> u32 {
+        self.inner.engagements
+    }
+    fn __repr__(&self) -> String {
+        format!("EscapeOutput(mode={:?}, engagements={})", self.mode(), self.inner.engagements)
+    }
+}
+
+/// Escape from local minima by boundary following: `step(...)` per control step.
+#[pyclass(name = "Escape", module = "subterra._core")]
+struct PyEscape {
+    inner: Escape,
+}
+
+#[pymethods]
+impl PyEscape {
+    /// An escape with the `escape` settings of `preset` (or of `config`).
+    #[new]
+    #[pyo3(signature = (preset = "flight", *, config = None))]
+    fn new(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
+        let config = resolve_config(py, preset, config)?;
+        Ok(Self { inner: Escape::new(config.escape, &config.apf).py_err(py)? })
+    }
+
+    /// One step at `stamp` [s] with the odometry pose `world_from_body` (4x4), the goal (or
+    /// carrot) `goal_world` [m], the distance still to go `remaining_m`, the obstacle
+    /// `memory` (its points are the boundary; None: only `repulsive_body` tells where the
+    /// obstacle is) and the repulsion the command will use, body frame [N].
+    #[pyo3(signature = (*, stamp, world_from_body, goal_world, remaining_m, memory = None, repulsive_body = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &mut self,
+        py: Python<'_>,
+        stamp: f64,
+        world_from_body: &Bound<'_, PyAny>,
+        goal_world: &Bound<'_, PyAny>,
+        remaining_m: f64,
+        memory: Option<&PyObstacleMemory>,
+        repulsive_body: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<PyEscapeOutput> {
+        let pose = isometry(py, "world_from_body", world_from_body)?;
+        let goal = vec3(py, "goal_world", goal_world)?;
+        let repulsion = match repulsive_body {
+            Some(r) => vec3(py, "repulsive_body", r)?,
+            None => glam::DVec3::ZERO,
+        };
+        let points: Vec<glam::DVec3> = memory.map_or_else(Vec::new, |m| m.inner.obstacles().map(|c| c.point_world).collect());
+        Ok(PyEscapeOutput { inner: self.inner.step(stamp, &pose, goal, remaining_m, &points, repulsion).py_err(py)? })
+    }
+
+    /// Starts afresh.
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+
+    fn __repr__(&self) -> String {
+        let c = self.inner.config();
+        format!("Escape(enabled={}, stall_s={}, release_m={})", if c.enabled { "True" } else { "False" }, c.stall_s, c.release_m)
+    }
+}
+
+/// What one `PathFollower.update` gives.
+#[pyclass(name = "CarrotOutput", module = "subterra._core", frozen)]
+struct PyCarrotOutput {
+    inner: CarrotOutput,
+}
+
+#[pymethods]
+impl PyCarrotOutput {
+    /// The point to pull toward, world frame [m].
+    #[getter]
+    fn carrot_world<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        array3(py, self.inner.carrot_world)
+    }
+    /// Arc length reached along the path [m].
+    #[getter]
+    fn progress_m(&self) -> f64 {
+        self.inner.progress_m
+    }
+    /// Distance still to go along the path [m].
+    #[getter]
+    fn remaining_m(&self) -> f64 {
+        self.inner.remaining_m
+    }
+    fn __repr__(&self) -> String {
+        let c = self.inner.carrot_world;
+        format!("CarrotOutput(carrot_world=[{:.3}, {:.3}, {:.3}], progress_m={:.3}, remaining_m={:.3})", c.x, c.y, c.z, self.inner.progress_m, self.inner.remaining_m)
+    }
+}
+
+/// A carrot `lookahead_m` ahead along a path of waypoints: `update(position_world)` per step.
+#[pyclass(name = "PathFollower", module = "subterra._core")]
+struct PyPathFollower {
+    inner: PathFollower,
+}
+
+#[pymethods]
+impl PyPathFollower {
+    /// `path`: at least two points, shape `(N, 3)` [m, world].
+    #[new]
+    #[pyo3(signature = (path, *, lookahead_m = subterra::apf::carrot::DEFAULT_LOOKAHEAD_M))]
+    fn new(py: Python<'_>, path: &Bound<'_, PyAny>, lookahead_m: f64) -> PyResult<Self> {
+        let items = path.try_iter().map_err(|_| input_error(py, format!("argument `path` must be a sequence of 3-vectors, got {}", convert::type_name(path))))?;
+        let mut points = Vec::new();
+        for (n, item) in items.enumerate() {
+            points.push(vec3(py, &format!("path[{n}]"), &item?)?);
+        }
+        Ok(Self { inner: PathFollower::new(&points, lookahead_m).py_err(py)? })
+    }
+
+    /// The carrot for the robot at `position_world` (3 numbers [m]).
+    fn update(&mut self, py: Python<'_>, position_world: &Bound<'_, PyAny>) -> PyResult<PyCarrotOutput> {
+        let p = vec3(py, "position_world", position_world)?;
+        Ok(PyCarrotOutput { inner: self.inner.update(p).py_err(py)? })
+    }
+
+    /// The path's points, shape `(N, 3)`.
+    fn points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let flat: Vec<f64> = self.inner.points().iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+        flat.into_pyarray(py).reshape([self.inner.points().len(), 3])
+    }
+
+    /// The path's length [m].
+    #[getter]
+    fn length_m(&self) -> f64 {
+        self.inner.length_m()
+    }
+
+    /// Starts again from the first point.
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+
+    fn __repr__(&self) -> String {
+        format!("PathFollower(points={}, length_m={:.3}, lookahead_m={})", self.inner.points().len(), self.inner.length_m(), self.inner.lookahead_m())
+    }
+}
+
 /// Names of the built-in presets, the default first.
 #[pyfunction]
 fn preset_names() -> Vec<&'static str> {
@@ -648,6 +827,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyCommand>()?;
     m.add_class::<PyObstacleMemory>()?;
     m.add_class::<PyMemoryOutput>()?;
+    m.add_class::<PyEscape>()?;
+    m.add_class::<PyEscapeOutput>()?;
+    m.add_class::<PyPathFollower>()?;
+    m.add_class::<PyCarrotOutput>()?;
     m.add_function(wrap_pyfunction!(preset_names, m)?)?;
     sim::register(m)?;
     terrain::register(m)?;

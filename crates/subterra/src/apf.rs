@@ -4,8 +4,12 @@
 //! In: the goal relative to the robot in the body frame, and the repulsive forces of one
 //! or more cameras' perception (already belief-weighted, in the body frame). Out: a
 //! [`Command`]. [`memory`] keeps where the belief put obstacles, so that they still repel
-//! out of view (subterra).
+//! out of view, [`escape`] gets the robot out of the field's local minima by following
+//! the remembered obstacles' boundary, and [`carrot`] leads it along a path of waypoints
+//! (all three subterra).
 
+pub mod carrot;
+pub mod escape;
 pub mod memory;
 
 use std::f64::consts::PI;

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{require_non_negative, require_positive, Error, Result};
 
 /// Names of the built-in presets, the default first.
-pub const PRESET_NAMES: [&str; 3] = ["flight", "cable", "flight-memory"];
+pub const PRESET_NAMES: [&str; 5] = ["flight", "cable", "flight-memory", "acc2021", "flight-escape"];
 
 /// Largest number of states (voxels + free) accepted; past this the grid is a mistake.
 const MAX_STATES: usize = 4_000_000;
@@ -41,6 +41,23 @@ pub struct GridConfig {
     pub depth_max_m: f64,
 }
 
+/// Where the transition model puts the free state along the depth axis, i.e. the depth
+/// `z(s_free)` of its bias factor `hn(z(s_free); σ_z)`. The paper does not say.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FreeStateDepth {
+    /// At depth 0, factor 1: the authors' code stores `s_free` as the point (0, 0, 0)
+    /// (apf_pf, `discretize_image`). The free state is then about as reachable as the
+    /// nearest voxels (`flight`: voxel -> free ~4e-3 per frame).
+    Zero,
+    /// At the sensing horizon `d_max`, factor `e^{-d_max²/2σ_z²}` (e^-4.5 at `flight`;
+    /// subterra's first reading: "no obstacle inside the horizon"). Free transitions are
+    /// ~80x rarer (~6e-5 per frame at `flight`). Kept as an option; the default of a
+    /// config file that does not name the field, so older files keep their meaning.
+    #[default]
+    Horizon,
+}
+
 /// Transition model `T(s -> s') ∝ hn(L1; σ_s)·hn(z(s'); σ_z)`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -49,6 +66,10 @@ pub struct TransitionConfig {
     pub sigma_s_voxels: f64,
     /// σ_z [m]: spread of the bias toward near target voxels. Paper §V: 0.4.
     pub sigma_z_m: f64,
+    /// Depth of the free state in the depth bias (`zero`: the authors' code; `horizon`:
+    /// subterra's earlier convention, the default when a file leaves it out).
+    #[serde(default)]
+    pub free_state_depth: FreeStateDepth,
 }
 
 /// Observation model: normal pdfs over per-voxel point counts.
@@ -113,6 +134,21 @@ pub enum CommandMode {
     Holonomic,
 }
 
+/// Which point of a voxel its repulsive force comes from. The paper does not say.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum VoxelPosition {
+    /// The block's top-left corner pixel `(i·k_w, j·k_h)` back-projected at the bin's near
+    /// edge `d_min + k·k_d`: the authors' code (apf_pf, `discretize_image`). The conservative
+    /// distance: at `flight` the repulsion of a voxel 1 m ahead is ~38% stronger than from
+    /// its centre.
+    NearCorner,
+    /// The block's centre pixel at the bin's centre depth (subterra's earlier convention;
+    /// the default when a file leaves it out).
+    #[default]
+    Centre,
+}
+
 /// Artificial potential fields and command limits.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -137,6 +173,10 @@ pub struct ApfConfig {
     pub success_radius_m: f64,
     /// `|x|` is clamped below at this in the repulsion, so it stays finite [m] (subterra).
     pub min_distance_m: f64,
+    /// The point of a voxel its repulsion comes from (`near-corner`: the authors' code;
+    /// `centre`: subterra's earlier convention, the default when a file leaves it out).
+    #[serde(default)]
+    pub voxel_position: VoxelPosition,
 }
 
 /// The obstacle memory ([`crate::apf::memory`]; subterra, not in the paper): where the
@@ -192,6 +232,85 @@ impl MemoryConfig {
     }
 }
 
+/// Escape from local minima by boundary following ([`crate::apf::escape`]; subterra, not in
+/// the paper).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EscapeConfig {
+    /// Whether a flight runs the escape. Off in the paper's presets.
+    pub enabled: bool,
+    /// No progress for this long engages the escape [s] (well below the 10 s after which a
+    /// flight counts as stuck).
+    pub stall_s: f64,
+    /// Progress: the remaining distance falling by at least this much [m].
+    pub progress_m: f64,
+    /// Remembered points within this horizontal distance are the boundary followed [m].
+    pub follow_range_m: f64,
+    /// ... and within this height of the robot [m].
+    pub z_band_m: f64,
+    /// Smallest distance kept from the boundary while following [m].
+    pub min_standoff_m: f64,
+    /// Largest distance kept from the boundary while following [m].
+    pub max_standoff_m: f64,
+    /// How hard the following turns toward the standoff, per metre off it [1/m].
+    pub gain_per_m: f64,
+    /// Released when the remaining distance is this much below that at the hit point [m].
+    pub release_m: f64,
+    /// Following one side this long without release flips the side [s].
+    pub side_timeout_s: f64,
+    /// A side that takes the remaining distance this much above where it began is flipped [m].
+    pub max_detour_m: f64,
+    /// Flips after which following stops and the stall must be detected afresh.
+    pub max_flips: u32,
+    /// While following, the repulsion is capped at this times the attraction's full
+    /// strength `ρ_r·ξ` (the boundary term keeps the distance instead).
+    pub follow_repulsion_ratio: f64,
+}
+
+impl Default for EscapeConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            stall_s: 3.0,
+            progress_m: 0.2,
+            follow_range_m: 1.5,
+            z_band_m: 0.6,
+            min_standoff_m: 0.55,
+            max_standoff_m: 0.8,
+            gain_per_m: 3.0,
+            release_m: 0.3,
+            side_timeout_s: 25.0,
+            max_detour_m: 3.0,
+            max_flips: 1,
+            follow_repulsion_ratio: 0.5,
+        }
+    }
+}
+
+impl EscapeConfig {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<()> {
+        require_positive("escape.stall_s", self.stall_s)?;
+        require_non_negative("escape.progress_m", self.progress_m)?;
+        require_positive("escape.follow_range_m", self.follow_range_m)?;
+        require_positive("escape.z_band_m", self.z_band_m)?;
+        require_positive("escape.min_standoff_m", self.min_standoff_m)?;
+        if !(self.max_standoff_m >= self.min_standoff_m && self.max_standoff_m <= self.follow_range_m) {
+            return Err(Error::config(
+                "escape.max_standoff_m",
+                format!("must be in [escape.min_standoff_m = {}, escape.follow_range_m = {}]", self.min_standoff_m, self.follow_range_m),
+                self.max_standoff_m,
+            ));
+        }
+        require_non_negative("escape.gain_per_m", self.gain_per_m)?;
+        require_non_negative("escape.release_m", self.release_m)?;
+        require_positive("escape.side_timeout_s", self.side_timeout_s)?;
+        require_positive("escape.max_detour_m", self.max_detour_m)?;
+        require_non_negative("escape.follow_repulsion_ratio", self.follow_repulsion_ratio)?;
+        Ok(())
+    }
+}
+
 /// Everything APF-PF needs besides the camera: one preset.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -209,6 +328,9 @@ pub struct PerceptionConfig {
     /// Obstacle memory (subterra); absent from a file = the defaults, off.
     #[serde(default)]
     pub memory: MemoryConfig,
+    /// Escape from local minima (subterra); absent from a file = the defaults, off.
+    #[serde(default)]
+    pub escape: EscapeConfig,
 }
 
 impl Default for PerceptionConfig {
@@ -228,7 +350,7 @@ impl PerceptionConfig {
                 depth_min_m: 0.1,
                 depth_max_m: 1.2,
             },
-            transition: TransitionConfig { sigma_s_voxels: 8.0, sigma_z_m: 0.4 },
+            transition: TransitionConfig { sigma_s_voxels: 8.0, sigma_z_m: 0.4, free_state_depth: FreeStateDepth::Horizon },
             observation: ObservationConfig { sigma_o_points: 170.0, sigma_n_points: 60.0 },
             filter: FilterConfig { mode: FilterMode::Particle, particles: 20_000, resampling: Resampling::Systematic, free_proposal_min: 0.05 },
             apf: ApfConfig {
@@ -242,8 +364,10 @@ impl PerceptionConfig {
                 mode: CommandMode::Nonholonomic,
                 success_radius_m: 0.3,
                 min_distance_m: 0.05,
+                voxel_position: VoxelPosition::Centre,
             },
             memory: MemoryConfig::default(),
+            escape: EscapeConfig::default(),
         }
     }
 
@@ -265,12 +389,36 @@ impl PerceptionConfig {
         config
     }
 
+    /// Preset `acc2021`: the paper (ACC 2021, §V-B) as the authors' code runs it: the
+    /// `flight` values with the free state at depth 0 in the transition model, each
+    /// voxel's repulsion from its block's corner pixel at its bin's near edge, the plain
+    /// bootstrap proposal (`free_proposal_min = 0`) and multinomial resampling.
+    pub fn acc2021() -> Self {
+        let mut config = Self::flight();
+        config.transition.free_state_depth = FreeStateDepth::Zero;
+        config.apf.voxel_position = VoxelPosition::NearCorner;
+        config.filter.free_proposal_min = 0.0;
+        config.filter.resampling = Resampling::Multinomial;
+        config
+    }
+
+    /// Preset `flight-escape` (subterra, the default of `subterra fly`): `flight-memory`
+    /// with the escape from local minima on ([`crate::apf::escape`]). With the waypoint
+    /// carrot of `subterra fly` it is the configuration measured best (docs/flight.md).
+    pub fn flight_escape() -> Self {
+        let mut config = Self::flight_memory();
+        config.escape.enabled = true;
+        config
+    }
+
     /// A preset by name (see [`PRESET_NAMES`]).
     pub fn preset(name: &str) -> Result<Self> {
         match name {
             "flight" => Ok(Self::flight()),
             "cable" => Ok(Self::cable()),
             "flight-memory" => Ok(Self::flight_memory()),
+            "acc2021" => Ok(Self::acc2021()),
+            "flight-escape" => Ok(Self::flight_escape()),
             _ => Err(Error::UnknownPreset { name: name.to_owned(), known: PRESET_NAMES.join(", ") }),
         }
     }
@@ -347,6 +495,7 @@ impl PerceptionConfig {
         require_positive("apf.min_distance_m", a.min_distance_m)?;
         let strongest = a.eta * (1.0 / a.min_distance_m - 1.0 / a.rho_0_m).max(0.0) / (a.min_distance_m * a.min_distance_m);
         self.memory.validate()?;
+        self.escape.validate()?;
         if !(strongest.is_finite() && strongest <= MAX_REPULSION) {
             return Err(Error::config(
                 "apf.eta",

@@ -5,6 +5,6 @@ thin-cable test of the APF-PF paper (`cable_test`)."""
 from __future__ import annotations
 
 from subterra.flight.batch import BatchResult, fly_batch
-from subterra.flight.run import CONTROLLERS, FlightResult, fly, resolve_route
+from subterra.flight.run import CONTROLLERS, FlightResult, fly, resolve_path, resolve_route
 
-__all__ = ["CONTROLLERS", "BatchResult", "FlightResult", "fly", "fly_batch", "resolve_route"]
+__all__ = ["CONTROLLERS", "BatchResult", "FlightResult", "fly", "fly_batch", "resolve_path", "resolve_route"]

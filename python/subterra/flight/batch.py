@@ -46,7 +46,7 @@ def perception_config(preset: str, overrides: dict[str, Any] | None) -> Any:
     return PerceptionConfig.from_dict(_laid_over(PerceptionConfig.preset(preset).to_dict(), overrides))
 
 
-def fly_job(*, perception: dict[str, Any] | None = None, preset: str = "flight", **params: Any) -> FlightResult:
+def fly_job(*, perception: dict[str, Any] | None = None, preset: str = "flight-escape", **params: Any) -> FlightResult:
     """One flight of a batch: :func:`subterra.flight.fly` with ``params``, the perception
     config of ``preset`` with the ``perception`` overrides laid over it (a sweep's fields)."""
     return fly(preset=preset, config=perception_config(preset, perception), **params)
@@ -150,9 +150,9 @@ def fly_batch(
     routes: str | Sequence[str] = "all",
     seeds: int | Sequence[int] = 50,
     *,
-    controllers: Sequence[str] = ("apf-pf", "raw-apf"),
+    controllers: Sequence[str] = ("apf-pf", "raw-apf@flight"),
     noises: Sequence[str] = ("d435-phantom",),
-    preset: str | Sequence[str] = "flight",
+    preset: str | Sequence[str] = "flight-escape",
     rate_hz: float = 15.0,
     time_limit_s: float | None = None,
     workers: int | None = None,
@@ -168,6 +168,9 @@ def fly_batch(
 
     ``preset``: a perception preset name, a comma-separated list or a sequence of names
     (e.g. ``"flight,flight-memory"``: the paper's and the obstacle memory's side by side).
+    A controller written ``name@preset`` (the default ``raw-apf@flight``: the paper's
+    baseline, whose unfiltered belief would fill an obstacle memory with speckle) flies
+    with that preset only, whatever ``preset`` says.
 
     ``seeds``: a count (seeds ``0..n-1``) or explicit seeds. ``time_limit_s``: per flight
     (default: :func:`~subterra.flight.fly`'s, from the route length). ``keep_seed``: keep the
@@ -180,9 +183,16 @@ def fly_batch(
     CPU count). See :func:`subterra.batch.run_batch`.
     """
     seed_values = seed_list(seeds)
+    from subterra._core import preset_names
+
+    pinned: list[tuple[str, str | None]] = []
     for c in controllers:
-        if c not in CONTROLLERS:
-            raise InputError(f"argument `controllers`: unknown controller {c!r} (known: {', '.join(CONTROLLERS)})")
+        name, _, own = str(c).partition("@")
+        if name not in CONTROLLERS:
+            raise InputError(f"argument `controllers`: unknown controller {name!r} (known: {', '.join(CONTROLLERS)})")
+        if own and own not in preset_names():
+            raise InputError(f"argument `controllers`: unknown perception preset {own!r} in {c!r} (known: {', '.join(preset_names())})")
+        pinned.append((name, own or None))
     if not controllers:
         raise InputError("argument `controllers` must not be empty")
     for n in noises:
@@ -191,8 +201,6 @@ def fly_batch(
     if not noises:
         raise InputError("argument `noises` must not be empty")
     check_workers(workers)
-    from subterra._core import preset_names
-
     presets = [p.strip() for p in preset.split(",") if p.strip()] if isinstance(preset, str) else [str(p) for p in preset]
     if not presets:
         raise InputError("argument `preset` must name at least one perception preset")
@@ -201,13 +209,20 @@ def fly_batch(
             raise InputError(f"argument `preset`: unknown perception preset {p!r} (known: {', '.join(preset_names())})")
     route_list = _routes(scenario, routes)
     keep = (seed_values[0] if keep_seed is None else keep_seed) if keep_records else None
+    # (controller, preset) pairs in order, each once: a pinned controller flies its own preset.
+    pairs: list[tuple[str, str]] = []
+    for p in presets:
+        for name, own in pinned:
+            if (name, own or p) not in pairs:
+                pairs.append((name, own or p))
     jobs = [Job(FLY_JOB, {"scenario": scenario, "route": route, "controller": controller, "noise": noise, "preset": p,
                           "seed": seed, "rate_hz": rate_hz, "time_limit_s": time_limit_s}, keep=seed == keep)
-            for p in presets for noise in noises for seed in seed_values for route in route_list for controller in controllers]
-    label = (lambda c, p: f"{c}@{p}") if len(presets) > 1 else (lambda c, p: c)
+            for noise in noises for seed in seed_values for route in route_list for controller, p in pairs]
+    several = len({p for _, p in pairs}) > 1
+    label = (lambda c, p: f"{c}@{p}") if several else (lambda c, p: c)
 
     def status(rows: list[dict[str, Any]]) -> str:
-        counts = {label(c, p): [0, 0] for p in presets for c in controllers}
+        counts = {label(c, p): [0, 0] for c, p in pairs}
         for r in rows:
             c = counts[label(r["controller"], r["preset"])]
             c[0] += int(bool(r["success"]))
@@ -217,7 +232,7 @@ def fly_batch(
     run = run_batch(jobs, engine=engine, workers=workers, address=address, progress=progress,
                     desc=f"fly-batch {scenario}", unit="flight", status=status, log_path=log_path, resume=resume)
     kept = [run.records[job.id] for job in jobs if job.id in run.records]
-    settings = {"routes": route_list, "seeds": seed_values, "controllers": list(controllers), "noises": list(noises),
+    settings = {"routes": route_list, "seeds": seed_values, "controllers": [str(c) for c in controllers], "noises": list(noises),
                 "presets": presets, "rate_hz": rate_hz, "time_limit_s": time_limit_s, "workers": workers or os.cpu_count() or 1,
                 "engine": run.engine, "resumed": run.resumed}
     return BatchResult(scenario=scenario, rows=run.rows, table=summarise_rows(run.rows), kept=kept,

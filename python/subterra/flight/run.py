@@ -27,11 +27,11 @@ from typing import Any
 
 import numpy as np
 
-from subterra._core import ApfController, DepthPerception, ObstacleMemory, PerceptionConfig, PinholeCamera
+from subterra._core import ApfController, DepthPerception, Escape, ObstacleMemory, PathFollower, PerceptionConfig, PinholeCamera
 from subterra.errors import ConfigError, InputError
 from subterra.sim import DEPTH_NOISE_PRESETS, DepthCamera, Simulation, World
 
-__all__ = ["CONTROLLERS", "FlightResult", "fly", "resolve_route"]
+__all__ = ["CONTROLLERS", "FlightResult", "fly", "resolve_path", "resolve_route"]
 
 #: Controllers a flight can run, and the perception filter mode each uses. ``raw-apf`` is
 #: the baseline the APF-PF paper argues against: the same voxel binning and potentials,
@@ -42,7 +42,7 @@ CONTROLLERS: dict[str, str] = {"apf-pf": "particle", "apf-pf-histogram": "histog
 FRAME_FIELDS = (
     "time_s", "position", "yaw", "mpv_voxel", "mpv_depth_m", "mpv_probability", "mpv_body", "p_free",
     "closest_depth_m", "truth_closest_m", "obstacle_in_view", "repulsive_body", "repulsive_norm",
-    "memory_repulsive_norm", "memory_cells", "command", "compute_ms", "clearance_m",
+    "memory_repulsive_norm", "memory_cells", "escape_active", "carrot", "command", "compute_ms", "clearance_m",
 )
 
 
@@ -59,6 +59,9 @@ class FlightResult:
     ``repulsive_body`` (F, 3) and ``repulsive_norm`` (F,) the repulsion the command used
     (belief plus, with the preset's obstacle memory on, the memory's), ``memory_repulsive_norm``
     (F,) the memory's share and ``memory_cells`` (F,) what it held (0 without a memory),
+    ``escape_active`` (F,) bool (the preset's escape was following an obstacle's boundary),
+    ``carrot`` (F, 3) the point the attraction pulled toward before the escape (the goal,
+    or the carrot along the path),
     ``command`` (F, 4) ``[v_x, v_y,
     v_z, yaw_rate]``, ``compute_ms`` (F,) controller wall time, ``clearance_m`` (F,) after
     the step (negative = penetration). ``path`` is (F + 1, 3): every observed position and
@@ -164,6 +167,7 @@ def _write_frames(result: FlightResult, path: Path) -> Path:
         "time_s", "x_m", "y_m", "z_m", "yaw_rad", "mpv_i", "mpv_j", "mpv_k", "mpv_depth_m", "mpv_probability",
         "mpv_x_body_m", "mpv_y_body_m", "mpv_z_body_m", "p_free", "closest_depth_m", "truth_closest_m",
         "obstacle_in_view", "rep_x", "rep_y", "rep_z", "rep_norm", "memory_rep_norm", "memory_cells",
+        "escape_active", "carrot_x_m", "carrot_y_m", "carrot_z_m",
         "cmd_v_x", "cmd_v_y", "cmd_v_z", "cmd_yaw_rate", "compute_ms", "clearance_m",
     ]
 
@@ -180,6 +184,7 @@ def _write_frames(result: FlightResult, path: Path) -> Path:
             row += [num(f["p_free"][n]), num(f["closest_depth_m"][n]), num(f["truth_closest_m"][n])]
             row += [str(int(f["obstacle_in_view"][n])), *(num(v) for v in f["repulsive_body"][n]), num(f["repulsive_norm"][n])]
             row += [num(f["memory_repulsive_norm"][n]), str(int(f["memory_cells"][n]))]
+            row += [str(int(f["escape_active"][n])), *(num(v, 4) for v in f["carrot"][n])]
             row += [*(num(v) for v in f["command"][n]), num(f["compute_ms"][n], 4), num(f["clearance_m"][n], 4)]
             w.writerow(row)
     return path
@@ -199,6 +204,40 @@ def resolve_route(world: World, route: str) -> tuple[str, str, str]:
     raise InputError(f"argument `route`: no route {route!r} in world {world.name!r} (routes: {known}; regions: {', '.join(regions) or 'none'})")
 
 
+def resolve_path(world: World, start_region: str, goal_region: str, path: Any) -> np.ndarray | None:
+    """The waypoints to follow from ``start_region`` to ``goal_region``, shape ``(N, 3)``
+    with the start first and the goal last, or None to fly straight at the goal.
+
+    ``path``: ``"auto"`` (the world's waypoint regions ``wp1``, ``wp2``, ... in order, when
+    it has any; else None), ``"none"`` (None), or a sequence of 3-vectors (world frame [m])
+    to pass between start and goal. Raises :class:`InputError` for anything else."""
+    regions = world.regions
+    start, goal = np.asarray(regions[start_region][0], float), np.asarray(regions[goal_region][0], float)
+    if isinstance(path, str):
+        if path == "none":
+            return None
+        if path != "auto":
+            raise InputError(f"argument `path` must be 'auto', 'none' or a sequence of 3-vectors, got {path!r}")
+        names = sorted((n for n in regions if n.startswith("wp") and n[2:].isdigit()), key=lambda n: int(n[2:]))
+        if not names:
+            return None
+        middle = np.array([regions[n][0] for n in names], dtype=np.float64).reshape(-1, 3)
+        if start_region != "start" or goal_region != "goal":
+            # The waypoints run from "start" to "goal"; flown the other way, reverse them.
+            if start_region == "goal" and goal_region == "start":
+                middle = middle[::-1]
+            else:
+                return None
+    else:
+        try:
+            middle = np.asarray(path, dtype=np.float64).reshape(-1, 3)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"argument `path` must be a sequence of 3-vectors [m], got {type(path).__name__}") from exc
+        if not np.all(np.isfinite(middle)):
+            raise InputError("argument `path` must hold finite numbers")
+    return np.vstack([start, middle, goal])
+
+
 def _yaw_of(world_from_body: np.ndarray) -> float:
     return math.atan2(world_from_body[1, 0], world_from_body[0, 0])
 
@@ -209,7 +248,7 @@ def fly(
     *,
     controller: str = "apf-pf",
     noise: str = "d435",
-    preset: str = "flight",
+    preset: str = "flight-escape",
     config: PerceptionConfig | None = None,
     seed: int = 0,
     world: World | None = None,
@@ -220,6 +259,8 @@ def fly(
     progress: bool | Callable[[dict[str, Any]], None] = False,
     rerun_path: str | os.PathLike[str] | None = None,
     rerun_depth_every: int = 5,
+    path: Any = "auto",
+    lookahead_m: float = 1.5,
 ) -> FlightResult:
     """Flies ``route`` of ``scenario`` (or of ``world``) once and returns the record.
 
@@ -234,6 +275,10 @@ def fly(
     ``rerun_path``: also record a Rerun ``.rrd`` (needs ``subterra[viz]``) with the depth
     image of every ``rerun_depth_every``-th frame (a D435 frame is ~0.5 MB in the file)
     and everything else every frame.
+    ``path``: waypoints to follow with a carrot ``lookahead_m`` ahead (:func:`resolve_path`:
+    by default the world's waypoint regions, e.g. the tunnel's ``wp1`` ... ``wp7``).
+    The preset's obstacle memory (``memory.enabled``) and escape from local minima
+    (``escape.enabled``) run when the preset turns them on.
     """
     if controller not in CONTROLLERS:
         raise InputError(f"argument `controller` must be one of {', '.join(CONTROLLERS)}, got {controller!r}")
@@ -257,9 +302,13 @@ def fly(
         scenario = world.name
     route_name, a, b = resolve_route(world, route)
     regions = world.regions
+    waypoints = resolve_path(world, a, b, path)
+    if not (isinstance(lookahead_m, (int, float)) and math.isfinite(lookahead_m) and lookahead_m > 0):
+        raise InputError(f"argument `lookahead_m` must be finite and > 0, got {lookahead_m!r}")
     start = np.asarray(regions[a][0], dtype=np.float64)
     goal, goal_radius = np.asarray(regions[b][0], dtype=np.float64), float(regions[b][1])
-    yaw0 = math.atan2(goal[1] - start[1], goal[0] - start[0])
+    first = goal if waypoints is None else waypoints[1]
+    yaw0 = math.atan2(first[1] - start[1], first[0] - start[0])
 
     camera = DepthCamera.d435()
     sim = Simulation(world, "quadrotor", {"front": (camera, None, noise)}, seed=seed, start=start, yaw=yaw0)
@@ -269,9 +318,12 @@ def fly(
     apf = ApfController(preset, config=config)
     # The obstacle memory (`flight-memory`; off in the paper's presets) works on the odometry.
     memory = ObstacleMemory(perception) if cfg["memory"]["enabled"] else None
+    escape = Escape(preset, config=config) if cfg["escape"]["enabled"] else None
+    follower = None if waypoints is None else PathFollower(waypoints, lookahead_m=float(lookahead_m))
     v_max = float(cfg["apf"]["v_x_max_m_s"])
     if time_limit_s is None:
-        time_limit_s = max(60.0, 4.0 * float(np.linalg.norm(goal - start)) / max(v_max, 1e-3))
+        way_m = float(np.linalg.norm(goal - start)) if follower is None else follower.length_m
+        time_limit_s = max(60.0, 4.0 * way_m / max(v_max, 1e-3))
     sim.set_time_limit(time_limit_s)
     grid = cfg["grid"]
     horizon_m = float(grid["depth_max_m"])
@@ -300,17 +352,27 @@ def fly(
             obs = sim.observe(depth_dtype="uint16")
             truth_body = obs["world_from_body"]
             odom = obs["odometry"]
-            goal_body = odom[:3, :3].T @ (goal - odom[:3, 3])
             tick = time.perf_counter()
+            if follower is None:
+                target, remaining = goal, float(np.linalg.norm(goal - odom[:3, 3]))
+            else:
+                carrot = follower.update(odom[:3, 3])
+                target, remaining = carrot.carrot_world, carrot.remaining_m
             out = perception.update(obs["depth"]["front"])
             if memory is None:
                 remembered = None
                 rep = out.repulsive_body
-                cmd = apf.command(goal_body, out)
             else:
                 remembered = memory.update(out, stamp=obs["time_s"], world_from_body=odom)
                 rep = out.repulsive_body + remembered.repulsive_body
-                cmd = apf.command(goal_body, repulsive_body=rep)
+            if escape is None:
+                escaping = False
+                goal_body = odom[:3, :3].T @ (target - odom[:3, 3])
+            else:
+                e = escape.step(stamp=obs["time_s"], world_from_body=odom, goal_world=target, remaining_m=remaining,
+                                memory=memory, repulsive_body=rep)
+                escaping, goal_body, rep = e.active, e.goal_body, e.repulsive_body
+            cmd = apf.command(goal_body, repulsive_body=rep)
             compute_s = time.perf_counter() - tick
             step = sim.step(cmd, dt, compute_time_s=compute_s)
 
@@ -333,6 +395,8 @@ def fly(
             rows["repulsive_norm"].append(float(np.linalg.norm(rep)))
             rows["memory_repulsive_norm"].append(0.0 if remembered is None else float(np.linalg.norm(remembered.repulsive_body)))
             rows["memory_cells"].append(0 if remembered is None else remembered.cells)
+            rows["escape_active"].append(escaping)
+            rows["carrot"].append(np.asarray(target, dtype=np.float64))
             rows["command"].append(cmd.as_array())
             rows["compute_ms"].append(compute_s * 1e3)
             rows["clearance_m"].append(step["clearance_m"])
@@ -382,6 +446,8 @@ def fly(
         "repulsive_norm": np.asarray(rows["repulsive_norm"], dtype=np.float64),
         "memory_repulsive_norm": np.asarray(rows["memory_repulsive_norm"], dtype=np.float64),
         "memory_cells": np.asarray(rows["memory_cells"], dtype=np.int64),
+        "escape_active": np.asarray(rows["escape_active"], dtype=bool),
+        "carrot": np.asarray(rows["carrot"], dtype=np.float64).reshape(-1, 3),
         "command": np.asarray(rows["command"], dtype=np.float64).reshape(-1, 4),
         "compute_ms": np.asarray(rows["compute_ms"], dtype=np.float64),
         "clearance_m": np.asarray(rows["clearance_m"], dtype=np.float64),
@@ -394,6 +460,8 @@ def fly(
         path=path, wall_s=time.perf_counter() - started,
     )
     result.metrics["time_limit_s"] = time_limit_s
+    result.metrics["escape_frames"] = int(frames["escape_active"].sum())
+    result.metrics["path_waypoints"] = 0 if waypoints is None else int(waypoints.shape[0])
     if rerun_path is not None:
         result.extra["rerun"] = str(rerun_path)
     return result

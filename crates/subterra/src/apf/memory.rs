@@ -7,8 +7,9 @@
 //!
 //! # One update, exactly
 //! 1. **Record.** Every voxel whose belief is at least `min_belief` (the free state never)
-//!    puts its centre, in the world frame, into the cell of side `cell_m` that holds it;
-//!    the cell keeps the newest point, the largest belief of this frame, and the time.
+//!    puts its point (the one its repulsion comes from, `apf.voxel_position`), in the
+//!    world frame, into the cell of side `cell_m` that holds it; the cell keeps the newest
+//!    point, the largest belief of this frame, and the time.
 //! 2. **Forget.** A cell is forgotten `timeout_s` after the belief last put an obstacle in
 //!    it, or `in_view_timeout_s` after, when its point lies in the camera's view now
 //!    (inside the image and between `grid.depth_min_m` and `grid.depth_max_m` along the
@@ -78,7 +79,7 @@ pub struct ObstacleMemory {
     grid: GridConfig,
     camera: PinholeCamera,
     camera_from_body: Isometry3,
-    /// Voxel centres in the body frame, by state id (the free state has none).
+    /// Voxel points (`apf.voxel_position`) in the body frame, by state id (the free state has none).
     centres_body: Vec<DVec3>,
     free: StateId,
     cells: BTreeMap<(i64, i64, i64), RememberedObstacle>,
@@ -96,7 +97,10 @@ impl ObstacleMemory {
         let grid = perception.grid();
         let body_from_camera = *perception.body_from_camera();
         let centres_body = (0..grid.voxel_count() as u32)
-            .map(|s| grid.voxel_of(StateId(s)).map_or(DVec3::ZERO, |v| body_from_camera.transform_point(grid.voxel_centre_camera(v))))
+            .map(|s| {
+                grid.voxel_of(StateId(s))
+                    .map_or(DVec3::ZERO, |v| body_from_camera.transform_point(grid.voxel_point_camera(v, config.apf.voxel_position)))
+            })
             .collect();
         Ok(Self {
             config: config.memory,

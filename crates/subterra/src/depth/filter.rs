@@ -274,7 +274,7 @@ mod tests {
             GridConfig { block_width_px: 1, block_height_px: 1, depth_bin_m: 1.0, depth_min_m: 0.0, depth_max_m: (states - 1) as f64 },
         )
         .unwrap();
-        TransitionModel::new(&grid, &TransitionConfig { sigma_s_voxels: 1.0, sigma_z_m: 1.0 }).unwrap()
+        TransitionModel::new(&grid, &TransitionConfig { sigma_s_voxels: 1.0, sigma_z_m: 1.0, free_state_depth: crate::config::FreeStateDepth::Horizon }).unwrap()
     }
 
     fn filter(states: usize, n: usize, resampling: Resampling, seed: u64) -> ParticleFilter {

@@ -8,7 +8,7 @@
 use glam::DVec3;
 
 use crate::camera::PinholeCamera;
-use crate::config::GridConfig;
+use crate::config::{GridConfig, VoxelPosition};
 use crate::error::{Error, Result};
 
 /// Added to `(z - d_min)/k_d` before the floor, so that a depth on a bin boundary lands in
@@ -195,6 +195,23 @@ impl DepthVoxelGrid {
         let u_c = (u0 + u1 - 1) as f64 / 2.0;
         let v_c = (v0 + v1 - 1) as f64 / 2.0;
         self.camera.back_project(u_c, v_c, self.bin_centre_m(v.k))
+    }
+
+    /// The block's top-left corner pixel `(i·k_w, j·k_h)` back-projected at the bin's near
+    /// edge `d_min + k·k_d`, in the camera optical frame [m]: where the authors' code places
+    /// a voxel (the conservative distance).
+    pub fn voxel_near_corner_camera(&self, v: VoxelIndex) -> DVec3 {
+        let (kw, kh) = (self.config.block_width_px, self.config.block_height_px);
+        let near = self.config.depth_min_m + v.k as f64 * self.config.depth_bin_m;
+        self.camera.back_project((v.i * kw) as f64, (v.j * kh) as f64, near)
+    }
+
+    /// The point of voxel `v` that a repulsive force comes from, in the camera optical frame [m].
+    pub fn voxel_point_camera(&self, v: VoxelIndex, position: VoxelPosition) -> DVec3 {
+        match position {
+            VoxelPosition::NearCorner => self.voxel_near_corner_camera(v),
+            VoxelPosition::Centre => self.voxel_centre_camera(v),
+        }
     }
 
     /// Distance from voxel `v` to the nearest of the grid's left, right, top, bottom and

@@ -95,7 +95,7 @@ pub struct DepthPerception {
     transition: Option<TransitionModel>,
     observation: ObservationModel,
     filter: Filter,
-    /// Per state: repulsive force of an obstacle at the voxel centre, body frame.
+    /// Per state: repulsive force of an obstacle at the voxel's point (`apf.voxel_position`), body frame.
     forces_body: Vec<DVec3>,
     log_likelihood: Vec<f64>,
     belief: Vec<f64>,
@@ -132,8 +132,8 @@ impl DepthPerception {
         };
         let mut forces_body = Vec::with_capacity(states);
         for s in 0..grid.voxel_count() as u32 {
-            let centre = grid.voxel_of(StateId(s)).map(|v| grid.voxel_centre_camera(v)).unwrap_or(DVec3::ZERO);
-            forces_body.push(repulsive_force(&config.apf, body_from_camera.transform_point(centre)));
+            let point = grid.voxel_of(StateId(s)).map(|v| grid.voxel_point_camera(v, config.apf.voxel_position)).unwrap_or(DVec3::ZERO);
+            forces_body.push(repulsive_force(&config.apf, body_from_camera.transform_point(point)));
         }
         forces_body.push(DVec3::ZERO); // s_free repels nothing
         let mut perception = Self {
@@ -347,5 +347,88 @@ mod tests {
         let out = p.update(DepthImage::U16 { pixels: &empty, scale_m_per_unit: 0.001 }, 640, 480).unwrap();
         assert_eq!(out.p_free, 1.0);
         assert!(out.most_probable.is_none() && out.repulsive_body == DVec3::ZERO);
+    }
+
+    /// `frames` of 640x480 D435 images: a wall patch at 0.6 m over blocks 5-7 x 4-5 (whole
+    /// 50 px blocks, 15 000 pixels), or no return anywhere; `P(free)` after each.
+    fn p_free_trace(config: PerceptionConfig, seed: u64, frames: &[bool]) -> Vec<f64> {
+        let mut p = DepthPerception::new(PinholeCamera::d435(), Isometry3::body_from_forward_optical(), config, seed).unwrap();
+        let (w, h) = (640usize, 480usize);
+        let mut wall = vec![0u16; w * h];
+        for r in 200..300 {
+            for c in 250..400 {
+                wall[r * w + c] = 600;
+            }
+        }
+        let empty = vec![0u16; w * h];
+        frames
+            .iter()
+            .map(|&obstacle| {
+                let pixels = if obstacle { &wall } else { &empty };
+                p.update(DepthImage::U16 { pixels, scale_m_per_unit: 0.001 }, 640, 480).unwrap().p_free
+            })
+            .collect()
+    }
+
+    /// 20 frames with the wall, 40 empty, 20 with the wall.
+    fn wall_empty_wall() -> Vec<bool> {
+        [vec![true; 20], vec![false; 40], vec![true; 20]].concat()
+    }
+
+    #[test]
+    fn paper_filter_with_free_state_at_depth_zero_believes_empty_frames_free() {
+        // The paper's filter (no extra proposal, multinomial) with the authors' free state
+        // at depth 0: about 90 of 20 000 particles reach s_free per frame, so P(free) is 1 on
+        // every empty frame, the first included, and 0 once the wall is back.
+        let config = PerceptionConfig::acc2021();
+        assert_eq!((config.filter.free_proposal_min, config.filter.resampling), (0.0, crate::config::Resampling::Multinomial));
+        for seed in 0..3 {
+            let trace = p_free_trace(config, seed, &wall_empty_wall());
+            assert!(trace[1..20].iter().all(|&f| f < 1e-9), "seed {seed}: wall frames {:?}", &trace[..20]);
+            assert!(trace[20..60].iter().all(|&f| f > 0.99), "seed {seed}: empty frames {:?}", &trace[20..60]);
+            assert!(trace[61..].iter().all(|&f| f < 1e-9), "seed {seed}: wall again {:?}", &trace[60..]);
+        }
+    }
+
+    #[test]
+    fn paper_filter_with_free_state_at_the_horizon_flips_on_empty_frames() {
+        // The same filter with s_free at d_max (factor e^-4.5): ~1 particle reaches it per
+        // frame, so on empty frames P(free) jumps between 0 and 1 (the regression the
+        // `free_proposal_min` proposal of `flight` hides).
+        let mut config = PerceptionConfig::acc2021();
+        config.transition.free_state_depth = crate::config::FreeStateDepth::Horizon;
+        let trace = p_free_trace(config, 0, &wall_empty_wall());
+        let empty = &trace[20..60];
+        let free = empty.iter().filter(|&&f| f > 0.5).count();
+        assert!(free >= 5 && free <= 35, "{free} of 40 empty frames believed free: {empty:?}");
+        assert!(trace[61..].iter().all(|&f| f < 1e-9));
+        // With subterra's defensive proposal (the `flight` preset) it holds 1 again.
+        let mut config = PerceptionConfig::flight();
+        config.filter.resampling = crate::config::Resampling::Multinomial;
+        let trace = p_free_trace(config, 0, &wall_empty_wall());
+        assert!(trace[20..60].iter().all(|&f| f > 0.99), "{:?}", &trace[20..60]);
+    }
+
+    #[test]
+    fn forces_come_from_the_configured_voxel_point() {
+        // Voxel (6, 4, 9): block pixels 300..349 x 200..249, bin [1.0, 1.1) m.
+        let camera = PinholeCamera::d435();
+        let v = VoxelIndex { i: 6, j: 4, k: 9 };
+        let body_from_camera = Isometry3::body_from_forward_optical();
+        for (config, pixel, depth) in [(PerceptionConfig::acc2021(), (300.0, 200.0), 1.0), (PerceptionConfig::flight(), (324.5, 224.5), 1.05)] {
+            let mut config = config;
+            config.filter.particles = 10;
+            let p = DepthPerception::new(camera, body_from_camera, config, 0).unwrap();
+            let s = p.grid().state_of(v).0 as usize;
+            let point = body_from_camera.transform_point(camera.back_project(pixel.0, pixel.1, depth));
+            let expected = repulsive_force(&config.apf, point);
+            assert!((p.forces_body()[s] - expected).length() < 1e-12, "{:?}: {} vs {expected}", config.apf.voxel_position, p.forces_body()[s]);
+        }
+        // The near corner is the conservative distance: ~30-40% more repulsion 1 m ahead.
+        let near = DepthPerception::new(camera, body_from_camera, PerceptionConfig { filter: crate::config::FilterConfig { particles: 10, ..PerceptionConfig::acc2021().filter }, ..PerceptionConfig::acc2021() }, 0).unwrap();
+        let centre = DepthPerception::new(camera, body_from_camera, PerceptionConfig { filter: crate::config::FilterConfig { particles: 10, ..PerceptionConfig::flight().filter }, ..PerceptionConfig::flight() }, 0).unwrap();
+        let s = near.grid().state_of(v).0 as usize;
+        let ratio = near.forces_body()[s].length() / centre.forces_body()[s].length();
+        assert!(ratio > 1.25 && ratio < 1.45, "{ratio}");
     }
 }

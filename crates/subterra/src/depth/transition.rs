@@ -2,7 +2,9 @@
 //!
 //! `hn(x; σ) = exp(-x²/2σ²)`, `L1` is the Manhattan distance in voxels and `z(s')` the
 //! depth of the target voxel's centre. The free state sits on the grid's left, right,
-//! top, bottom and far faces (`L1(v, s_free)` = the face distance of `v`) at depth `d_max`.
+//! top, bottom and far faces (`L1(v, s_free)` = the face distance of `v`); its depth in the
+//! bias factor is [`FreeStateDepth`]: 0 (factor 1, as the authors' code stores `s_free` at
+//! the point (0, 0, 0)) or the horizon `d_max` (factor `e^{-d_max²/2σ_z²}`).
 //!
 //! Memory is O(S·N_d), never O(S²): the in-grid kernel depends only on the offset and
 //! the target depth, so alias tables over offsets serve every source voxel of a class.
@@ -20,7 +22,7 @@ use rand::Rng;
 
 use super::alias::AliasTable;
 use super::grid::{DepthVoxelGrid, StateId, VoxelIndex};
-use crate::config::TransitionConfig;
+use crate::config::{FreeStateDepth, TransitionConfig};
 use crate::error::{Error, Result};
 
 /// Redraws of an out-of-grid offset before the exact (slow) fallback draw is used. With
@@ -213,7 +215,10 @@ impl TransitionModel {
         let z0 = grid.bin_centre_m(0);
         let relative = |z: f64| (-(z * z - z0 * z0) / (2.0 * sigma_z * sigma_z)).exp();
         let depth_weight: Vec<f64> = (0..n_d as u32).map(|k| relative(grid.bin_centre_m(k))).collect();
-        let free_depth_weight = relative(grid.config().depth_max_m);
+        let free_depth_weight = match config.free_state_depth {
+            FreeStateDepth::Zero => relative(0.0),
+            FreeStateDepth::Horizon => relative(grid.config().depth_max_m),
+        };
 
         // H[(j·N_w + i)·N_d + e] = Σ_{in-grid i', j'} hn(|i-i'| + |j-j'| + e): the in-plane sum
         // of the kernel for a source block at a depth offset e.
@@ -544,19 +549,31 @@ mod tests {
 
     /// A 2x2x2 grid: 2x2 pixel image, 1x1 px blocks, two 0.5 m bins over [0.5, 1.5).
     fn tiny() -> (DepthVoxelGrid, TransitionModel) {
+        tiny_with(FreeStateDepth::Horizon)
+    }
+
+    fn tiny_with(free_state_depth: FreeStateDepth) -> (DepthVoxelGrid, TransitionModel) {
         let camera = PinholeCamera::new(1.0, 1.0, 0.5, 0.5, 2, 2).unwrap();
         let grid = DepthVoxelGrid::new(
             camera,
             GridConfig { block_width_px: 1, block_height_px: 1, depth_bin_m: 0.5, depth_min_m: 0.5, depth_max_m: 1.5 },
         )
         .unwrap();
-        let model = TransitionModel::new(&grid, &TransitionConfig { sigma_s_voxels: 1.0, sigma_z_m: 1.0 }).unwrap();
+        let model = TransitionModel::new(&grid, &TransitionConfig { sigma_s_voxels: 1.0, sigma_z_m: 1.0, free_state_depth }).unwrap();
         (grid, model)
     }
 
     #[test]
     fn tiny_row_by_hand() {
-        let (grid, model) = tiny();
+        // The free state's depth factor: hn(d_max) = hn(1.5) at the horizon, hn(0) = 1 at depth 0.
+        let hn = |x: f64| (-x * x / 2.0).exp();
+        for (free_state_depth, z_free) in [(FreeStateDepth::Horizon, hn(1.5)), (FreeStateDepth::Zero, 1.0)] {
+            tiny_rows_by_hand(free_state_depth, z_free);
+        }
+    }
+
+    fn tiny_rows_by_hand(free_state_depth: FreeStateDepth, z_free: f64) {
+        let (grid, model) = tiny_with(free_state_depth);
         // Source voxel (0,0,0): bin centre depths 0.75 m and 1.25 m, d_max 1.5 m.
         let hn = |x: f64| (-x * x / 2.0).exp();
         let zw = |k: u32| hn(grid.bin_centre_m(k));
@@ -568,19 +585,19 @@ mod tests {
             weights[to as usize] = hn(l1 as f64) * zw(v.k);
         }
         // Face distance of (0,0,0): on the left and top faces -> 1.
-        weights[8] = hn(1.0) * hn(1.5);
+        weights[8] = hn(1.0) * z_free;
         let total: f64 = weights.iter().sum();
         let row = model.row(grid.state_of(from));
         for (p, w) in row.iter().zip(&weights) {
             assert!((p - w / total).abs() < 1e-14, "{row:?}");
         }
-        // The free state's row: hn(face(v'))·hn(z(v')), and hn(0)·hn(d_max) to itself.
+        // The free state's row: hn(face(v'))·hn(z(v')), and hn(0)·hn(z_free) to itself.
         let mut free = vec![0.0; 9];
         for to in 0..8u32 {
             let v = grid.voxel_of(StateId(to)).unwrap();
             free[to as usize] = hn(grid.face_distance(v) as f64) * zw(v.k);
         }
-        free[8] = hn(1.5);
+        free[8] = z_free;
         let total: f64 = free.iter().sum();
         for (p, w) in model.row(grid.free_state()).iter().zip(&free) {
             assert!((p - w / total).abs() < 1e-14);
@@ -723,7 +740,7 @@ mod tests {
             GridConfig { block_width_px: 10, block_height_px: 10, depth_bin_m: 0.2, depth_min_m: 0.2, depth_max_m: 1.0 },
         )
         .unwrap();
-        let model = TransitionModel::new(&grid, &TransitionConfig { sigma_s_voxels: 2.0, sigma_z_m: 0.4 }).unwrap();
+        let model = TransitionModel::new(&grid, &TransitionConfig { sigma_s_voxels: 2.0, sigma_z_m: 0.4, free_state_depth: FreeStateDepth::Horizon }).unwrap();
         let s = grid.state_count();
         let belief: Vec<f64> = (0..s).map(|i| ((i * 37) % 11) as f64).collect();
         let total: f64 = belief.iter().sum();

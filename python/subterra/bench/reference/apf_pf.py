@@ -250,11 +250,13 @@ def transition_matrix(cfg: dict, camera: dict) -> np.ndarray:
     j+1, n_h-j, n_d-k)`` (distance to the left, right, top, bottom and far faces):
 
     * voxel -> voxel: ``hn(L1(v, v'); sigma_s) * hn(z(k'); sigma_z)``
-    * voxel -> free:  ``hn(face(v); sigma_s) * hn(d_max; sigma_z)``
+    * voxel -> free:  ``hn(face(v); sigma_s) * hn(z_free; sigma_z)``
     * free -> voxel:  ``hn(face(v'); sigma_s) * hn(z(k'); sigma_z)``
-    * free -> free:   ``hn(0) * hn(d_max; sigma_z)``
+    * free -> free:   ``hn(0) * hn(z_free; sigma_z)``
 
-    then every row is divided by its sum.
+    then every row is divided by its sum. ``z_free`` is ``d_max`` when
+    ``transition.free_state_depth`` is ``"horizon"`` (or absent) and 0 when it is ``"zero"``
+    (the authors' code stores the free state as the point (0, 0, 0)).
     """
     g, t = cfg["grid"], cfg["transition"]
     sigma_s, sigma_z = float(t["sigma_s_voxels"]), float(t["sigma_z_m"])
@@ -268,7 +270,10 @@ def transition_matrix(cfg: dict, camera: dict) -> np.ndarray:
     depth_w = _hn(d_min + (k + 0.5) * k_d, sigma_z)  # target-depth factor, per voxel
     face = np.minimum.reduce([i + 1, n_w - i, j + 1, n_h - j, n_d - k])
     face_w = _hn(face, sigma_s)
-    free_depth_w = float(_hn(d_max, sigma_z))
+    free_depth = t.get("free_state_depth", "horizon")
+    if free_depth not in ("horizon", "zero"):
+        raise ValueError(f"transition.free_state_depth must be 'horizon' or 'zero', got {free_depth!r}")
+    free_depth_w = float(_hn(d_max if free_depth == "horizon" else 0.0, sigma_z))
 
     l1 = np.abs(i[:, None] - i[None, :]) + np.abs(j[:, None] - j[None, :]) + np.abs(k[:, None] - k[None, :])
     T = np.empty((n_vox + 1, n_vox + 1))
@@ -451,6 +456,27 @@ def _as_transform(body_from_camera) -> np.ndarray:
     return m
 
 
+def voxel_points_body(cfg: dict, camera: dict, body_from_camera=None) -> np.ndarray:
+    """The point of every voxel that repels, body frame, metres, ``(S - 1, 3)``: the centre
+    (:func:`voxel_centers_body`) when ``apf.voxel_position`` is ``"centre"`` (or absent); with
+    ``"near-corner"`` the block's top-left pixel ``(i k_w, j k_h)`` back-projected at the
+    bin's near edge ``d_min + k k_d`` (the authors' code)."""
+    position = cfg["apf"].get("voxel_position", "centre")
+    if position == "centre":
+        return voxel_centers_body(cfg, camera, body_from_camera)
+    if position != "near-corner":
+        raise ValueError(f"apf.voxel_position must be 'centre' or 'near-corner', got {position!r}")
+    g = cfg["grid"]
+    k_w, k_h = int(g["block_width_px"]), int(g["block_height_px"])
+    d_min, k_d = float(g["depth_min_m"]), float(g["depth_bin_m"])
+    fx, fy, cx, cy = (float(camera[key]) for key in ("fx", "fy", "cx", "cy"))
+    m = _as_transform(body_from_camera)
+    i, j, k = _voxel_ijk(*grid_shape(cfg, camera))
+    z = d_min + k * k_d
+    p_cam = np.stack([(i * k_w - cx) * z / fx, (j * k_h - cy) * z / fy, z], axis=1)
+    return p_cam @ m[:3, :3].T + m[:3, 3]
+
+
 def voxel_centers_body(cfg: dict, camera: dict, body_from_camera=None) -> np.ndarray:
     """Centre of every voxel in the body frame, metres, float64 ``(S - 1, 3)`` in state order.
 
@@ -478,13 +504,14 @@ def voxel_centers_body(cfg: dict, camera: dict, body_from_camera=None) -> np.nda
 def repulsive_forces(cfg: dict, camera: dict, body_from_camera=None) -> np.ndarray:
     """Repulsive force of an obstacle in each state, body frame, float64 ``(S, 3)``.
 
-    For a voxel centre ``x`` (body frame, metres), ``d = |x|``, ``r = max(d, min_distance_m)``:
+    For a voxel's point ``x`` (:func:`voxel_points_body`; body frame, metres), ``d = |x|``,
+    ``r = max(d, min_distance_m)``:
     ``F = eta (1/r - 1/rho_0) / r^2 * (-x / d)`` if ``r < rho_0`` (zero if ``d == 0``),
     else 0. The free state's row (last) is 0. The net repulsion is ``belief @ forces``.
     """
     a = cfg["apf"]
     rho_0, eta, r_min = float(a["rho_0_m"]), float(a["eta"]), float(a["min_distance_m"])
-    x = voxel_centers_body(cfg, camera, body_from_camera)
+    x = voxel_points_body(cfg, camera, body_from_camera)
     d = np.linalg.norm(x, axis=1)
     r = np.maximum(d, r_min)
     active = (r < rho_0) & (d > 0)
