@@ -98,6 +98,15 @@ pub struct NavigatorSettings {
     /// memory**): ground that carried the robot is known, for the recoveries' sweep check,
     /// however little of it the sensor sees from there.
     pub driven_memory_m: f64,
+    /// **Unseen-near rule** (step 2): with an all-round sensor (`coverage.fov_deg` 360) whose
+    /// blind ring (`coverage.min_range_m`) lies inside `near_memory_m`, every patch of ground
+    /// that comes within the blind ring passed through the ring between the two, where the
+    /// sensor sees it and the near memory records it. A cell within the blind ring that the
+    /// near memory never held, the robot never stood on, not within the blind ring of where
+    /// the robot started, with its 8 neighbours the same, is therefore not ground the sensor
+    /// missed by chance: it returned nothing (a hole's mouth, a drop), and it is lethal on
+    /// the navigator's grid. The tracker then stops short of it and the A* plans around it.
+    pub unseen_near_lethal: bool,
     /// **Perception-aware planning** (step 3): price the unknown cells the A* enters by
     /// whether the sensor will have seen them from the path before the robot gets there.
     pub perception_aware: bool,
@@ -133,6 +142,7 @@ impl Default for NavigatorSettings {
             near_memory_m: 3.0,
             near_memory_highest: false,
             driven_memory_m: 15.0,
+            unseen_near_lethal: true,
             perception_aware: true,
             coverage: SensorCoverage::default(),
         }
@@ -186,6 +196,18 @@ impl NavigatorSettings {
         for (name, value, limit) in limited {
             if value > limit {
                 return Err(Error::config(format!("navigator.{name}"), format!("must be at most {limit} m"), value));
+            }
+        }
+        if self.unseen_near_lethal {
+            if self.coverage.fov_deg < 360.0 {
+                return Err(Error::config("navigator.unseen_near_lethal", "needs an all-round sensor (navigator.coverage.fov_deg = 360): set it false for a forward sensor", self.coverage.fov_deg));
+            }
+            if !(self.near_memory_m > self.coverage.min_range_m) {
+                return Err(Error::config(
+                    "navigator.unseen_near_lethal",
+                    format!("needs navigator.near_memory_m above the blind ring navigator.coverage.min_range_m = {} m: set it false or widen the near memory", self.coverage.min_range_m),
+                    self.near_memory_m,
+                ));
             }
         }
         if self.lethal_min_neighbours > 2 {

@@ -224,6 +224,46 @@ impl DrivenMemory {
     }
 }
 
+/// The unseen-near rule's situation ([`mark_unseen_near`]).
+pub(crate) struct UnseenNear {
+    /// Where the robot is [m, world].
+    pub robot: DVec2,
+    /// Where it stood at its first map [m, world]: its blind ring there was never in view.
+    pub start: DVec2,
+    /// The sensor's blind ring: the nearest ground it sees [m].
+    pub blind_m: f64,
+    /// The lethal level written [1].
+    pub lethal: f32,
+}
+
+/// The unseen-near rule (`NavigatorSettings::unseen_near_lethal`): marks lethal, in `grid` and
+/// `grown` (both of geometry `g`), each cell within `rule.blind_m` of the robot that is unseen
+/// (NaN in `grid`, never held by the near memory, never stood on), farther than `rule.blind_m`
+/// from the start, and whose 8 neighbours are unseen too or off the map. Returns how many.
+///
+/// The neighbourhood keeps a lone cell between two lidar rings from turning into an obstacle:
+/// a patch three cells across that the sensor never returned from is a hole, not a gap.
+pub(crate) fn mark_unseen_near(grid: &mut [f32], grown: &mut [f32], g: &GridGeometry, near: &NearMemory, driven: &DrivenMemory, rule: &UnseenNear) -> usize {
+    let res = g.resolution_m;
+    let start = in_cells(rule.start, res);
+    let start_r2 = (rule.blind_m / res).powi(2);
+    let unseen = |cell: WorldCell, grid: &[f32]| match cell.flat_on(g) {
+        Some(c) => grid[c].is_nan() && near.get(cell).is_none() && !driven.contains(cell),
+        None => true,
+    };
+    let mut marked = Vec::new();
+    for_cells_within(g, rule.robot, rule.blind_m, |cell, c| {
+        if cell.distance2(start) > start_r2 && unseen(cell, grid) && (-1..=1).all(|dy| (-1..=1).all(|dx| unseen(WorldCell { x: cell.x + dx, y: cell.y + dy }, grid))) {
+            marked.push(c);
+        }
+    });
+    for &c in &marked {
+        grid[c] = rule.lethal;
+        grown[c] = rule.lethal;
+    }
+    marked.len()
+}
+
 /// `f(cell)` for every world cell at `resolution_m` whose centre lies inside the
 /// `length_m x width_m` rectangle centred on `position`, its length along `heading_rad`.
 pub(crate) fn for_footprint_cells(position: DVec2, heading_rad: f64, length_m: f64, width_m: f64, resolution_m: f64, mut f: impl FnMut(WorldCell)) {
@@ -404,5 +444,58 @@ mod tests {
         // 30 m on: the first stamp is forgotten.
         driven.stamp(DVec2::new(30.0, 0.0), 0.0, 1.0, 0.6, 0.1, 20.0);
         assert!(!driven.contains(WorldCell { x: 0, y: 0 }) && driven.contains(WorldCell { x: 300, y: 0 }));
+    }
+
+    /// The unseen-near rule on a 20 x 20 grid of 0.1 m cells, robot at its centre (1, 1),
+    /// blind within 0.5 m: `seen` lists the observed cells (rated 0.1), the rest unseen.
+    fn unseen_near(seen: impl Fn(usize, usize) -> bool, near: &NearMemory, driven: &DrivenMemory, start: DVec2) -> (Vec<f32>, usize) {
+        let g = GridGeometry { resolution_m: 0.1, nx: 20, ny: 20, origin_cell: (0, 0) };
+        let mut grid: Vec<f32> = (0..400).map(|c| if seen(c % 20, c / 20) { 0.1 } else { f32::NAN }).collect();
+        let mut grown = grid.clone();
+        let rule = UnseenNear { robot: DVec2::new(1.0, 1.0), start, blind_m: 0.5, lethal: 0.9 };
+        let n = mark_unseen_near(&mut grid, &mut grown, &g, near, driven, &rule);
+        assert_eq!(grid.iter().map(|r| r.to_bits()).collect::<Vec<_>>(), grown.iter().map(|r| r.to_bits()).collect::<Vec<_>>(), "both grids get the same marks");
+        (grid, n)
+    }
+
+    #[test]
+    fn ground_never_seen_on_its_way_into_the_blind_ring_is_lethal() {
+        let (empty_near, empty_driven) = (NearMemory::default(), DrivenMemory::default());
+        let far = DVec2::new(-50.0, -50.0);
+        // Nothing ever seen: every cell within the blind ring is a hole's mouth (centres
+        // within 0.5 m of (1, 1): the disc of radius 5 cells about (9.5, 9.5)).
+        let (grid, n) = unseen_near(|_, _| false, &empty_near, &empty_driven, far);
+        let inside = (0..400).filter(|&c| ((c % 20) as f64 - 9.5).hypot((c / 20) as f64 - 9.5) <= 5.0).count();
+        assert_eq!(n, inside);
+        assert!(grid[10 * 20 + 10] == 0.9 && grid[10 * 20 + 16].is_nan(), "inside marked, outside the ring left unknown");
+        // A hole 3 x 3 cells beside the robot, the rest seen: its centre cell only (the rim
+        // cells have seen neighbours).
+        let hole = |x: usize, y: usize| (12..=14).contains(&x) && (9..=11).contains(&y);
+        let (grid, n) = unseen_near(|x, y| !hole(x, y), &empty_near, &empty_driven, far);
+        assert_eq!(n, 1);
+        assert_eq!(grid[10 * 20 + 13], 0.9);
+        // A lone unseen cell between lidar rings stays unknown.
+        let (_, n) = unseen_near(|x, y| (x, y) != (10, 10), &empty_near, &empty_driven, far);
+        assert_eq!(n, 0);
+        // Held by the near memory (seen on its way in): not marked.
+        let mut near = NearMemory::default();
+        let g = GridGeometry { resolution_m: 0.1, nx: 20, ny: 20, origin_cell: (0, 0) };
+        let mut seen_once = vec![f32::NAN; 400];
+        for y in 9..=11 {
+            for x in 12..=14 {
+                seen_once[y * 20 + x] = 0.1;
+            }
+        }
+        near.record(&seen_once, &g, DVec2::new(1.0, 1.0), 3.0, false);
+        let (_, n) = unseen_near(|x, y| !hole(x, y), &near, &empty_driven, far);
+        assert_eq!(n, 0);
+        // Stood on: not marked.
+        let mut driven = DrivenMemory::default();
+        driven.stamp(DVec2::new(1.35, 1.05), 0.0, 0.3, 0.3, 0.1, 20.0);
+        let (_, n) = unseen_near(|x, y| !hole(x, y), &empty_near, &driven, far);
+        assert_eq!(n, 0);
+        // Within the blind ring of the start: never in view, not marked.
+        let (_, n) = unseen_near(|_, _| false, &empty_near, &empty_driven, DVec2::new(1.0, 1.0));
+        assert_eq!(n, 0);
     }
 }

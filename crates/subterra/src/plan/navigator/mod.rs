@@ -25,7 +25,12 @@
 //!    unseen: unobserved cells within `unseen_growth_m` of a lethal patch and at least
 //!    `unseen_growth_min_range_m` from the robot take its rating (a hazard's far side lies in
 //!    its own shadow). Last, on both, each cell still unobserved within `near_memory_m` takes
-//!    its near-memory rating if that is above the planner's `unknown_risk`. The **driven
+//!    its near-memory rating if that is above the planner's `unknown_risk`. With
+//!    `unseen_near_lethal`, the **unseen-near rule** marks lethal on both each cell within the
+//!    sensor's blind ring (`coverage.min_range_m`) that is unobserved, never held by the near
+//!    memory, never stood on, not within the blind ring of the robot's first pose, with its 8
+//!    neighbours the same: ground the all-round sensor had in view on its way in and never got
+//!    a return from (a hole's mouth; [`memory::mark_unseen_near`]). The **driven
 //!    memory** adds the cells under the robot's footprint every step. **Lethal** is the map's
 //!    one definition ([`RiskMap::lethal_risk`]): the A* never enters a lethal cell whatever its
 //!    thresholds, the MPC keeps the footprint off them.
@@ -72,7 +77,7 @@ use glam::DVec2;
 pub use config::{NavigatorConfig, NavigatorSettings, MAX_MORPHOLOGY_M, MAX_RANGE_SETTING_M, UNSEEN_RISK_PER_M};
 pub use memory::WorldCell;
 
-use self::memory::{DrivenMemory, HazardMemory, HazardRules, NearMemory};
+use self::memory::{mark_unseen_near, DrivenMemory, HazardMemory, HazardRules, NearMemory, UnseenNear};
 use self::morphology::{grow_into_unseen, inflate_lethal, Growth};
 use self::reactive::SafetyView;
 use self::target::{nearest_traversable, nearest_traversable_to, on_map, path_length_from, reachable_from, Search};
@@ -185,6 +190,8 @@ pub struct Navigator {
     hazards: HazardMemory,
     near: NearMemory,
     driven: DrivenMemory,
+    /// Where the robot stood at its first map: its blind ring there was never in view.
+    start: Option<DVec2>,
     scratch: PlanScratch,
     path: Vec<DVec2>,
     remainder_m: f64,
@@ -233,6 +240,7 @@ impl Navigator {
             hazards: HazardMemory::default(),
             near: NearMemory::default(),
             driven: DrivenMemory::default(),
+            start: None,
             scratch: PlanScratch::default(),
             path: Vec::new(),
             remainder_m: 0.0,
@@ -534,6 +542,11 @@ impl Navigator {
             let above = self.config.planner.unknown_risk as f32;
             self.near.recall(&mut self.grid, &g, position, nav.near_memory_m, above, lethal);
             self.near.recall(&mut s.grown, &g, position, nav.near_memory_m, above, lethal);
+        }
+        let start = *self.start.get_or_insert(position);
+        if nav.unseen_near_lethal {
+            let rule = UnseenNear { robot: position, start, blind_m: nav.coverage.min_range_m, lethal };
+            mark_unseen_near(&mut self.grid, &mut s.grown, &g, &self.near, &self.driven, &rule);
         }
         self.map = Some(map);
         Ok(())
