@@ -238,7 +238,8 @@ pub(crate) struct UnseenNear {
 
 /// The unseen-near rule (`NavigatorSettings::unseen_near_lethal`): marks lethal, in `grid` and
 /// `grown` (both of geometry `g`), each cell within `rule.blind_m` of the robot that is unseen
-/// (NaN in `grid`, never held by the near memory, never stood on), farther than `rule.blind_m`
+/// (NaN in `grid`, never held by the near memory below the lethal level, never stood on: never
+/// shown to be ground), farther than `rule.blind_m`
 /// from the start, and whose 8 neighbours are unseen too or off the map. Returns how many.
 ///
 /// The neighbourhood keeps a lone cell between two lidar rings from turning into an obstacle:
@@ -248,7 +249,7 @@ pub(crate) fn mark_unseen_near(grid: &mut [f32], grown: &mut [f32], g: &GridGeom
     let start = in_cells(rule.start, res);
     let start_r2 = (rule.blind_m / res).powi(2);
     let unseen = |cell: WorldCell, grid: &[f32]| match cell.flat_on(g) {
-        Some(c) => grid[c].is_nan() && near.get(cell).is_none() && !driven.contains(cell),
+        Some(c) => grid[c].is_nan() && near.below_lethal(cell, rule.lethal).is_none() && !driven.contains(cell),
         None => true,
     };
     let mut marked = Vec::new();
@@ -489,6 +490,11 @@ mod tests {
         near.record(&seen_once, &g, DVec2::new(1.0, 1.0), 3.0, false);
         let (_, n) = unseen_near(|x, y| !hole(x, y), &near, &empty_driven, far);
         assert_eq!(n, 0);
+        // Held as lethal (a drop rated from afar, then out of view): still a hole.
+        let mut near_lethal = NearMemory::default();
+        near_lethal.record(&seen_once.iter().map(|r| if r.is_nan() { *r } else { 1.0 }).collect::<Vec<_>>(), &g, DVec2::new(1.0, 1.0), 3.0, false);
+        let (_, n) = unseen_near(|x, y| !hole(x, y), &near_lethal, &empty_driven, far);
+        assert_eq!(n, 1);
         // Stood on: not marked.
         let mut driven = DrivenMemory::default();
         driven.stamp(DVec2::new(1.35, 1.05), 0.0, 0.3, 0.3, 0.1, 20.0);
