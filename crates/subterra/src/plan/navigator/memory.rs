@@ -239,8 +239,8 @@ pub(crate) struct UnseenNear {
 /// The unseen-near rule (`NavigatorSettings::unseen_near_lethal`): marks lethal, in `grid` and
 /// `grown` (both of geometry `g`), each cell within `rule.blind_m` of the robot that is unseen
 /// (NaN in `grid`, never held by the near memory below the lethal level, never stood on: never
-/// shown to be ground), farther than `rule.blind_m`
-/// from the start, and whose 8 neighbours are unseen too or off the map. Returns how many.
+/// shown to be ground), farther than `rule.blind_m` from the start, and whose 8 neighbours are
+/// unseen too or off the map. Returns how many.
 ///
 /// The neighbourhood keeps a lone cell between two lidar rings from turning into an obstacle:
 /// a patch three cells across that the sensor never returned from is a hole, not a gap.

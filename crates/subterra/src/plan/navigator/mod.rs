@@ -28,9 +28,9 @@
 //!    its near-memory rating if that is above the planner's `unknown_risk`. With
 //!    `unseen_near_lethal`, the **unseen-near rule** marks lethal on both each cell within the
 //!    sensor's blind ring (`coverage.min_range_m`) that is unobserved, never held by the near
-//!    memory below lethal, never stood on, not within the blind ring of the robot's first pose, with its 8
-//!    neighbours the same: ground the all-round sensor had in view on its way in and never got
-//!    a return from (a hole's mouth; [`memory::mark_unseen_near`]). The **driven
+//!    memory below lethal, never stood on, not within the blind ring of the robot's first
+//!    pose, with its 8 neighbours the same: ground the all-round sensor had in view on its way
+//!    in and never got a return from (a hole's mouth; [`memory::mark_unseen_near`]). The **driven
 //!    memory** adds the cells under the robot's footprint every step. **Lethal** is the map's
 //!    one definition ([`RiskMap::lethal_risk`]): the A* never enters a lethal cell whatever its
 //!    thresholds, the MPC keeps the footprint off them.
