@@ -614,10 +614,12 @@ class Navigator:
     def plan_grid(self) -> npt.NDArray[np.float32] | None:
         """The navigator's grid ``(ny, nx)`` on ``risk_map``'s geometry: risk where observed,
         raised by the hazard memory; within ``navigator.near_memory_m`` of the robot, unobserved
-        cells take the near memory's rating; NaN where unobserved otherwise (None before the
-        first scan). The
-        MPC, the local risk and ``back_out`` use it as it is; the A* plans on it grown into
-        the unseen and inflated (``crates/subterra/src/plan/navigator/mod.rs``, steps 2-3)."""
+        cells take the near memory's rating; lethal where the unseen-near rule
+        (``navigator.unseen_near_lethal``) finds a hole's mouth and within
+        ``navigator.void_rim_m`` of a void; NaN where unobserved otherwise (None before the
+        first scan). The MPC, the local risk and ``back_out`` use it as it is; the A* plans on
+        it grown into the unseen and inflated (``crates/subterra/src/plan/navigator/mod.rs``,
+        steps 2-3)."""
     @property
     def driven_cells(self) -> int:
         """Cells the robot's footprint has stood on (the driven memory)."""

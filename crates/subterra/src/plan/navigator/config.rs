@@ -108,6 +108,14 @@ pub struct NavigatorSettings {
     /// a drop), and it is lethal on the navigator's grid. The tracker then stops short of it
     /// and the A* plans around it.
     pub unseen_near_lethal: bool,
+    /// **Void rim** (step 2): cells within this distance of a void (a cell the map rated as
+    /// missing ground, held by the map or the hazard memory) are lethal on the navigator's
+    /// grid, unless the robot stood on them [m]; 0: off. The map places a void's edge where
+    /// a ray's ground returns stop, to within the ground segmentation's radial bin
+    /// (`ground.bin_m`, 0.2 m): the cells holding the last returns are rated ground although
+    /// part of them overhangs the drop. Without the rim the A*'s inflation and the tracker's
+    /// footprint check keep the robot clear of the rated void, not of the real edge.
+    pub void_rim_m: f64,
     /// **Perception-aware planning** (step 3): price the unknown cells the A* enters by
     /// whether the sensor will have seen them from the path before the robot gets there.
     pub perception_aware: bool,
@@ -144,6 +152,7 @@ impl Default for NavigatorSettings {
             near_memory_highest: false,
             driven_memory_m: 15.0,
             unseen_near_lethal: true,
+            void_rim_m: 0.2,
             perception_aware: true,
             coverage: SensorCoverage::default(),
         }
@@ -177,6 +186,7 @@ impl NavigatorSettings {
         require_non_negative("navigator.unseen_growth_min_range_m", self.unseen_growth_min_range_m)?;
         require_non_negative("navigator.near_memory_m", self.near_memory_m)?;
         require_non_negative("navigator.driven_memory_m", self.driven_memory_m)?;
+        require_non_negative("navigator.void_rim_m", self.void_rim_m)?;
         // Bounds on the work and memory a setting implies: a disc per lethal cell for the
         // morphology radii, a search or a memory over the area of the others.
         let limited = [
@@ -185,6 +195,7 @@ impl NavigatorSettings {
             ("track_unknown_fringe_m", self.track_unknown_fringe_m, MAX_MORPHOLOGY_M),
             ("inflation_margin_m", self.inflation_margin_m, MAX_MORPHOLOGY_M),
             ("unseen_growth_m", self.unseen_growth_m, MAX_MORPHOLOGY_M),
+            ("void_rim_m", self.void_rim_m, MAX_MORPHOLOGY_M),
             ("clearance_range_m", self.clearance_range_m, MAX_RANGE_SETTING_M),
             ("standin_search_m", self.standin_search_m, MAX_RANGE_SETTING_M),
             ("unseen_growth_min_range_m", self.unseen_growth_min_range_m, MAX_RANGE_SETTING_M),

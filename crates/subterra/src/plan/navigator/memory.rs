@@ -86,10 +86,18 @@ pub(crate) struct HazardRules {
     pub range_m: f64,
 }
 
+/// A remembered hazard: its newest lethal rating and whether the map ever rated it a void
+/// (missing ground, its `negative` layer at the lethal level).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Hazard {
+    risk: f32,
+    void: bool,
+}
+
 /// Lethal patches, by world cell, with their newest rating.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct HazardMemory {
-    cells: HashMap<WorldCell, f32>,
+    cells: HashMap<WorldCell, Hazard>,
 }
 
 impl HazardMemory {
@@ -100,15 +108,22 @@ impl HazardMemory {
 
     /// The remembered rating of `cell`.
     pub fn get(&self, cell: WorldCell) -> Option<f32> {
-        self.cells.get(&cell).copied()
+        self.cells.get(&cell).map(|h| h.risk)
+    }
+
+    /// The remembered cells the map rated a void at least once.
+    pub fn voids(&self) -> impl Iterator<Item = WorldCell> + '_ {
+        self.cells.iter().filter(|(_, h)| h.void).map(|(&cell, _)| cell)
     }
 
     /// One map's pass over the planner's grid `risk` (NaN: unobserved) of geometry `g`, with
-    /// `ground_points` its ground-point counts: forgets remembered cells beyond `range_m` of
-    /// `position` and those the map now holds `forget_points` ground points in and rates below
-    /// lethal; remembers every clustered lethal cell within `record_m` (its newest rating);
-    /// then raises each remembered cell on the grid to its rating (unobserved ones set to it).
-    pub fn update(&mut self, risk: &mut [f32], ground_points: &[f32], g: &GridGeometry, position: DVec2, rules: &HazardRules) {
+    /// `ground_points` its ground-point counts and `negative` its `negative` layer: forgets
+    /// remembered cells beyond `range_m` of `position` and those the map now holds
+    /// `forget_points` ground points in and rates below lethal; remembers every clustered
+    /// lethal cell within `record_m` (its newest rating, and whether `negative` is lethal
+    /// there: a void); then raises each remembered cell on the grid to its rating (unobserved
+    /// ones set to it).
+    pub fn update(&mut self, risk: &mut [f32], ground_points: &[f32], negative: &[f32], g: &GridGeometry, position: DVec2, rules: &HazardRules) {
         let here = in_cells(position, g.resolution_m);
         let range = rules.range_m / g.resolution_m;
         self.cells.retain(|&cell, _| {
@@ -120,12 +135,14 @@ impl HazardMemory {
             let cell = WorldCell::of_flat(g, c);
             // NaN (unobserved) compares false.
             if r >= rules.lethal && cell.distance2(here) <= record * record && clustered(risk, g.nx, g.ny, c, rules.lethal, rules.min_neighbours) {
-                self.cells.insert(cell, r);
+                let void = negative[c] >= rules.lethal;
+                let hazard = self.cells.entry(cell).or_insert(Hazard { risk: r, void });
+                *hazard = Hazard { risk: r, void: hazard.void || void };
             }
         }
-        for (&cell, &remembered) in &self.cells {
+        for (&cell, hazard) in &self.cells {
             if let Some(c) = cell.flat_on(g) {
-                risk[c] = if risk[c].is_nan() { remembered } else { risk[c].max(remembered) };
+                risk[c] = if risk[c].is_nan() { hazard.risk } else { risk[c].max(hazard.risk) };
             }
         }
     }
@@ -265,6 +282,33 @@ pub(crate) fn mark_unseen_near(grid: &mut [f32], grown: &mut [f32], g: &GridGeom
     marked.len()
 }
 
+/// The void-rim rule (`NavigatorSettings::void_rim_m`): marks lethal, in `grid` and `grown`
+/// (both of geometry `g`), every cell whose centre lies within `rim_m` of the centre of a
+/// void cell (`voids`: cells the map rated as missing ground) and that the robot never stood
+/// on. Returns how many cells it raised.
+///
+/// The map finds a void where a ray's ground returns stop short of where the ground should
+/// go on; the last returns come from the rim, so the cells they fall in are rated ground
+/// although their far part overhangs the drop. Where ground ends is therefore known only to
+/// the ground segmentation's radial bin; the rim takes that uncertainty as part of the void.
+pub(crate) fn mark_void_rims(grid: &mut [f32], grown: &mut [f32], g: &GridGeometry, voids: impl IntoIterator<Item = WorldCell>, driven: &DrivenMemory, rim_m: f64, lethal: f32) -> usize {
+    let res = g.resolution_m;
+    let mut raised = 0;
+    for void in voids {
+        let centre = (DVec2::new(void.x as f64, void.y as f64) + 0.5) * res;
+        for_cells_within(g, centre, rim_m, |cell, c| {
+            if !(grid[c] >= lethal) && !driven.contains(cell) {
+                grid[c] = lethal;
+                raised += 1;
+            }
+            if !(grown[c] >= lethal) && !driven.contains(cell) {
+                grown[c] = lethal;
+            }
+        });
+    }
+    raised
+}
+
 /// `f(cell)` for every world cell at `resolution_m` whose centre lies inside the
 /// `length_m x width_m` rectangle centred on `position`, its length along `heading_rad`.
 pub(crate) fn for_footprint_cells(position: DVec2, heading_rad: f64, length_m: f64, width_m: f64, resolution_m: f64, mut f: impl FnMut(WorldCell)) {
@@ -284,7 +328,7 @@ pub(crate) fn for_footprint_cells(position: DVec2, heading_rad: f64, length_m: f
     }
 }
 
-fn forget_beyond(cells: &mut HashMap<WorldCell, f32>, position: DVec2, resolution_m: f64, keep_m: f64) {
+fn forget_beyond<V>(cells: &mut HashMap<WorldCell, V>, position: DVec2, resolution_m: f64, keep_m: f64) {
     let here = in_cells(position, resolution_m);
     let keep = keep_m / resolution_m;
     cells.retain(|&cell, _| cell.distance2(here) <= keep * keep);
@@ -313,7 +357,8 @@ mod tests {
             risk[iy * N + ix] = r;
             ground[iy * N + ix] = n;
         }
-        memory.update(&mut risk, &ground, &geometry(origin_cell), position, &rules(min_neighbours));
+        let negative = vec![0.0; N * N];
+        memory.update(&mut risk, &ground, &negative, &geometry(origin_cell), position, &rules(min_neighbours));
         risk
     }
 
@@ -423,8 +468,8 @@ mod tests {
     #[test]
     fn clear_map_keeps_the_hazards_the_lidar_cannot_see_again() {
         let mut memory = HazardMemory::default();
-        memory.cells.insert(WorldCell { x: 10, y: 0 }, 1.0);
-        memory.cells.insert(WorldCell { x: 40, y: 0 }, 1.0);
+        memory.cells.insert(WorldCell { x: 10, y: 0 }, Hazard { risk: 1.0, void: false });
+        memory.cells.insert(WorldCell { x: 40, y: 0 }, Hazard { risk: 1.0, void: false });
         memory.forget_beyond(DVec2::ZERO, 0.1, 3.0);
         assert_eq!(memory.cells.keys().copied().collect::<Vec<_>>(), vec![WorldCell { x: 10, y: 0 }]);
     }
@@ -503,5 +548,58 @@ mod tests {
         // Within the blind ring of the start: never in view, not marked.
         let (_, n) = unseen_near(|_, _| false, &empty_near, &empty_driven, DVec2::new(1.0, 1.0));
         assert_eq!(n, 0);
+    }
+
+    #[test]
+    fn the_rim_of_a_remembered_void_is_lethal_except_where_the_robot_stood() {
+        let g = GridGeometry { resolution_m: 0.1, nx: 20, ny: 20, origin_cell: (0, 0) };
+        // A 3 x 3 void at cells (8..=10, 8..=10), rated lethal by the negative layer, beside a
+        // 3 x 3 step (lethal, not a void) at (15..=17, 8..=10); the rest rated ground.
+        let void = |x: usize, y: usize| (8..=10).contains(&x) && (8..=10).contains(&y);
+        let step = |x: usize, y: usize| (15..=17).contains(&x) && (8..=10).contains(&y);
+        let mut risk: Vec<f32> = (0..400).map(|c| if void(c % 20, c / 20) || step(c % 20, c / 20) { 1.0 } else { 0.0 }).collect();
+        let negative: Vec<f32> = (0..400).map(|c| if void(c % 20, c / 20) { 1.0 } else { 0.0 }).collect();
+        let ground = vec![10.0; 400];
+        let mut memory = HazardMemory::default();
+        memory.update(&mut risk, &ground, &negative, &g, DVec2::new(1.0, 0.3), &HazardRules { lethal: 0.9, min_neighbours: 2, forget_points: 5.0, record_m: 6.0, range_m: 15.0 });
+        let mut voids: Vec<WorldCell> = memory.voids().collect();
+        voids.sort();
+        assert_eq!(voids.len(), 9, "the void's cells are remembered as a void, the step's are not");
+        assert!(voids.iter().all(|c| void(c.x as usize, c.y as usize)));
+        assert_eq!(memory.len(), 18);
+
+        // Out of view (the blind ring): the grid holds only what the memory raises.
+        let mut grid = vec![f32::NAN; 400];
+        let mut grown = vec![f32::NAN; 400];
+        let mut driven = DrivenMemory::default();
+        let n = mark_void_rims(&mut grid, &mut grown, &g, memory.voids(), &driven, 0.2, 0.9);
+        // Centres within two cells of a void centre: the 7 x 7 square less its 12 far
+        // corner cells (distance sqrt(5) and sqrt(8) > 2).
+        assert_eq!(n, 49 - 12);
+        assert_eq!(grid[9 * 20 + 12], 0.9, "two cells beyond the void's edge: rim");
+        assert!(grid[9 * 20 + 13].is_nan(), "three cells beyond: not rim");
+        assert!(grid[9 * 20 + 14].is_nan() && grid[11 * 20 + 16].is_nan(), "a step gets no rim");
+        assert_eq!(grown[9 * 20 + 12], 0.9);
+        // Ground rated safe beside it is raised too: its far part overhangs the drop.
+        let mut seen = vec![0.0f32; 400];
+        let mut seen_grown = seen.clone();
+        mark_void_rims(&mut seen, &mut seen_grown, &g, memory.voids(), &driven, 0.2, 0.9);
+        assert_eq!(seen[9 * 20 + 7], 0.9);
+        assert_eq!(seen[9 * 20 + 5], 0.0);
+        // Cells the robot stood on carried it: not rim.
+        driven.stamp(DVec2::new(0.75, 0.95), 0.0, 0.3, 0.3, 0.1, 20.0);
+        assert!(driven.contains(WorldCell { x: 7, y: 9 }));
+        let mut grid = vec![0.0f32; 400];
+        let mut grown = grid.clone();
+        mark_void_rims(&mut grid, &mut grown, &g, memory.voids(), &driven, 0.2, 0.9);
+        assert_eq!(grid[9 * 20 + 7], 0.0);
+        assert_eq!(grid[9 * 20 + 12], 0.9);
+        // 0 m: the void itself only, already lethal; nothing raised.
+        let mut grid = vec![0.0f32; 400];
+        let mut grown = grid.clone();
+        for c in voids {
+            grid[c.y as usize * 20 + c.x as usize] = 0.9;
+        }
+        assert_eq!(mark_void_rims(&mut grid, &mut grown, &g, memory.voids(), &DrivenMemory::default(), 0.0, 0.9), 0);
     }
 }

@@ -30,7 +30,11 @@
 //!    sensor's blind ring (`coverage.min_range_m`) that is unobserved, never held by the near
 //!    memory below lethal, never stood on, not within the blind ring of the robot's first
 //!    pose, with its 8 neighbours the same: ground the all-round sensor had in view on its way
-//!    in and never got a return from (a hole's mouth; [`memory::mark_unseen_near`]). The **driven
+//!    in and never got a return from (a hole's mouth; [`memory::mark_unseen_near`]). With
+//!    `void_rim_m` > 0, every cell within it of a void (a cell whose `negative` layer is
+//!    lethal, on this map in a patch or remembered by the hazard memory) is lethal on both
+//!    unless the robot stood on it: the map places a void's edge only to within one radial
+//!    ground bin ([`memory::mark_void_rims`]). The **driven
 //!    memory** adds the cells under the robot's footprint every step. **Lethal** is the map's
 //!    one definition ([`RiskMap::lethal_risk`]): the A* never enters a lethal cell whatever its
 //!    thresholds, the MPC keeps the footprint off them.
@@ -77,8 +81,8 @@ use glam::DVec2;
 pub use config::{NavigatorConfig, NavigatorSettings, MAX_MORPHOLOGY_M, MAX_RANGE_SETTING_M, UNSEEN_RISK_PER_M};
 pub use memory::WorldCell;
 
-use self::memory::{mark_unseen_near, DrivenMemory, HazardMemory, HazardRules, NearMemory, UnseenNear};
-use self::morphology::{grow_into_unseen, inflate_lethal, Growth};
+use self::memory::{mark_unseen_near, mark_void_rims, DrivenMemory, HazardMemory, HazardRules, NearMemory, UnseenNear};
+use self::morphology::{clustered, grow_into_unseen, inflate_lethal, Growth};
 use self::reactive::SafetyView;
 use self::target::{nearest_traversable, nearest_traversable_to, on_map, path_length_from, reachable_from, Search};
 use crate::error::{Error, Result};
@@ -530,7 +534,7 @@ impl Navigator {
                 record_m: nav.hazard_memory_record_m,
                 range_m: nav.hazard_memory_range_m,
             };
-            self.hazards.update(&mut self.grid, map.layer("ground_count")?, &g, position, &rules);
+            self.hazards.update(&mut self.grid, map.layer("ground_count")?, map.layer("negative")?, &g, position, &rules);
         }
         let s = &mut self.scratch;
         s.grown.clone_from(&self.grid);
@@ -547,6 +551,17 @@ impl Navigator {
         if nav.unseen_near_lethal {
             let rule = UnseenNear { robot: position, start, blind_m: nav.coverage.min_range_m, lethal };
             mark_unseen_near(&mut self.grid, &mut s.grown, &g, &self.near, &self.driven, &rule);
+        }
+        if nav.void_rim_m > 0.0 {
+            // The voids of this map (patches, as the hazard memory keeps them) and the
+            // remembered ones, which the blind ring hides once the robot is beside them.
+            let negative = map.layer("negative")?;
+            let on_map: Vec<WorldCell> = (0..g.cells())
+                .filter(|&c| negative[c] >= lethal && clustered(&self.grid, g.nx, g.ny, c, lethal, nav.lethal_min_neighbours))
+                .map(|c| WorldCell::of_flat(&g, c))
+                .collect();
+            let remembered = self.hazards.voids().collect::<Vec<_>>();
+            mark_void_rims(&mut self.grid, &mut s.grown, &g, on_map.into_iter().chain(remembered), &self.driven, nav.void_rim_m, lethal);
         }
         self.map = Some(map);
         Ok(())
