@@ -116,6 +116,15 @@ pub struct NavigatorSettings {
     /// part of them overhangs the drop. Without the rim the A*'s inflation and the tracker's
     /// footprint check keep the robot clear of the rated void, not of the real edge.
     pub void_rim_m: f64,
+    /// **Footprint-checked plans** (step 3): the A*'s path is checked with the tracker's own
+    /// footprint test (the rectangle along the path's tangent against lethal cells and the
+    /// unknown beside them); where it fails, the cells within the difference between the
+    /// circumscribed and the inscribed radius of that point are closed and the A* plans
+    /// again, at most this many times; 0: off. The A* plans the centre of a disc the robot's
+    /// width across; the rectangle cannot take every turn that disc can, and a path it cannot
+    /// follow only stops the tracker beside an obstacle. If no checked path is found the last
+    /// path found is used.
+    pub footprint_replans: u32,
     /// **Perception-aware planning** (step 3): price the unknown cells the A* enters by
     /// whether the sensor will have seen them from the path before the robot gets there.
     pub perception_aware: bool,
@@ -153,6 +162,7 @@ impl Default for NavigatorSettings {
             driven_memory_m: 15.0,
             unseen_near_lethal: true,
             void_rim_m: 0.2,
+            footprint_replans: 4,
             perception_aware: true,
             coverage: SensorCoverage::default(),
         }
@@ -165,6 +175,9 @@ pub const MAX_RANGE_SETTING_M: f64 = 100.0;
 /// Largest inflation, growth or sweep margin accepted [m]: each lethal cell stamps a disc of
 /// this radius; metres of margin close every passage of a mine anyway.
 pub const MAX_MORPHOLOGY_M: f64 = 2.0;
+
+/// Most footprint replans accepted (`footprint_replans`): each is a whole A* search.
+pub const MAX_FOOTPRINT_REPLANS: u32 = 16;
 
 impl NavigatorSettings {
     /// Checks every field, naming it (`navigator.<field>`).
@@ -205,6 +218,9 @@ impl NavigatorSettings {
             ("near_memory_m", self.near_memory_m, MAX_RANGE_SETTING_M),
             ("driven_memory_m", self.driven_memory_m, MAX_RANGE_SETTING_M),
         ];
+        if self.footprint_replans > MAX_FOOTPRINT_REPLANS {
+            return Err(Error::config("navigator.footprint_replans", format!("must be at most {MAX_FOOTPRINT_REPLANS} (each is one more A* search a plan)"), self.footprint_replans));
+        }
         for (name, value, limit) in limited {
             if value > limit {
                 return Err(Error::config(format!("navigator.{name}"), format!("must be at most {limit} m"), value));

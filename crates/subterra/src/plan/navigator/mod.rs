@@ -48,7 +48,13 @@
 //!    observed, not remembered, not driven) the sensor will not have seen on the way are priced
 //!    at the map's `risk.unknown` instead of the planner's `unknown_risk`
 //!    ([`crate::plan::coverage`]); then the A* with the recovery machine's `R_inst`/`R_total`.
-//!    The distance to the target the recovery machine measures progress by is the path's
+//!    With `footprint_replans` > 0 the path found is checked with the tracker's footprint test
+//!    (below, step 5) at poses every half cell along it, each with the heading of the path's
+//!    chord over the robot's length; where the rectangle fails, a disc of the circumscribed
+//!    less the inscribed radius around that pose is closed and the A* runs again, up to
+//!    `footprint_replans` times ([`reactive::footprint_checked`]): the disc the A* plans for
+//!    takes turns the rectangle cannot, and such a path only stops the tracker beside an
+//!    obstacle. The distance to the target the recovery machine measures progress by is the path's
 //!    length plus the straight remainder beyond the map when a path was found, else the
 //!    straight-line distance.
 //! 4. **Recovery.** [`RecoveryMachine::step`] with the plan's outcome and the heading of most
@@ -83,7 +89,7 @@ pub use memory::WorldCell;
 
 use self::memory::{mark_unseen_near, mark_void_rims, DrivenMemory, HazardMemory, HazardRules, NearMemory, UnseenNear};
 use self::morphology::{clustered, grow_into_unseen, inflate_lethal, Growth};
-use self::reactive::SafetyView;
+use self::reactive::{FootprintReplan, SafetyView};
 use self::target::{nearest_traversable, nearest_traversable_to, on_map, path_length_from, reachable_from, Search};
 use crate::error::{Error, Result};
 use crate::frames::Isometry3;
@@ -384,7 +390,7 @@ impl Navigator {
             let due = self.last_plan_s.is_none_or(|t| input.stamp_s - t >= self.config.navigator.replan_period_s);
             if due || !self.last_plan_ok || self.planned_for != Some(key) {
                 let t_plan = Instant::now();
-                let outcome = self.plan(&grid, lethal, position, target_point, key)?;
+                let outcome = self.plan(&grid, lethal, (position, heading), target_point, key)?;
                 self.last_plan_s = Some(input.stamp_s);
                 self.planned_for = Some(key);
                 self.last_plan_ok = outcome.status == PlanStatus::Found;
@@ -568,7 +574,8 @@ impl Navigator {
     }
 
     /// Step 3: the A*'s grid, the stand-in, the entry prices and the plan; keeps the path.
-    fn plan(&mut self, grid: &RiskGrid<'_>, lethal: f32, position: DVec2, target_point: DVec2, key: (f64, f64, Target)) -> Result<PlanOutcome> {
+    fn plan(&mut self, grid: &RiskGrid<'_>, lethal: f32, pose: (DVec2, f64), target_point: DVec2, key: (f64, f64, Target)) -> Result<PlanOutcome> {
+        let position = pose.0;
         let nav = self.config.navigator;
         let g = *grid.map_geometry().ok_or_else(|| Error::input("grid", "must lie on a map geometry"))?;
         let fit_radius = 0.5 * self.robot.width_m + nav.inflation_margin_m;
@@ -614,7 +621,33 @@ impl Navigator {
         } else {
             None
         };
-        let outcome = self.planner.plan_with(&astar_grid, position, goal_on_map, entry.as_ref())?;
+        let mut outcome = self.planner.plan_with(&astar_grid, position, goal_on_map, entry.as_ref())?;
+        if nav.footprint_replans > 0 && outcome.found().is_some() {
+            // The path checked with the tracker's own footprint test (the rectangle along the
+            // path's tangent, lethal cells and the unknown next to them): where it fails, a
+            // disc around that point of the path is closed and the A* plans again.
+            let view = SafetyView {
+                grid: *grid,
+                hazards: &self.hazards,
+                near: &self.near,
+                driven: &self.driven,
+                blocking: lethal,
+                lethal,
+                unknown_blocks: false,
+                unknown_near_lethal_m: nav.track_unknown_fringe_m,
+                robot: self.robot,
+                margin_m: 0.0,
+                cell_overlap: false,
+            };
+            let replan = FootprintReplan {
+                view: &view,
+                from: pose,
+                goal: goal_on_map,
+                replans: nav.footprint_replans,
+                half_window_m: self.config.tracker.tracking.tangent_half_window_m,
+            };
+            outcome = reactive::footprint_checked(&mut self.planner, &s.astar, &g, lethal, entry.as_ref(), &replan, outcome)?;
+        }
         if let Some(path) = outcome.found() {
             self.path.clone_from(&path.points_world);
             self.remainder_m = remainder;

@@ -12,9 +12,12 @@ use std::f64::consts::PI;
 
 use glam::DVec2;
 
-use super::memory::{for_footprint_cells, DrivenMemory, HazardMemory, NearMemory, WorldCell};
+use super::memory::{for_cells_within, for_footprint_cells, DrivenMemory, HazardMemory, NearMemory, WorldCell};
 use super::NavigatorSettings;
+use crate::error::Result;
+use crate::plan::astar::{EntryPrices, PlanOutcome, RiskAStar};
 use crate::plan::grid::RiskGrid;
+use crate::terrain::GridGeometry;
 use crate::plan::recovery::wrap_angle;
 use crate::terrain::RobotConfig;
 
@@ -130,21 +133,26 @@ impl SafetyView<'_> {
     /// newly cover at any of `poses` (`(position, heading)`) starting from `from`: the cells it
     /// covers at `from` already are where the robot is, and a motion away from them is allowed.
     pub fn sweep(&self, from: (DVec2, f64), poses: impl IntoIterator<Item = (DVec2, f64)>) -> Option<Blocked> {
+        self.first_blocked(from, poses).map(|(_, blocked)| blocked)
+    }
+
+    /// [`SafetyView::sweep`], with the index among `poses` of the first pose that is blocked.
+    pub fn first_blocked(&self, from: (DVec2, f64), poses: impl IntoIterator<Item = (DVec2, f64)>) -> Option<(usize, Blocked)> {
         let mut here = Vec::new();
         self.footprint_cells(from.0, from.1, |cell| here.push(cell));
         here.sort_unstable();
         let mut found = None;
-        for (position, heading) in poses {
+        for (k, (position, heading)) in poses.into_iter().enumerate() {
             self.footprint_cells(position, heading, |cell| {
                 if found.is_none() && here.binary_search(&cell).is_err() {
                     found = self.check(cell);
                 }
             });
-            if found.is_some() {
-                break;
+            if let Some(blocked) = found {
+                return Some((k, blocked));
             }
         }
-        found
+        None
     }
 
     /// The poses of a turn in place at `position` from `from_rad` by `angle_rad` (signed), so
@@ -172,6 +180,91 @@ pub(crate) fn arc_poses(position: DVec2, heading: f64, v: f64, w: f64, duration_
             (p, psi)
         })
         .collect()
+}
+
+/// The poses of a robot following the polyline `path` (world, at least two points): points
+/// every `spacing_m` of arc length after the first, each with the heading of the chord from
+/// `half_window_m` behind it to `half_window_m` ahead of it along the path (the tangent the
+/// tracker steers to, [`crate::plan::mpc`]'s `tangent_half_window_m`).
+pub(crate) fn path_poses(path: &[DVec2], spacing_m: f64, half_window_m: f64) -> Vec<(DVec2, f64)> {
+    let mut along = Vec::with_capacity(path.len());
+    let mut total = 0.0;
+    for (k, p) in path.iter().enumerate() {
+        if k > 0 {
+            total += p.distance(path[k - 1]);
+        }
+        along.push(total);
+    }
+    let at = |s: f64| -> DVec2 {
+        let s = s.clamp(0.0, total);
+        let k = along.partition_point(|&a| a < s).clamp(1, path.len() - 1);
+        let (a, b) = (along[k - 1], along[k]);
+        let t = if b > a { (s - a) / (b - a) } else { 0.0 };
+        path[k - 1].lerp(path[k], t)
+    };
+    let n = (total / spacing_m.max(1e-6)).ceil().min(100_000.0) as usize;
+    (1..=n)
+        .map(|k| {
+            let s = (k as f64 * spacing_m).min(total);
+            let chord = at(s + half_window_m) - at(s - half_window_m);
+            (at(s), chord.y.atan2(chord.x))
+        })
+        .collect()
+}
+
+/// What [`footprint_checked`] checks a plan with.
+pub(crate) struct FootprintReplan<'a> {
+    /// The tracker's footprint test.
+    pub view: &'a SafetyView<'a>,
+    /// The robot's pose `(position, heading)`: the cells under it now do not block.
+    pub from: (DVec2, f64),
+    /// The goal the A* plans to [m, world].
+    pub goal: DVec2,
+    /// At most this many new searches.
+    pub replans: u32,
+    /// Half the window of the path's tangent [m].
+    pub half_window_m: f64,
+}
+
+/// The footprint-checked plan (`NavigatorSettings::footprint_replans`): `outcome`, the A*'s
+/// plan on `astar` (geometry `g`), if the footprint along its path ([`path_poses`], every half
+/// cell, the heading that of the chord over the robot's length or the tracker's tangent
+/// window if longer; poses whose closing would reach the start or the goal left out) passes
+/// `replan.view`; else, at most `replan.replans` times, the cells within the
+/// difference of the circumscribed and the inscribed radius (at least a cell) of the first
+/// pose that fails are closed (set to `lethal`) and the A* plans again, until a path passes.
+/// If none does (or a search finds no path), the last path found.
+pub(crate) fn footprint_checked(
+    planner: &mut RiskAStar,
+    astar: &[f32],
+    g: &GridGeometry,
+    lethal: f32,
+    entry: Option<&EntryPrices<'_>>,
+    replan: &FootprintReplan<'_>,
+    mut outcome: PlanOutcome,
+) -> Result<PlanOutcome> {
+    let robot = replan.view.robot;
+    let close_m = (0.5 * robot.length_m.hypot(robot.width_m) - 0.5 * robot.width_m).max(g.resolution_m);
+    let mut closed: Option<Vec<f32>> = None;
+    for _ in 0..replan.replans {
+        let Some(path) = outcome.found() else { break };
+        // Poses whose closing would close the start or the goal are not checked: the robot
+        // has to leave where it stands and reach where it goes whatever the footprint says.
+        let keep_off = close_m + g.resolution_m;
+        let poses: Vec<(DVec2, f64)> = path_poses(&path.points_world, 0.5 * g.resolution_m, replan.half_window_m.max(0.5 * robot.length_m))
+            .into_iter()
+            .filter(|(p, _)| p.distance(replan.from.0) > keep_off && p.distance(replan.goal) > keep_off)
+            .collect();
+        let Some((k, _)) = replan.view.first_blocked(replan.from, poses.iter().copied()) else { break };
+        let closed = closed.get_or_insert_with(|| astar.to_vec());
+        for_cells_within(g, poses[k].0, close_m, |_, c| closed[c] = lethal);
+        let retry = planner.plan_with(&RiskGrid::on_geometry(closed, g)?, replan.from.0, replan.goal, entry)?;
+        if retry.found().is_none() {
+            break;
+        }
+        outcome = retry;
+    }
+    Ok(outcome)
 }
 
 /// A reactive command, or why none is safe.
@@ -371,5 +464,70 @@ mod tests {
         // Far from them the same turn is made.
         let (speed, w) = rotate(&v, DVec2::new(1.0, 1.0), 0.0, 1.2, &s).unwrap();
         assert!(speed == 0.0 && w > 0.0);
+    }
+
+    #[test]
+    fn path_poses_follow_the_path_with_its_tangent() {
+        let path = [DVec2::new(0.0, 0.0), DVec2::new(1.0, 0.0), DVec2::new(1.0, 1.0)];
+        let poses = path_poses(&path, 0.05, 0.3);
+        assert_eq!(poses.len(), 40);
+        assert!(poses[0].0.distance(DVec2::new(0.05, 0.0)) < 1e-12 && poses[0].1.abs() < 1e-12);
+        assert!(poses[39].0.distance(DVec2::new(1.0, 1.0)) < 1e-12);
+        assert!((poses[39].1 - std::f64::consts::FRAC_PI_2).abs() < 1e-12, "the last chord runs up the second leg");
+        // At the corner the chord from 0.3 m before to 0.3 m after is at 45 degrees.
+        assert!((poses[19].1 - std::f64::consts::FRAC_PI_4).abs() < 1e-12, "{}", poses[19].1);
+    }
+
+    /// An 8 x 6.6 m grid, lethal but for two rooms joined by a 0.8 m corridor with two right
+    /// angles (the short way) and by a 1.6 m passage along the top (the long way).
+    fn corner_world() -> (GridGeometry, Vec<f32>) {
+        let g = GridGeometry { resolution_m: 0.1, nx: 80, ny: 66, origin_cell: (0, 0) };
+        let within = |x: f64, y: f64, (x0, x1, y0, y1): (f64, f64, f64, f64)| x >= x0 && x < x1 && y >= y0 && y < y1;
+        let free = [
+            (0.4, 2.4, 0.4, 6.2), // the start's room
+            (5.6, 7.6, 0.4, 6.2), // the goal's room
+            (0.4, 7.6, 4.6, 6.2), // the wide way along the top
+            (2.4, 4.4, 0.8, 1.6), // the corridor: east,
+            (3.6, 4.4, 0.8, 3.0), // north,
+            (3.6, 5.6, 2.2, 3.0), // east again
+        ];
+        let risk = (0..g.cells())
+            .map(|c| {
+                let (x, y) = ((c % g.nx) as f64 * 0.1 + 0.05, (c / g.nx) as f64 * 0.1 + 0.05);
+                if free.iter().any(|&r| within(x, y, r)) { 0.05 } else { 1.0 }
+            })
+            .collect();
+        (g, risk)
+    }
+
+    #[test]
+    fn a_plan_whose_turn_the_footprint_cannot_make_is_replaced_by_one_it_can() {
+        let (g, risk) = corner_world();
+        let grid = RiskGrid::on_geometry(&risk, &g).unwrap();
+        let robot = RobotConfig::default();
+        let (start, goal) = (DVec2::new(1.45, 1.25), DVec2::new(6.55, 2.65));
+        let mut astar = Vec::new();
+        crate::plan::navigator::morphology::inflate_lethal(&risk, &mut astar, &g, 0.9, 0, 0.5 * robot.width_m, start);
+        let astar_grid = RiskGrid::on_geometry(&astar, &g).unwrap();
+        let mut planner = RiskAStar::new(crate::plan::astar::RiskAStarConfig::default()).unwrap();
+        let first = planner.plan_with(&astar_grid, start, goal, None).unwrap();
+        let first_path = first.found().expect("the inscribed disc fits the corridor").clone();
+        assert!(first_path.length_m < 7.5, "the A* takes the short way, through the corridor: {} m", first_path.length_m);
+
+        let (hazards, near, driven) = (HazardMemory::default(), NearMemory::default(), DrivenMemory::default());
+        let tracker_view = SafetyView { blocking: 0.9, unknown_blocks: false, unknown_near_lethal_m: 0.15, margin_m: 0.0, cell_overlap: false, ..view(grid, &hazards, &near, &driven) };
+        let poses = path_poses(&first_path.points_world, 0.05, 0.5 * robot.length_m);
+        let (k, _) = tracker_view.first_blocked((start, 0.0), poses.iter().copied()).expect("the rectangle cannot take the corner");
+        assert!((3.4..4.6).contains(&poses[k].0.x) && poses[k].0.y < 3.2, "blocked in the corridor: {:?}", poses[k].0);
+
+        let replan = FootprintReplan { view: &tracker_view, from: (start, 0.0), goal, replans: 4, half_window_m: 0.3 };
+        let checked = footprint_checked(&mut planner, &astar, &g, 0.9, None, &replan, first.clone()).unwrap();
+        let path = checked.found().expect("the wide way round");
+        assert!(path.length_m > 9.0, "the checked plan goes the wide way: {} m", path.length_m);
+        let poses = path_poses(&path.points_world, 0.05, 0.5 * robot.length_m);
+        assert_eq!(tracker_view.first_blocked((start, 0.0), poses.iter().copied()), None);
+        // Off (no replans): the first plan as it was.
+        let off = FootprintReplan { replans: 0, ..replan };
+        assert_eq!(footprint_checked(&mut planner, &astar, &g, 0.9, None, &off, first.clone()).unwrap().found().unwrap().length_m, first_path.length_m);
     }
 }
