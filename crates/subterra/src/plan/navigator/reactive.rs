@@ -17,9 +17,8 @@ use super::NavigatorSettings;
 use crate::error::Result;
 use crate::plan::astar::{EntryPrices, PlanOutcome, RiskAStar};
 use crate::plan::grid::RiskGrid;
-use crate::terrain::GridGeometry;
 use crate::plan::recovery::wrap_angle;
-use crate::terrain::RobotConfig;
+use crate::terrain::{GridGeometry, RobotConfig};
 
 /// Why a cell may not be swept.
 #[derive(Debug, Clone, Copy, PartialEq)]
