@@ -111,6 +111,11 @@ impl HazardMemory {
         self.cells.get(&cell).map(|h| h.risk)
     }
 
+    /// Whether `cell` is remembered as a void.
+    pub fn is_void(&self, cell: WorldCell) -> bool {
+        self.cells.get(&cell).is_some_and(|h| h.void)
+    }
+
     /// The remembered cells the map rated a void at least once.
     pub fn voids(&self) -> impl Iterator<Item = WorldCell> + '_ {
         self.cells.iter().filter(|(_, h)| h.void).map(|(&cell, _)| cell)
@@ -297,13 +302,14 @@ pub(crate) fn mark_void_rims(grid: &mut [f32], grown: &mut [f32], g: &GridGeomet
     for void in voids {
         let centre = (DVec2::new(void.x as f64, void.y as f64) + 0.5) * res;
         for_cells_within(g, centre, rim_m, |cell, c| {
-            if !(grid[c] >= lethal) && !driven.contains(cell) {
+            if (grid[c] >= lethal && grown[c] >= lethal) || driven.contains(cell) {
+                return;
+            }
+            if !(grid[c] >= lethal) {
                 grid[c] = lethal;
                 raised += 1;
             }
-            if !(grown[c] >= lethal) && !driven.contains(cell) {
-                grown[c] = lethal;
-            }
+            grown[c] = grown[c].max(lethal);
         });
     }
     raised

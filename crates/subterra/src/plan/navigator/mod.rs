@@ -559,12 +559,14 @@ impl Navigator {
             mark_unseen_near(&mut self.grid, &mut s.grown, &g, &self.near, &self.driven, &rule);
         }
         if nav.void_rim_m > 0.0 {
-            // The voids of this map (patches, as the hazard memory keeps them) and the
-            // remembered ones, which the blind ring hides once the robot is beside them.
+            // The voids of this map (patches, as the hazard memory keeps them) the memory does
+            // not already hold, and the remembered ones, which the blind ring hides once the
+            // robot is beside them.
             let negative = map.layer("negative")?;
             let on_map: Vec<WorldCell> = (0..g.cells())
                 .filter(|&c| negative[c] >= lethal && clustered(&self.grid, g.nx, g.ny, c, lethal, nav.lethal_min_neighbours))
                 .map(|c| WorldCell::of_flat(&g, c))
+                .filter(|&cell| !self.hazards.is_void(cell))
                 .collect();
             let remembered = self.hazards.voids().collect::<Vec<_>>();
             mark_void_rims(&mut self.grid, &mut s.grown, &g, on_map.into_iter().chain(remembered), &self.driven, nav.void_rim_m, lethal);
