@@ -499,20 +499,7 @@ impl Navigator {
     /// within `track_unknown_fringe_m` of a lethal cell count when the footprint covers their
     /// centres, as the A*'s inflation by the inscribed radius counts them.
     fn safety_view<'a>(&'a self, grid: RiskGrid<'a>, blocking: f32, lethal: f32, recovery: bool) -> SafetyView<'a> {
-        let nav = &self.config.navigator;
-        SafetyView {
-            grid,
-            hazards: &self.hazards,
-            near: &self.near,
-            driven: &self.driven,
-            blocking: if recovery { blocking } else { lethal },
-            lethal,
-            unknown_blocks: recovery,
-            unknown_near_lethal_m: nav.track_unknown_fringe_m,
-            robot: self.robot,
-            margin_m: if recovery { nav.sweep_margin_m } else { 0.0 },
-            cell_overlap: recovery,
-        }
+        safety_view(&self.config.navigator, self.robot, (&self.hazards, &self.near, &self.driven), grid, blocking, lethal, recovery)
     }
 
     /// Step 2: the navigator's grid from a new map, through the memories.
@@ -628,19 +615,7 @@ impl Navigator {
             // The path checked with the tracker's own footprint test (the rectangle along the
             // path's tangent, lethal cells and the unknown next to them): where it fails, a
             // disc around that point of the path is closed and the A* plans again.
-            let view = SafetyView {
-                grid: *grid,
-                hazards: &self.hazards,
-                near: &self.near,
-                driven: &self.driven,
-                blocking: lethal,
-                lethal,
-                unknown_blocks: false,
-                unknown_near_lethal_m: nav.track_unknown_fringe_m,
-                robot: self.robot,
-                margin_m: 0.0,
-                cell_overlap: false,
-            };
+            let view = safety_view(&nav, self.robot, (&self.hazards, &self.near, &self.driven), *grid, lethal, lethal, false);
             let replan = FootprintReplan {
                 view: &view,
                 from: pose,
@@ -679,6 +654,37 @@ impl Navigator {
             timings,
             safety: None,
         }
+    }
+}
+
+/// What a motion is checked against ([`Navigator::safety_view`]), from the navigator's
+/// settings, the robot and its `(hazard, near, driven)` memories: for the recoveries
+/// (`recovery`) every cell at or above `blocking` and every unknown cell blocks, with the
+/// footprint grown by `sweep_margin_m` and any cell it touches counted; for tracking (and
+/// the footprint check of plans) lethal cells and unknown ones within
+/// `track_unknown_fringe_m` of a lethal cell, counted when the footprint covers their
+/// centres.
+fn safety_view<'a>(
+    nav: &NavigatorSettings,
+    robot: RobotConfig,
+    (hazards, near, driven): (&'a HazardMemory, &'a NearMemory, &'a DrivenMemory),
+    grid: RiskGrid<'a>,
+    blocking: f32,
+    lethal: f32,
+    recovery: bool,
+) -> SafetyView<'a> {
+    SafetyView {
+        grid,
+        hazards,
+        near,
+        driven,
+        blocking: if recovery { blocking } else { lethal },
+        lethal,
+        unknown_blocks: recovery,
+        unknown_near_lethal_m: nav.track_unknown_fringe_m,
+        robot,
+        margin_m: if recovery { nav.sweep_margin_m } else { 0.0 },
+        cell_overlap: recovery,
     }
 }
 
