@@ -91,14 +91,14 @@ __all__ = [
 def load_config(path: str | os.PathLike[str]) -> PerceptionConfig:
     """Reads a perception config from a TOML file laid out like ``configs/flight.toml``.
 
-    Raises :class:`~subterra.errors.FileFormatError` if the file cannot be read and
-    :class:`~subterra.errors.ConfigError` if a value is invalid (the message names it).
+    Raises :class:`~subterra.errors.FileFormatError` if the file cannot be read (missing,
+    not a regular file, over 16 MiB, not UTF-8) and :class:`~subterra.errors.ConfigError`
+    if a value is invalid (the message names it).
     """
+    from subterra._files import read_regular_text
+
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise errors.FileFormatError(f"cannot read config file: {exc.strerror or exc}: {p}") from exc
+    text = read_regular_text(p, "config file")  # a FIFO, a device or a folder fails at once
     try:
         return PerceptionConfig.from_toml(text)
     except errors.ConfigError as exc:

@@ -1,28 +1,103 @@
 """The `subterra` command line.
 
-Errors are one line on stderr (``error: ...``) with exit code 2; ``--debug`` shows the
-traceback instead.
+Errors are one line on stderr (``error: ...``) with exit code 2 (bad arguments, among them
+unknown names and absurd numbers, which the argparse types below reject as ``error:
+argument --x: ...``; bad inputs, configs or files); anything else is a bug, ``error:
+internal error: ...`` with exit code 1.
+``--debug`` shows the traceback instead. Every subcommand's handler runs through
+:func:`main`.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from subterra.errors import InputError, SubterraError
 
-__all__ = ["main"]
+__all__ = [
+    "finite_floats", "float_in", "int_in", "main", "nonnegative_int", "positive_float", "positive_int", "positive_rate",
+    "seed_int", "sim_seconds", "unit_float",
+]
+
+# ---------------------------------------------------------------------- argparse types
+# Each raises argparse.ArgumentTypeError, which argparse reports as
+# ``subterra <cmd>: error: argument --x: <message>`` with exit code 2.
+
+#: Most runs, frames, seeds, messages, ... a count option takes (beyond: a typo).
+MAX_COUNT = 1_000_000
 
 
-def _goal(text: str) -> tuple[float, float, float]:
-    try:
-        x, y, z = (float(v) for v in text.split(","))
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"expected x,y,z in metres, got {text!r}") from exc
-    return x, y, z
+def float_in(low: float, high: float, *, low_open: bool = True, unit: str = "") -> Callable[[str], float]:
+    """An argparse type: a finite number in ``(low, high]`` (``[low, high]`` with ``low_open=False``)."""
+    interval = f"{'(' if low_open else '['}{low:g}, {high:g}]{f' {unit}' if unit else ''}"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number in {interval}, got {text!r}") from None
+        if not (math.isfinite(value) and (low < value if low_open else low <= value) and value <= high):
+            raise argparse.ArgumentTypeError(f"must be a finite number in {interval}, got {text!r}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def int_in(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: an integer in ``low..high``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer in {low}..{high}, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be an integer in {low}..{high}, got {text!r}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+#: A finite number > 0 (no upper bound).
+positive_float = float_in(0.0, sys.float_info.max)
+#: A number in [0, 1].
+unit_float = float_in(0.0, 1.0, low_open=False)
+#: A count of runs, frames, messages, ...: 1..MAX_COUNT.
+positive_int = int_in(1, MAX_COUNT)
+#: 0..MAX_COUNT (e.g. reference frames, where 0 skips the reference).
+nonnegative_int = int_in(0, MAX_COUNT)
+#: A random seed (the simulator's and the filters' seeds are unsigned).
+seed_int = int_in(0, 2**32 - 1)
+#: A rate [Hz]; the pipelines narrow it further (e.g. 1..200 Hz for flights).
+positive_rate = float_in(0.0, 1000.0, unit="Hz")
+#: Simulated seconds (at most a day).
+sim_seconds = float_in(0.0, 86_400.0, unit="s")
+
+
+def finite_floats(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
+    """An argparse type: ``n`` comma-separated finite numbers (``what`` names them, e.g. ``x,y,z in metres``)."""
+
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) != n or not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"expected {what} (finite numbers), got {text!r}")
+        return values
+
+    parse.__name__ = "numbers"
+    return parse
+
+
+_goal = finite_floats(3, "x,y,z in metres")
 
 
 def _flight_options(p: argparse.ArgumentParser) -> None:
@@ -33,14 +108,22 @@ def _flight_options(p: argparse.ArgumentParser) -> None:
                         "subterra's conventions), flight-memory (sigma_o 300 and an obstacle memory), cable; "
                         "fly-batch takes a comma-separated list")
     p.add_argument("--config", default=None, help="perception config TOML, instead of --preset")
-    p.add_argument("--rate", type=float, default=15.0, help="camera and control rate [Hz] (default 15)")
+    p.add_argument("--rate", type=positive_rate, default=15.0, help="camera and control rate [Hz] (default 15)")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the command's error format: one line ``error: argument --x: ...``, exit 2
+    (the subcommands' parsers are of this class too)."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
 
 
 def _parser() -> argparse.ArgumentParser:
     from subterra.batch.cli import add_engine_options
     from subterra.sim import DEPTH_NOISE_PRESETS
 
-    p = argparse.ArgumentParser(prog="subterra", description="Perception and planning for robots underground.")
+    p = _Parser(prog="subterra", description="Perception and planning for robots underground.")
     p.add_argument("--debug", action="store_true", help="show the traceback on errors")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -49,27 +132,27 @@ def _parser() -> argparse.ArgumentParser:
     per.add_argument("--intrinsics", required=True, help="camera intrinsics: plain JSON, Open3D JSON or ROS CameraInfo YAML")
     per.add_argument("--preset", default="flight", help="perception preset (default: flight)")
     per.add_argument("--config", help="TOML config file, instead of --preset")
-    per.add_argument("--scale", type=float, help="metres per unit of uint16 images (default 0.001; TUM: 0.0002)")
-    per.add_argument("--seed", type=int, default=0)
+    per.add_argument("--scale", type=float_in(0.0, 1.0, unit="m"), help="metres per unit of uint16 images (default 0.001; TUM: 0.0002)")
+    per.add_argument("--seed", type=seed_int, default=0)
     per.add_argument("--goal", type=_goal, default=(5.0, 0.0, 0.0), help="goal x,y,z in the body frame [m]")
     per.add_argument("--out", default="runs/perceive", help="output folder (default runs/perceive)")
 
     bench = sub.add_parser("bench", help="benchmarks against the NumPy reference")
     bench.add_argument("what", choices=["batch", "perception", "plan", "replay", "sim", "terrain"])
-    bench.add_argument("--frames", type=int, default=300)
-    bench.add_argument("--reference-frames", type=int, default=30)
-    bench.add_argument("--repeats", type=int, default=20, help="terrain: timed map updates; plan: timed plans per case (default 20)")
+    bench.add_argument("--frames", type=positive_int, default=300)
+    bench.add_argument("--reference-frames", type=nonnegative_int, default=30)
+    bench.add_argument("--repeats", type=positive_int, default=20, help="terrain: timed map updates; plan: timed plans per case (default 20)")
     bench.add_argument("--mode", choices=["particle", "histogram"], default="particle")
-    bench.add_argument("--messages", type=int, default=20, help="replay: clouds and images per recording (default 20)")
-    bench.add_argument("--seed", type=int, default=0)
-    bench.add_argument("--flights", type=int, default=20, help="batch: flights per engine (default 20)")
+    bench.add_argument("--messages", type=positive_int, default=20, help="replay: clouds and images per recording (default 20)")
+    bench.add_argument("--seed", type=seed_int, default=0)
+    bench.add_argument("--flights", type=positive_int, default=20, help="batch: flights per engine (default 20)")
     bench.add_argument("--out", help="write the JSON report here too")
 
     sim = sub.add_parser("sim", help="the simulator: look at the built-in scenes")
     sim_sub = sim.add_subparsers(dest="sim_command", required=True)
     render = sim_sub.add_parser("render", help="PNGs of a scenario: a depth frame and a top-down map with a lidar scan")
     render.add_argument("scenario", help="highbay, cable, tunnel, mine or subway")
-    render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--seed", type=seed_int, default=0)
     render.add_argument("--noise", default="d435", help="depth noise preset (default d435)")
     render.add_argument("--out", default="runs/render", help="output folder (default runs/render)")
 
@@ -79,8 +162,8 @@ def _parser() -> argparse.ArgumentParser:
     fly.add_argument("--controller", default="apf-pf", choices=["apf-pf", "apf-pf-histogram", "raw-apf"],
                      help="apf-pf (particle filter, the paper), apf-pf-histogram (exact filter) or raw-apf (the baseline)")
     fly.add_argument("--noise", default="d435", help="depth noise model: " + ", ".join(DEPTH_NOISE_PRESETS) + " (default d435)")
-    fly.add_argument("--seed", type=int, default=0, help="world layout, noise and filter seed (default 0)")
-    fly.add_argument("--time-limit", type=float, default=None, help="seconds of simulated time (default: 4x the straight-line time)")
+    fly.add_argument("--seed", type=seed_int, default=0, help="world layout, noise and filter seed (default 0)")
+    fly.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time (default: 4x the straight-line time)")
     fly.add_argument("--world", default=None, help="fly in this world file (TOML) instead of a built-in scenario")
     fly.add_argument("--no-rerun", action="store_true", help="do not write flight.rrd even if rerun-sdk is installed")
     fly.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
@@ -89,8 +172,8 @@ def _parser() -> argparse.ArgumentParser:
     batch = sub.add_parser("fly-batch", help="many randomized flights, APF-PF and the raw-APF baseline side by side")
     _flight_options(batch)
     batch.add_argument("--routes", default="all", help="comma-separated routes or 'all' (default)")
-    batch.add_argument("--seeds", type=int, default=50, help="seeds 0..N-1, one obstacle layout each (default 50)")
-    batch.add_argument("--first-seed", type=int, default=0, help="start the seeds here (default 0)")
+    batch.add_argument("--seeds", type=positive_int, default=50, help="seeds 0..N-1, one obstacle layout each (default 50)")
+    batch.add_argument("--first-seed", type=seed_int, default=0, help="start the seeds here (default 0)")
     batch.add_argument("--controllers", default="apf-pf,raw-apf@flight",
                        help="comma-separated; name@preset flies that preset whatever --preset says "
                             "(default apf-pf,raw-apf@flight: the paper's raw-APF baseline beside --preset's APF-PF)")
@@ -236,6 +319,10 @@ def _demo(args: argparse.Namespace) -> int:
     return run_demo(data=args.data, out=args.out, quick=args.quick)
 
 
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `subterra` command."""
     args = _parser().parse_args(argv)
@@ -248,6 +335,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except Exception as exc:  # noqa: BLE001 - a bug: one line, never a traceback without --debug
+        if args.debug:
+            raise
+        print(f"error: internal error: {type(exc).__name__}: {_one_line(exc)} (rerun with --debug for the traceback)", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130

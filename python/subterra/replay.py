@@ -35,6 +35,7 @@ default ``base_link``), as REP 105 names them.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import time
@@ -44,12 +45,13 @@ from typing import Any
 
 import numpy as np
 
-from subterra.errors import InputError, SubterraError
+from subterra.errors import FileFormatError, InputError, SubterraError
 
 __all__ = [
     "DEFAULT_GOAL_AHEAD_M",
     "DEFAULT_LAYERS",
     "PIPELINES",
+    "layer_names",
     "register_cli",
     "replay",
     "run_cli",
@@ -130,6 +132,9 @@ class _Context:
         self.odom_frames: tuple[str, str] | None = None
         self.tf_messages = 0
         self.odom_messages = 0
+        #: The recording broke off (or a message was corrupt) during the pre-pass: the poses
+        #: and tf before it are kept, the replay runs up to the break and reports it.
+        self.error: FileFormatError | None = None
 
 
 def _pre_pass(rec: Any, odom_topic: str | None) -> _Context:
@@ -140,16 +145,19 @@ def _pre_pass(rec: Any, odom_topic: str | None) -> _Context:
     topics = tf_topics + ([odom_topic] if odom_topic else [])
     if not topics:
         return ctx
-    for topic, log_ns, msg in rec.messages(topics):
-        where = f"{topic} at log time {log_ns} ns"
-        if topic == odom_topic:
-            sample = decode_odometry(msg, where=where)
-            ctx.track.add(sample.stamp_ns if sample.stamp_ns > 0 else log_ns, sample.world_from_body)
-            ctx.odom_frames = ctx.odom_frames or (sample.frame_id.lstrip("/"), sample.child_frame_id.lstrip("/"))
-            ctx.odom_messages += 1
-        else:
-            ctx.tf_messages += 1
-            ctx.tf.add_message(msg, static=topic.endswith("tf_static"), where=where)
+    try:
+        for topic, log_ns, msg in rec.messages(topics):
+            where = f"{topic} at log time {log_ns} ns"
+            if topic == odom_topic:
+                sample = decode_odometry(msg, where=where)
+                ctx.track.add(sample.stamp_ns if sample.stamp_ns > 0 else log_ns, sample.world_from_body)
+                ctx.odom_frames = ctx.odom_frames or (sample.frame_id.lstrip("/"), sample.child_frame_id.lstrip("/"))
+                ctx.odom_messages += 1
+            else:
+                ctx.tf_messages += 1
+                ctx.tf.add_message(msg, static=topic.endswith("tf_static"), where=where)
+    except FileFormatError as exc:  # a truncated or corrupt file: use what came before the break
+        ctx.error = exc
     if odom_topic and ctx.odom_messages == 0:
         raise InputError(f"--odom-topic {odom_topic!r} has no messages: {rec.path}")
     return ctx
@@ -244,6 +252,16 @@ def replay(
         goal = np.asarray(goal, dtype=np.float64)
         if goal.shape != (3,) or not np.all(np.isfinite(goal)):
             raise InputError(f"argument `--goal` must be three finite numbers x,y,z [m], got {goal.tolist()}")
+    if pipeline == "terrain" and layers is not None:
+        known = layer_names()
+        unknown = [name for name in layers if name not in known]
+        if unknown:
+            raise InputError(f"argument --layers: unknown layer {unknown[0]!r} (known: {', '.join(known)}; or 'all', 'none')")
+    if pipeline == "depth" and config is None:
+        from subterra import preset_names
+
+        if preset not in preset_names():
+            raise InputError(f"argument --preset: unknown preset {preset!r} (known: {', '.join(preset_names())})")
     out = Path(out)
     with open_recording(recording) as rec:
         if pipeline == "depth":
@@ -251,6 +269,15 @@ def replay(
                                  world_frame, body_frame, max_messages, rerun, plots, progress)
         return _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_frame, body_frame, sensor_height,
                                layers, max_messages, rerun, plots, progress)
+
+
+@functools.cache
+def layer_names() -> tuple[str, ...]:
+    """The names of a ``subterra.RiskMap``'s layers (what ``--layers`` may name)."""
+    from subterra import TerrainMapper
+
+    m = TerrainMapper().update(np.array([[1.0, 0.0, 0.0]], np.float32), stamp=0.0, world_from_body=np.eye(4), body_from_sensor=np.eye(4))
+    return tuple(m.layer_names)
 
 
 def _pipeline(pipeline: str | None, depth_topic: str | None, info_topic: str | None, cloud_topic: str | None) -> str:
@@ -387,6 +414,8 @@ def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, c
             bar.update(1)
             if max_messages is not None and len(records) >= max_messages:
                 break
+        else:
+            error = ctx.error  # the pre-pass met a break (or a corrupt message) the main pass did not
     except SubterraError as exc:
         error = exc
     finally:
@@ -422,6 +451,7 @@ def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, c
     summary["rerun"] = str(out / "replay.rrd") if recorder is not None else None
     (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     if error is not None:
+        error.partial_summary = summary  # type: ignore[attr-defined]  # for the CLI's report
         raise error
     return summary
 
@@ -566,6 +596,8 @@ def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_fra
             bar.update(1)
             if max_messages is not None and len(scans) >= max_messages:
                 break
+        else:
+            error = ctx.error  # the pre-pass met a break (or a corrupt message) the main pass did not
     except SubterraError as exc:
         error = exc
     finally:
@@ -611,6 +643,7 @@ def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_fra
     summary["figures"] = figures
     (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False), encoding="utf-8")
     if error is not None:
+        error.partial_summary = summary  # type: ignore[attr-defined]  # for the CLI's report
         raise error
     return summary
 
@@ -618,16 +651,10 @@ def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_fra
 # ---------------------------------------------------------------------- CLI
 
 
-def _goal(text: str) -> tuple[float, float, float]:
-    try:
-        x, y, z = (float(v) for v in text.split(","))
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"expected x,y,z in metres, got {text!r}") from exc
-    return x, y, z
-
-
 def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Adds the ``replay`` subcommand to ``subparsers``; its handler is ``args.handler``."""
+    from subterra.cli import finite_floats, float_in, positive_int, seed_int
+
     p = subparsers.add_parser(
         "replay", help="run the depth or terrain pipeline over a ROS 1/2 bag or an MCAP file (no topics: list them)",
     )
@@ -637,18 +664,18 @@ def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPar
     p.add_argument("--info-topic", default=None, help="sensor_msgs/CameraInfo topic of the depth camera")
     p.add_argument("--cloud-topic", default=None, help="sensor_msgs/PointCloud2 topic (terrain)")
     p.add_argument("--odom-topic", default=None, help="nav_msgs/Odometry topic: poses world_from_body")
-    p.add_argument("--goal", type=_goal, default=None,
+    p.add_argument("--goal", type=finite_floats(3, "x,y,z in metres"), default=None,
                    help="depth: goal x,y,z [m], in the odometry's world frame with --odom-topic, else in the body frame (default 5 m ahead)")
     p.add_argument("--preset", default="flight", help="depth: perception preset (default flight)")
     p.add_argument("--config", default=None, help="depth: perception config TOML; terrain: terrain config TOML")
-    p.add_argument("--scale", type=float, default=None, help="depth: metres per unit of 16UC1/mono16 images (default 0.001)")
-    p.add_argument("--seed", type=int, default=0, help="depth: particle filter seed (default 0)")
-    p.add_argument("--sensor-height", type=float, default=None, help="terrain: lidar height above the ground when tf lacks it [m]")
+    p.add_argument("--scale", type=float_in(0.0, 1.0, unit="m"), default=None, help="depth: metres per unit of 16UC1/mono16 images (default 0.001)")
+    p.add_argument("--seed", type=seed_int, default=0, help="depth: particle filter seed (default 0)")
+    p.add_argument("--sensor-height", type=float_in(0.0, 100.0, unit="m"), default=None, help="terrain: lidar height above the ground when tf lacks it [m]")
     p.add_argument("--world-frame", default=None, help="world frame id (default: the odometry's frame_id, else odom)")
     p.add_argument("--body-frame", default=None, help="body frame id (default: the odometry's child_frame_id, else base_link)")
     p.add_argument("--layers", default=",".join(DEFAULT_LAYERS),
                    help="terrain: map layers written as images to replay.mcap: comma-separated, 'all' or 'none'")
-    p.add_argument("--max-messages", type=int, default=None, help="stop after this many images / clouds")
+    p.add_argument("--max-messages", type=positive_int, default=None, help="stop after this many images / clouds")
     p.add_argument("--no-rerun", action="store_true", help="no replay.rrd even if rerun-sdk is installed")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -692,16 +719,24 @@ def run_cli(args: argparse.Namespace) -> int:
             config = load_config(args.config)
         else:
             terrain_config = args.config
-    summary = replay(
-        args.recording, out, pipeline=pipeline, depth_topic=args.depth_topic, info_topic=args.info_topic,
-        cloud_topic=args.cloud_topic, odom_topic=args.odom_topic, goal=args.goal, preset=args.preset, config=config,
-        terrain_config=terrain_config, scale=args.scale, seed=args.seed, world_frame=args.world_frame,
-        body_frame=args.body_frame, sensor_height=args.sensor_height, layers=layers, max_messages=args.max_messages,
-        rerun=False if args.no_rerun else None, plots=not args.no_plots, progress=not args.no_progress,
-    )
+    unit = "images" if pipeline == "depth" else "clouds"
+    try:
+        summary = replay(
+            args.recording, out, pipeline=pipeline, depth_topic=args.depth_topic, info_topic=args.info_topic,
+            cloud_topic=args.cloud_topic, odom_topic=args.odom_topic, goal=args.goal, preset=args.preset, config=config,
+            terrain_config=terrain_config, scale=args.scale, seed=args.seed, world_frame=args.world_frame,
+            body_frame=args.body_frame, sensor_height=args.sensor_height, layers=layers, max_messages=args.max_messages,
+            rerun=False if args.no_rerun else None, plots=not args.no_plots, progress=not args.no_progress,
+        )
+    except SubterraError as exc:
+        partial = getattr(exc, "partial_summary", None)
+        if partial is not None:  # the input broke off: say what was written before the error
+            n = len(partial["records"]) if pipeline == "depth" else len(partial["scans"])
+            print(f"stopped at an error after {n} {unit}: wrote {out / 'summary.json'} (\"completed\": false) "
+                  f"and {partial['output_mcap']} with the output so far")
+        raise
     t = summary["replay_timing"]
     n = len(summary["records"]) if pipeline == "depth" else len(summary["scans"])
-    unit = "images" if pipeline == "depth" else "clouds"
     line = f"{n} {unit} from {args.recording}: pipeline median {t['pipeline_ms_median']:.2f} ms"
     if t.get("read_decode_percent_of_pipeline") is not None:
         line += f", read + decode {t['read_decode_ms_median']:.2f} ms ({t['read_decode_percent_of_pipeline']:.0f}% of the pipeline)"

@@ -10,23 +10,87 @@ use subterra::Isometry3;
 
 use crate::errors::input_error;
 
-/// A 3-vector from any sequence or array of three finite numbers.
-pub fn vec3(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<DVec3> {
-    let v: Vec<f64> = value
-        .extract()
-        .or_else(|_| {
-            let np = py.import("numpy")?;
-            np.call_method1("asarray", (value, "float64"))?.call_method0("ravel")?.call_method0("tolist")?.extract()
-        })
-        .map_err(|_| input_error(py, format!("argument `{argument}` must be 3 numbers, got {}", type_name(value))))?;
-    if v.len() != 3 {
-        return Err(input_error(py, format!("argument `{argument}` must have 3 elements, got {}", v.len())));
+/// Largest risk grid accepted from an array [cells]: 16.7 M (4096 x 4096, 410 m square at
+/// 0.1 m). Checked on the array's shape before anything is copied or converted.
+pub const MAX_GRID_CELLS: usize = 1 << 24;
+/// Largest point cloud accepted in one call [points] (128 full OS1-128 scans).
+pub const MAX_POINTS: usize = 1 << 25;
+/// Largest path accepted [points].
+pub const MAX_PATH_POINTS: usize = 1 << 20;
+
+/// Errors unless an array of `shape` has at most `max` elements (checked before any copy, so
+/// that a broadcast view of 10^10 elements is refused rather than materialised).
+pub fn check_elements(py: Python<'_>, argument: &str, shape: &[usize], max: usize, unit: &str) -> PyResult<()> {
+    let n = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
+    match n {
+        Some(n) if n <= max => Ok(()),
+        _ => Err(input_error(py, format!("argument `{argument}` has shape {shape:?}: more than {max} {unit}, the most accepted"))),
     }
-    let out = DVec3::new(v[0], v[1], v[2]);
-    if !out.is_finite() {
+}
+
+/// The NumPy view of `value` (no copy for an array) with a real dtype (float, int, uint).
+/// Complex, boolean, object and string arrays are errors naming `argument`.
+pub fn real_array<'py>(py: Python<'py>, argument: &str, value: &Bound<'py, PyAny>, what: &str) -> PyResult<Bound<'py, PyAny>> {
+    let np = py.import("numpy")?;
+    let raw = np.call_method1("asarray", (value,)).map_err(|_| input_error(py, format!("argument `{argument}` must be {what}, got {}", type_name(value))))?;
+    let kind: String = raw.getattr("dtype")?.getattr("kind")?.extract()?;
+    if !matches!(kind.as_str(), "f" | "i" | "u") {
+        return Err(input_error(py, format!("argument `{argument}` must be {what} of real numbers, got {}", type_name(&raw))));
+    }
+    Ok(raw)
+}
+
+/// Exactly `n` finite real numbers from a sequence or array of any shape with `n` elements.
+pub fn small_vector(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, n: usize, what: &str) -> PyResult<Vec<f64>> {
+    let raw = real_array(py, argument, value, what)?;
+    let size: usize = raw.getattr("size")?.extract()?;
+    if size != n {
+        let shape: Vec<usize> = raw.getattr("shape")?.extract()?;
+        return Err(input_error(py, format!("argument `{argument}` must be {what}, got {size} numbers (shape {shape:?})")));
+    }
+    let v: Vec<f64> = raw.call_method1("astype", ("float64",))?.call_method0("ravel")?.call_method0("tolist")?.extract()?;
+    if v.iter().any(|x| !x.is_finite()) {
         return Err(input_error(py, format!("argument `{argument}` must be finite, got {v:?}")));
     }
-    Ok(out)
+    Ok(v)
+}
+
+/// A real number, with an error naming `argument` (not the bare conversion error).
+pub fn real(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<f64> {
+    if value.is_instance_of::<pyo3::types::PyBool>() || value.is_instance_of::<pyo3::types::PyComplex>() {
+        return Err(input_error(py, format!("argument `{argument}` must be a real number, got {}", type_name(value))));
+    }
+    value.extract::<f64>().map_err(|_| input_error(py, format!("argument `{argument}` must be a real number, got {}", type_name(value))))
+}
+
+/// An integer in `lo..=hi`, with an error naming `argument` and the range.
+pub fn integer(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, lo: i128, hi: i128) -> PyResult<i128> {
+    let bad = || input_error(py, format!("argument `{argument}` must be an integer in {lo}..={hi}, got {}", short_repr(value)));
+    if value.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(bad());
+    }
+    let v: i128 = value.call_method0("__index__").and_then(|i| i.extract()).map_err(|_| bad())?;
+    if (lo..=hi).contains(&v) {
+        Ok(v)
+    } else {
+        Err(bad())
+    }
+}
+
+/// `repr(value)` cut to 60 characters, for messages.
+fn short_repr(value: &Bound<'_, PyAny>) -> String {
+    let r = value.repr().map(|r| r.to_string()).unwrap_or_else(|_| type_name(value));
+    if r.chars().count() > 60 {
+        format!("{}...", r.chars().take(57).collect::<String>())
+    } else {
+        r
+    }
+}
+
+/// A 3-vector from any sequence or array of three finite numbers.
+pub fn vec3(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<DVec3> {
+    let v = small_vector(py, argument, value, 3, "3 numbers")?;
+    Ok(DVec3::new(v[0], v[1], v[2]))
 }
 
 /// A rigid transform from a 4x4 homogeneous matrix (array or nested sequence).
@@ -81,13 +145,28 @@ impl DepthPixels<'_> {
 
 /// Calls `f` with the pixels of a `(H, W)` `uint16` or `float32` array and its width and height.
 /// `scale` [m/unit] applies to `uint16` (default 0.001); a float image must not be given one.
+/// The shape must be `expected` `(width, height)`; it is checked before any copy.
 pub fn with_depth<T>(
     py: Python<'_>,
     depth: &Bound<'_, PyAny>,
     scale: Option<f64>,
+    expected: (u32, u32),
     f: impl FnOnce(&DepthPixels<'_>, u32, u32) -> T,
 ) -> PyResult<T> {
+    let check = |shape: &[usize]| -> PyResult<()> {
+        let (ew, eh) = (expected.0 as usize, expected.1 as usize);
+        if shape != [eh, ew] {
+            return Err(input_error(py, format!("argument `depth` has shape {shape:?}; the camera is {ew}x{eh}, so it must be ({eh}, {ew})")));
+        }
+        Ok(())
+    };
+    if let Some(s) = scale {
+        if !(s.is_finite() && s > 0.0 && s <= 1.0) {
+            return Err(input_error(py, format!("argument `scale` must be in (0, 1] metres per unit, got {s}")));
+        }
+    }
     if let Ok(array) = depth.cast::<PyArray2<u16>>() {
+        check(array.shape())?;
         let view = array.readonly();
         let (h, w) = (view.shape()[0], view.shape()[1]);
         // Borrow only a C-ordered buffer; anything else (Fortran order, transposed, strided)
@@ -103,6 +182,7 @@ pub fn with_depth<T>(
         if scale.is_some_and(|s| s != 1.0) {
             return Err(input_error(py, "argument `scale` applies to uint16 depth only; a float32 depth image is already in metres"));
         }
+        check(array.shape())?;
         let view = array.readonly();
         let (h, w) = (view.shape()[0], view.shape()[1]);
         // Borrow only a C-ordered buffer; anything else (Fortran order, transposed, strided)

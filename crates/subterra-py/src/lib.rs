@@ -7,6 +7,7 @@ mod errors;
 mod plan_astar;
 mod plan_nav;
 mod plan_mpc;
+mod shared;
 mod sim;
 mod terrain;
 
@@ -20,7 +21,8 @@ use subterra::apf::escape::{Escape, EscapeMode, EscapeOutput};
 use subterra::apf::memory::{MemoryOutput, ObstacleMemory};
 use subterra::{ApfController, Command, Isometry3, PinholeCamera};
 
-use crate::convert::{isometry, vec3, with_depth};
+use crate::shared::Shared;
+use crate::convert::{integer, isometry, real, vec3, with_depth};
 use crate::errors::{config_error, input_error, IntoPyResult};
 
 fn array3<'py>(py: Python<'py>, v: glam::DVec3) -> Bound<'py, PyArray1<f64>> {
@@ -38,11 +40,24 @@ pub struct PyPinholeCamera {
 impl PyPinholeCamera {
     #[new]
     #[pyo3(signature = (fx, fy, cx, cy, width, height))]
-    fn new(py: Python<'_>, fx: f64, fy: f64, cx: f64, cy: f64, width: i64, height: i64) -> PyResult<Self> {
-        let side = |name: &str, v: i64| {
-            u32::try_from(v).map_err(|_| config_error(py, format!("config field `camera.{name}` is invalid: must be in 1..=16384 px (got {v})")))
+    fn new(
+        py: Python<'_>,
+        fx: &Bound<'_, PyAny>,
+        fy: &Bound<'_, PyAny>,
+        cx: &Bound<'_, PyAny>,
+        cy: &Bound<'_, PyAny>,
+        width: &Bound<'_, PyAny>,
+        height: &Bound<'_, PyAny>,
+    ) -> PyResult<Self> {
+        // A whole number of any size is an image side to validate (a `camera.*` ConfigError
+        // when out of range); anything else is an InputError naming the argument.
+        let side = |name: &str, v: &Bound<'_, PyAny>| {
+            let n = integer(py, name, v, i128::MIN, i128::MAX)?;
+            u32::try_from(n).map_err(|_| config_error(py, format!("config field `camera.{name}` is invalid: must be in 1..=16384 px (got {n})")))
         };
-        let inner = PinholeCamera::new(fx, fy, cx, cy, side("width", width)?, side("height", height)?).py_err(py)?;
+        let inner =
+            PinholeCamera::new(real(py, "fx", fx)?, real(py, "fy", fy)?, real(py, "cx", cx)?, real(py, "cy", cy)?, side("width", width)?, side("height", height)?)
+                .py_err(py)?;
         Ok(Self { inner })
     }
 
@@ -107,8 +122,13 @@ impl PyPerceptionConfig {
     /// Parses and validates a JSON document with the same layout.
     #[staticmethod]
     fn from_json(py: Python<'_>, text: &str) -> PyResult<Self> {
-        let inner: PerceptionConfig =
-            serde_json::from_str(text).map_err(|e| config_error(py, format!("config could not be parsed: {e}")))?;
+        let mut de = serde_json::Deserializer::from_str(text);
+        let inner: PerceptionConfig = serde_path_to_error::deserialize(&mut de).map_err(|e| {
+            let path = e.path().to_string();
+            let at = if path.is_empty() || path == "." { String::new() } else { format!("field `{path}`: ") };
+            let hint = if e.inner().is_syntax() && (text.contains("NaN") || text.contains("Infinity")) { " (JSON has no NaN or Infinity: a value must be a finite number)" } else { "" };
+            config_error(py, format!("config could not be parsed: {at}{}{hint}", e.inner()))
+        })?;
         inner.validate().py_err(py)?;
         Ok(Self { inner })
     }
@@ -116,6 +136,7 @@ impl PyPerceptionConfig {
     /// Builds and validates a config from a nested dict laid out like the TOML file.
     #[staticmethod]
     fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
+        crate::terrain::check_config_value(py, "d", "", d, 0)?;
         let text: String = py
             .import("json")?
             .call_method1("dumps", (d,))
@@ -276,9 +297,9 @@ fn resolve_config(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConf
 }
 
 /// APF-PF perception of one depth camera: `update(depth)` per frame.
-#[pyclass(name = "DepthPerception", module = "subterra._core")]
+#[pyclass(name = "DepthPerception", module = "subterra._core", frozen)]
 struct PyDepthPerception {
-    inner: DepthPerception,
+    inner: Shared<DepthPerception>,
     camera: PinholeCamera,
 }
 
@@ -316,15 +337,17 @@ impl PyDepthPerception {
         };
         let cam = camera.inner;
         let inner = py.detach(move || DepthPerception::new(cam, body_from_camera, config, seed)).py_err(py)?;
-        Ok(Self { inner, camera: cam })
+        Ok(Self { inner: Shared::new(inner), camera: cam })
     }
 
     /// Processes one `(H, W)` depth frame (`uint16` with `scale` metres per unit, default
     /// 0.001, or `float32` metres). Releases the GIL while it runs.
     #[pyo3(signature = (depth, scale = None))]
-    fn update(&mut self, py: Python<'_>, depth: &Bound<'_, PyAny>, scale: Option<f64>) -> PyResult<PyPerceptionOutput> {
-        let inner = &mut self.inner;
-        let result = with_depth(py, depth, scale, |pixels, w, h| py.detach(|| inner.update(pixels.image(), w, h)))?;
+    fn update(&self, py: Python<'_>, depth: &Bound<'_, PyAny>, scale: Option<f64>) -> PyResult<PyPerceptionOutput> {
+        let expected = (self.camera.width, self.camera.height);
+        let mut this = self.inner.lock();
+        let inner = &mut *this;
+        let result = with_depth(py, depth, scale, expected, |pixels, w, h| py.detach(|| inner.update(pixels.image(), w, h)))?;
         Ok(PyPerceptionOutput { inner: result.py_err(py)? })
     }
 
@@ -336,52 +359,53 @@ impl PyDepthPerception {
     /// The config.
     #[getter]
     fn config(&self) -> PyPerceptionConfig {
-        PyPerceptionConfig { inner: *self.inner.config() }
+        PyPerceptionConfig { inner: *self.inner.lock().config() }
     }
     /// `body_from_camera` as a 4x4 matrix.
     #[getter]
     fn body_from_camera<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let rows: Vec<Vec<f64>> = self.inner.body_from_camera().to_matrix_rows().iter().map(|r| r.to_vec()).collect();
+        let rows: Vec<Vec<f64>> = self.inner.lock().body_from_camera().to_matrix_rows().iter().map(|r| r.to_vec()).collect();
         PyArray2::from_vec2(py, &rows).map_err(|e| input_error(py, e.to_string()))
     }
     /// `(N_w, N_h, N_d)`: column blocks, row blocks, depth bins.
     #[getter]
     fn grid_shape(&self) -> (usize, usize, usize) {
-        self.inner.grid().shape()
+        self.inner.lock().grid().shape()
     }
     /// Number of states (voxels + free).
     #[getter]
     fn state_count(&self) -> usize {
-        self.inner.grid().state_count()
+        self.inner.lock().grid().state_count()
     }
     /// The free state's id (the last).
     #[getter]
     fn free_state(&self) -> u32 {
-        self.inner.grid().free_state().0
+        self.inner.lock().grid().free_state().0
     }
     /// Frames processed.
     #[getter]
     fn frames(&self) -> u64 {
-        self.inner.frames()
+        self.inner.lock().frames()
     }
     /// Seconds spent building the transition model.
     #[getter]
     fn transition_build_s(&self) -> f64 {
-        self.inner.transition_build_s()
+        self.inner.lock().transition_build_s()
     }
     /// Bytes held by the transition model.
     #[getter]
     fn transition_memory_bytes(&self) -> usize {
-        self.inner.transition().map_or(0, |t| t.memory_bytes())
+        self.inner.lock().transition().map_or(0, |t| t.memory_bytes())
     }
     /// The dense belief over all states, shape `(S,)`.
     fn belief<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.inner.belief().to_vec().into_pyarray(py)
+        self.inner.lock().belief().to_vec().into_pyarray(py)
     }
     /// Per-voxel counts of the last frame, shape `(N_h, N_w, N_d)`, or None before the first.
     fn counts<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray3<u32>>>> {
-        let (n_w, n_h, n_d) = self.inner.grid().shape();
-        let Some(c) = self.inner.last_counts() else { return Ok(None) };
+        let this = self.inner.lock();
+        let (n_w, n_h, n_d) = this.grid().shape();
+        let Some(c) = this.last_counts() else { return Ok(None) };
         Ok(Some(c.counts.clone().into_pyarray(py).reshape([n_h, n_w, n_d])?))
     }
     /// Centres of all voxels, shape `(S-1, 3)` [m], in the `frame` "camera" or "body".
@@ -392,13 +416,14 @@ impl PyDepthPerception {
             "body" => true,
             _ => return Err(input_error(py, format!("argument `frame` must be \"camera\" or \"body\", got {frame:?}"))),
         };
-        let g = self.inner.grid();
+        let this = self.inner.lock();
+        let g = this.grid();
         let mut flat = Vec::with_capacity(g.voxel_count() * 3);
         for s in 0..g.voxel_count() as u32 {
             let Some(v) = g.voxel_of(StateId(s)) else { continue };
             let mut p = g.voxel_centre_camera(v);
             if body {
-                p = self.inner.body_from_camera().transform_point(p);
+                p = this.body_from_camera().transform_point(p);
             }
             flat.extend([p.x, p.y, p.z]);
         }
@@ -406,39 +431,42 @@ impl PyDepthPerception {
     }
     /// Per-state repulsive force in the body frame, shape `(S, 3)` [N].
     fn forces_body<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let f: Vec<f64> = self.inner.forces_body().iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        let f: Vec<f64> = self.inner.lock().forces_body().iter().flat_map(|v| [v.x, v.y, v.z]).collect();
         let n = f.len() / 3;
         Ok(f.into_pyarray(py).reshape([n, 3])?)
     }
     /// The transition row `T(state -> ·)`, shape `(S,)`.
     fn transition_row<'py>(&self, py: Python<'py>, state: i64) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let s = self.check_state(py, state)?;
-        let t = self.inner.transition().ok_or_else(|| input_error(py, "argument `state`: filter mode `raw` has no transition model"))?;
+        let this = self.inner.lock();
+        let t = this.transition().ok_or_else(|| input_error(py, "argument `state`: filter mode `raw` has no transition model"))?;
         Ok(t.row(StateId(s)).into_pyarray(py))
     }
     /// Flat id of voxel `(i, j, k)`.
     fn state_of(&self, py: Python<'_>, i: i64, j: i64, k: i64) -> PyResult<u32> {
-        let (n_w, n_h, n_d) = self.inner.grid().shape();
+        let this = self.inner.lock();
+        let (n_w, n_h, n_d) = this.grid().shape();
         let inside = |x: i64, n: usize| x >= 0 && (x as usize) < n;
         if !(inside(i, n_w) && inside(j, n_h) && inside(k, n_d)) {
             return Err(input_error(py, format!("voxel ({i}, {j}, {k}) is outside the grid of shape (N_w, N_h, N_d) = ({n_w}, {n_h}, {n_d})")));
         }
-        Ok(self.inner.grid().state_of(VoxelIndex { i: i as u32, j: j as u32, k: k as u32 }).0)
+        Ok(this.grid().state_of(VoxelIndex { i: i as u32, j: j as u32, k: k as u32 }).0)
     }
     /// `(i, j, k)` of a state, or None for the free state.
     fn voxel_of(&self, py: Python<'_>, state: i64) -> PyResult<Option<(u32, u32, u32)>> {
         let s = self.check_state(py, state)?;
-        Ok(self.inner.grid().voxel_of(StateId(s)).map(|v| (v.i, v.j, v.k)))
+        Ok(self.inner.lock().grid().voxel_of(StateId(s)).map(|v| (v.i, v.j, v.k)))
     }
     fn __repr__(&self) -> String {
-        let (w, h, d) = self.inner.grid().shape();
-        format!("DepthPerception(grid=({w}, {h}, {d}), states={}, frames={})", w * h * d + 1, self.inner.frames())
+        let this = self.inner.lock();
+        let (w, h, d) = this.grid().shape();
+        format!("DepthPerception(grid=({w}, {h}, {d}), states={}, frames={})", w * h * d + 1, this.frames())
     }
 }
 
 impl PyDepthPerception {
     fn check_state(&self, py: Python<'_>, state: i64) -> PyResult<u32> {
-        let n = self.inner.grid().state_count() as i64;
+        let n = self.inner.lock().grid().state_count() as i64;
         if !(0..n).contains(&state) {
             return Err(input_error(py, format!("argument `state` must be in 0..{n}, got {state}")));
         }
@@ -479,9 +507,9 @@ impl PyMemoryOutput {
 
 /// Where a camera's belief put obstacles, kept in the odometry frame so that they still
 /// repel out of view: `update(output, stamp=..., world_from_body=...)` per frame.
-#[pyclass(name = "ObstacleMemory", module = "subterra._core")]
+#[pyclass(name = "ObstacleMemory", module = "subterra._core", frozen)]
 struct PyObstacleMemory {
-    inner: ObstacleMemory,
+    inner: Shared<ObstacleMemory>,
 }
 
 #[pymethods]
@@ -489,41 +517,44 @@ impl PyObstacleMemory {
     /// A memory for `perception`'s camera, grid and mounting, with its config's `memory` settings.
     #[new]
     fn new(py: Python<'_>, perception: &PyDepthPerception) -> PyResult<Self> {
-        Ok(Self { inner: ObstacleMemory::new(&perception.inner).py_err(py)? })
+        Ok(Self { inner: Shared::new(ObstacleMemory::new(&perception.inner.lock()).py_err(py)?) })
     }
 
     /// Records `output` (a `PerceptionOutput` of that perception) taken at `stamp` [s] with
     /// the odometry pose `world_from_body` (4x4), forgets, and returns the memory's force.
     #[pyo3(signature = (output, *, stamp, world_from_body))]
-    fn update(&mut self, py: Python<'_>, output: &PyPerceptionOutput, stamp: f64, world_from_body: &Bound<'_, PyAny>) -> PyResult<PyMemoryOutput> {
+    fn update(&self, py: Python<'_>, output: &PyPerceptionOutput, stamp: f64, world_from_body: &Bound<'_, PyAny>) -> PyResult<PyMemoryOutput> {
         let pose = isometry(py, "world_from_body", world_from_body)?;
-        let (inner, out) = (&mut self.inner, &output.inner);
+        let mut this = self.inner.lock();
+        let (inner, out) = (&mut *this, &output.inner);
         Ok(PyMemoryOutput { inner: py.detach(|| inner.update(out, stamp, &pose)).py_err(py)? })
     }
 
     /// Forgets everything.
-    fn reset(&mut self) {
-        self.inner.reset();
+    fn reset(&self) {
+        self.inner.lock().reset();
     }
 
     /// The remembered points, shape `(N, 3)` [m, world].
     fn points_world<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let flat: Vec<f64> = self.inner.obstacles().flat_map(|c| [c.point_world.x, c.point_world.y, c.point_world.z]).collect();
-        Ok(flat.into_pyarray(py).reshape([self.inner.len(), 3])?)
+        let this = self.inner.lock();
+        let flat: Vec<f64> = this.obstacles().flat_map(|c| [c.point_world.x, c.point_world.y, c.point_world.z]).collect();
+        Ok(flat.into_pyarray(py).reshape([this.len(), 3])?)
     }
 
     /// Their weights (the belief that recorded them), shape `(N,)`.
     fn weights<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.inner.obstacles().map(|c| c.weight).collect::<Vec<_>>().into_pyarray(py)
+        self.inner.lock().obstacles().map(|c| c.weight).collect::<Vec<_>>().into_pyarray(py)
     }
 
     fn __len__(&self) -> usize {
-        self.inner.len()
+        self.inner.lock().len()
     }
 
     fn __repr__(&self) -> String {
-        let c = self.inner.config();
-        format!("ObstacleMemory(cells={}, rho_0_m={}, timeout_s={}, in_view_timeout_s={})", self.inner.len(), c.rho_0_m, c.timeout_s, c.in_view_timeout_s)
+        let this = self.inner.lock();
+        let c = this.config();
+        format!("ObstacleMemory(cells={}, rho_0_m={}, timeout_s={}, in_view_timeout_s={})", this.len(), c.rho_0_m, c.timeout_s, c.in_view_timeout_s)
     }
 }
 
@@ -680,9 +711,9 @@ impl PyEscapeOutput {
 }
 
 /// Escape from local minima by boundary following: `step(...)` per control step.
-#[pyclass(name = "Escape", module = "subterra._core")]
+#[pyclass(name = "Escape", module = "subterra._core", frozen)]
 struct PyEscape {
-    inner: Escape,
+    inner: Shared<Escape>,
 }
 
 #[pymethods]
@@ -692,7 +723,7 @@ impl PyEscape {
     #[pyo3(signature = (preset = "flight", *, config = None))]
     fn new(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
         let config = resolve_config(py, preset, config)?;
-        Ok(Self { inner: Escape::new(config.escape, &config.apf).py_err(py)? })
+        Ok(Self { inner: Shared::new(Escape::new(config.escape, &config.apf).py_err(py)?) })
     }
 
     /// One step at `stamp` [s] with the odometry pose `world_from_body` (4x4), the goal (or
@@ -702,7 +733,7 @@ impl PyEscape {
     #[pyo3(signature = (*, stamp, world_from_body, goal_world, remaining_m, memory = None, repulsive_body = None))]
     #[allow(clippy::too_many_arguments)]
     fn step(
-        &mut self,
+        &self,
         py: Python<'_>,
         stamp: f64,
         world_from_body: &Bound<'_, PyAny>,
@@ -717,17 +748,18 @@ impl PyEscape {
             Some(r) => vec3(py, "repulsive_body", r)?,
             None => glam::DVec3::ZERO,
         };
-        let points: Vec<glam::DVec3> = memory.map_or_else(Vec::new, |m| m.inner.obstacles().map(|c| c.point_world).collect());
-        Ok(PyEscapeOutput { inner: self.inner.step(stamp, &pose, goal, remaining_m, &points, repulsion).py_err(py)? })
+        let points: Vec<glam::DVec3> = memory.map_or_else(Vec::new, |m| m.inner.lock().obstacles().map(|c| c.point_world).collect());
+        Ok(PyEscapeOutput { inner: self.inner.lock().step(stamp, &pose, goal, remaining_m, &points, repulsion).py_err(py)? })
     }
 
     /// Starts afresh.
-    fn reset(&mut self) {
-        self.inner.reset();
+    fn reset(&self) {
+        self.inner.lock().reset();
     }
 
     fn __repr__(&self) -> String {
-        let c = self.inner.config();
+        let this = self.inner.lock();
+        let c = this.config();
         format!("Escape(enabled={}, stall_s={}, release_m={})", if c.enabled { "True" } else { "False" }, c.stall_s, c.release_m)
     }
 }
@@ -762,9 +794,9 @@ impl PyCarrotOutput {
 }
 
 /// A carrot `lookahead_m` ahead along a path of waypoints: `update(position_world)` per step.
-#[pyclass(name = "PathFollower", module = "subterra._core")]
+#[pyclass(name = "PathFollower", module = "subterra._core", frozen)]
 struct PyPathFollower {
-    inner: PathFollower,
+    inner: Shared<PathFollower>,
 }
 
 #[pymethods]
@@ -778,34 +810,36 @@ impl PyPathFollower {
         for (n, item) in items.enumerate() {
             points.push(vec3(py, &format!("path[{n}]"), &item?)?);
         }
-        Ok(Self { inner: PathFollower::new(&points, lookahead_m).py_err(py)? })
+        Ok(Self { inner: Shared::new(PathFollower::new(&points, lookahead_m).py_err(py)?) })
     }
 
     /// The carrot for the robot at `position_world` (3 numbers [m]).
-    fn update(&mut self, py: Python<'_>, position_world: &Bound<'_, PyAny>) -> PyResult<PyCarrotOutput> {
+    fn update(&self, py: Python<'_>, position_world: &Bound<'_, PyAny>) -> PyResult<PyCarrotOutput> {
         let p = vec3(py, "position_world", position_world)?;
-        Ok(PyCarrotOutput { inner: self.inner.update(p).py_err(py)? })
+        Ok(PyCarrotOutput { inner: self.inner.lock().update(p).py_err(py)? })
     }
 
     /// The path's points, shape `(N, 3)`.
     fn points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let flat: Vec<f64> = self.inner.points().iter().flat_map(|p| [p.x, p.y, p.z]).collect();
-        flat.into_pyarray(py).reshape([self.inner.points().len(), 3])
+        let this = self.inner.lock();
+        let flat: Vec<f64> = this.points().iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+        flat.into_pyarray(py).reshape([this.points().len(), 3])
     }
 
     /// The path's length [m].
     #[getter]
     fn length_m(&self) -> f64 {
-        self.inner.length_m()
+        self.inner.lock().length_m()
     }
 
     /// Starts again from the first point.
-    fn reset(&mut self) {
-        self.inner.reset();
+    fn reset(&self) {
+        self.inner.lock().reset();
     }
 
     fn __repr__(&self) -> String {
-        format!("PathFollower(points={}, length_m={:.3}, lookahead_m={})", self.inner.points().len(), self.inner.length_m(), self.inner.lookahead_m())
+        let f = self.inner.lock();
+        format!("PathFollower(points={}, length_m={:.3}, lookahead_m={})", f.points().len(), f.length_m(), f.lookahead_m())
     }
 }
 

@@ -10,7 +10,8 @@ use pyo3::prelude::*;
 use subterra::plan::{CostModel, PlanOutcome, RiskAStar, RiskAStarConfig, RiskGrid};
 use subterra::terrain::{CellIndex, RiskMap};
 
-use crate::convert::type_name;
+use crate::shared::Shared;
+use crate::convert::{check_elements, small_vector, type_name, MAX_GRID_CELLS};
 use crate::errors::{config_error, input_error, IntoPyResult};
 use crate::terrain::PyRiskMap;
 
@@ -24,16 +25,7 @@ fn float_arg(py: Python<'_>, argument: &str, value: Option<&Bound<'_, PyAny>>, d
 
 /// Two numbers `(x, y)` from any sequence or array; finiteness is checked by the core.
 fn point2(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<DVec2> {
-    let v: Vec<f64> = value
-        .extract()
-        .or_else(|_| {
-            let np = py.import("numpy")?;
-            np.call_method1("asarray", (value, "float64"))?.call_method0("ravel")?.call_method0("tolist")?.extract()
-        })
-        .map_err(|_| input_error(py, format!("argument `{argument}` must be two numbers (x, y), got {}", type_name(value))))?;
-    if v.len() != 2 {
-        return Err(input_error(py, format!("argument `{argument}` must have 2 elements (x, y), got {}", v.len())));
-    }
+    let v = small_vector(py, argument, value, 2, "two numbers (x, y) [m]")?;
     Ok(DVec2::new(v[0], v[1]))
 }
 
@@ -100,6 +92,7 @@ fn with_grid<T>(
     if untyped.ndim() != 2 {
         return Err(input_error(py, format!("argument `risk` must be 2-D (ny, nx), got shape {:?}", untyped.shape())));
     }
+    check_elements(py, "risk", untyped.shape(), MAX_GRID_CELLS, "cells")?;
     let kind: String = untyped.dtype().getattr("kind")?.extract()?;
     if kind != "f" {
         return Err(input_error(py, format!("argument `risk` must be a float array (float32 preferred), got {}", type_name(risk))));
@@ -139,14 +132,15 @@ enum Endpoints {
 }
 
 /// Risk-aware A* on an 8-connected grid (STEP, Fan et al. 2021); holds its search buffers between plans.
-#[pyclass(name = "RiskAStar", module = "subterra._core")]
+#[pyclass(name = "RiskAStar", module = "subterra._core", frozen)]
 pub struct PyRiskAStar {
-    inner: RiskAStar,
+    inner: Shared<RiskAStar>,
 }
 
 impl PyRiskAStar {
-    fn run(&mut self, py: Python<'_>, risk: &Bound<'_, PyAny>, ends: Endpoints, resolution: Option<&Bound<'_, PyAny>>, origin: Option<&Bound<'_, PyAny>>) -> PyResult<PyPlanResult> {
-        let planner = &mut self.inner;
+    fn run(&self, py: Python<'_>, risk: &Bound<'_, PyAny>, ends: Endpoints, resolution: Option<&Bound<'_, PyAny>>, origin: Option<&Bound<'_, PyAny>>) -> PyResult<PyPlanResult> {
+        let mut this = self.inner.lock();
+        let planner = &mut *this;
         let outcome = with_grid(py, risk, resolution, origin, |parts| {
             py.detach(|| {
                 let grid = parts.grid()?;
@@ -199,7 +193,7 @@ impl PyRiskAStar {
             additive_weight: float_arg(py, "additive_weight", additive_weight, d.additive_weight)?,
             lethal_risk: float_arg(py, "lethal_risk", lethal_risk, d.lethal_risk)?,
         };
-        Ok(Self { inner: RiskAStar::new(config).py_err(py)? })
+        Ok(Self { inner: Shared::new(RiskAStar::new(config).py_err(py)?) })
     }
 
     /// Plans from the world position `start` = (x, y) [m] to `goal`. `risk`: a
@@ -209,7 +203,7 @@ impl PyRiskAStar {
     /// corner [m], default (0, 0). Releases the GIL while it runs.
     #[pyo3(signature = (risk, start, goal, *, resolution = None, origin = None))]
     fn plan(
-        &mut self,
+        &self,
         py: Python<'_>,
         risk: &Bound<'_, PyAny>,
         start: &Bound<'_, PyAny>,
@@ -224,7 +218,7 @@ impl PyRiskAStar {
     /// Like `plan`, with the start and goal given as cells `(ix, iy)` (`risk[iy, ix]`).
     #[pyo3(signature = (risk, start_cell, goal_cell, *, resolution = None, origin = None))]
     fn plan_cells(
-        &mut self,
+        &self,
         py: Python<'_>,
         risk: &Bound<'_, PyAny>,
         start_cell: &Bound<'_, PyAny>,
@@ -239,36 +233,37 @@ impl PyRiskAStar {
     /// λ, the length weight [1/m].
     #[getter]
     fn lam(&self) -> f64 {
-        self.inner.config().lam
+        self.inner.lock().config().lam
     }
     /// Cells with risk >= r_inst are untraversable.
     #[getter]
     fn r_inst(&self) -> f64 {
-        self.inner.config().r_inst
+        self.inner.lock().config().r_inst
     }
     /// Largest accumulated risk of an accepted path.
     #[getter]
     fn r_total(&self) -> f64 {
-        self.inner.config().r_total
+        self.inner.lock().config().r_total
     }
     /// Path length from the start to the carrot [m].
     #[getter]
     fn carrot_m(&self) -> f64 {
-        self.inner.config().carrot_m
+        self.inner.lock().config().carrot_m
     }
     /// Risk of NaN (unknown) cells.
     #[getter]
     fn unknown_risk(&self) -> f64 {
-        self.inner.config().unknown_risk
+        self.inner.lock().config().unknown_risk
     }
     /// Whether diagonal moves may pass an untraversable corner.
     #[getter]
     fn allow_corner_cutting(&self) -> bool {
-        self.inner.config().allow_corner_cutting
+        self.inner.lock().config().allow_corner_cutting
     }
 
     fn __repr__(&self) -> String {
-        let c = self.inner.config();
+        let this = self.inner.lock();
+        let c = this.config();
         format!(
             "RiskAStar(lam={}, r_inst={}, r_total={}, carrot_m={}, unknown_risk={}, allow_corner_cutting={})",
             c.lam,

@@ -10,36 +10,20 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 use subterra::plan::mpc::{ConvexPolygon, MpcConfig, MpcOutput, MpcTracker, RiskGrid, UnicycleState};
 
-use crate::convert::type_name;
+use crate::shared::Shared;
+use crate::convert::{check_elements, real_array, small_vector, type_name, MAX_GRID_CELLS, MAX_PATH_POINTS};
 use crate::errors::{config_error, input_error, raise, IntoPyResult};
-use crate::terrain::{merged, PyRiskMap};
+use crate::terrain::{from_json_value, merged, PyRiskMap};
 
 // ---------------------------------------------------------------- config
 
 /// A `ConfigError` naming the first non-finite number in the nested dict `d` (JSON has no
 /// NaN, so the parser alone could only say where in the text it stopped).
-fn check_finite(py: Python<'_>, prefix: &str, d: &Bound<'_, PyAny>) -> PyResult<()> {
-    let Ok(dict) = d.cast::<PyDict>() else { return Ok(()) };
-    for (key, value) in dict.iter() {
-        let field = if prefix.is_empty() { key.str()?.to_string() } else { format!("{prefix}.{}", key.str()?) };
-        if value.cast::<PyDict>().is_ok() {
-            check_finite(py, &field, &value)?;
-        } else if let Ok(x) = value.extract::<f64>() {
-            if !x.is_finite() {
-                return Err(config_error(py, format!("config field `{field}` is invalid: must be finite (got {x})")));
-            }
-        }
-    }
-    Ok(())
-}
-
 /// The default config with the (partial, nested) dict `d` laid over it, validated; unknown
 /// keys are a `ConfigError` naming them.
 fn config_from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<MpcConfig> {
-    check_finite(py, "", d)?;
     let base = merged(py, "config", serde_json::to_value(MpcConfig::default()), d)?;
-    let config: MpcConfig =
-        serde_json::from_value(base).map_err(|e| config_error(py, format!("argument `config`: config could not be parsed: {e}")))?;
+    let config: MpcConfig = from_json_value(py, "config", base)?;
     config.validate().py_err(py)?;
     Ok(config)
 }
@@ -51,7 +35,7 @@ fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult
     }
     if config.is_instance_of::<PyString>() || config.hasattr("__fspath__")? {
         let path: String = py.import("os")?.call_method1("fspath", (config,))?.extract()?;
-        let text = std::fs::read_to_string(&path).map_err(|e| raise(py, "FileFormatError", format!("cannot read config file: {e}: {path}")))?;
+        let text = crate::terrain::read_config_text(py, &path)?;
         return MpcConfig::from_toml_str(&text).map_err(|e| raise(py, "ConfigError", format!("{e}: {path}")));
     }
     Err(config_error(py, format!("argument `config` must be None, a dict or a TOML path, got {}", type_name(config))))
@@ -65,27 +49,10 @@ fn config_dict<'py>(py: Python<'py>, config: &MpcConfig) -> PyResult<Bound<'py, 
 // ---------------------------------------------------------------- inputs
 
 /// A finite float array of `value` with `ndim` dimensions (any real dtype is converted).
-fn float_array<'py>(py: Python<'py>, argument: &str, value: &Bound<'py, PyAny>, what: &str) -> PyResult<Bound<'py, PyAny>> {
-    let np = py.import("numpy")?;
-    let raw = np.call_method1("asarray", (value,)).map_err(|_| input_error(py, format!("argument `{argument}` must be {what}, got {}", type_name(value))))?;
-    let kind: String = raw.getattr("dtype")?.getattr("kind")?.extract()?;
-    if !matches!(kind.as_str(), "f" | "i" | "u") {
-        return Err(input_error(py, format!("argument `{argument}` must be {what} of real numbers, got {}", type_name(&raw))));
-    }
-    Ok(raw)
-}
+use real_array as float_array;
 
 fn state_of(py: Python<'_>, state: &Bound<'_, PyAny>) -> PyResult<UnicycleState> {
-    let what = "4 numbers [x, y, heading, speed]";
-    let raw = float_array(py, "state", state, what)?;
-    let v: Vec<f64> = raw.call_method1("astype", ("float64",))?.call_method0("ravel")?.call_method0("tolist")?.extract()?;
-    let ndim: usize = raw.getattr("ndim")?.extract()?;
-    if ndim != 1 || v.len() != 4 {
-        return Err(input_error(py, format!("argument `state` must be {what}, got {}", type_name(&raw))));
-    }
-    if v.iter().any(|x| !x.is_finite()) {
-        return Err(input_error(py, format!("argument `state` must be finite, got {v:?}")));
-    }
+    let v = small_vector(py, "state", state, 4, "4 numbers [x, y, heading, speed]")?;
     Ok(UnicycleState::from_array([v[0], v[1], v[2], v[3]]))
 }
 
@@ -96,6 +63,7 @@ fn path_of(py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<Vec<DVec2>> {
     if shape.len() != 2 || shape[1] != 2 {
         return Err(input_error(py, format!("argument `reference_path` must be {what}, got shape {shape:?}")));
     }
+    check_elements(py, "reference_path", &shape[..1], MAX_PATH_POINTS, "points")?;
     let flat: Vec<f64> = raw.call_method1("astype", ("float64",))?.call_method0("ravel")?.call_method0("tolist")?.extract()?;
     Ok(flat.chunks_exact(2).map(|p| DVec2::new(p[0], p[1])).collect())
 }
@@ -110,11 +78,7 @@ struct RiskInput<'a> {
 }
 
 fn origin_of(py: Python<'_>, origin: &Bound<'_, PyAny>) -> PyResult<DVec2> {
-    let raw = float_array(py, "origin", origin, "2 numbers (x, y) [m]")?;
-    let v: Vec<f64> = raw.call_method1("astype", ("float64",))?.call_method0("ravel")?.call_method0("tolist")?.extract()?;
-    if v.len() != 2 {
-        return Err(input_error(py, format!("argument `origin` must be 2 numbers (x, y) [m], got {} of them", v.len())));
-    }
+    let v = small_vector(py, "origin", origin, 2, "2 numbers (x, y) [m]")?;
     Ok(DVec2::new(v[0], v[1]))
 }
 
@@ -161,13 +125,18 @@ fn with_risk<T>(
             let what = "a 2-D (ny, nx) array of risks in [0, 1] (float32 preferred)";
             let converted;
             let array = match risk.cast::<PyArray2<f32>>() {
-                Ok(a) => a.clone(),
+                Ok(a) => {
+                    check_elements(py, "risk", a.shape(), MAX_GRID_CELLS, "cells")?;
+                    a.clone()
+                }
                 Err(_) => {
                     let raw = float_array(py, "risk", risk, what)?;
                     let ndim: usize = raw.getattr("ndim")?.extract()?;
                     if ndim != 2 {
                         return Err(input_error(py, format!("argument `risk` must be {what}, got {}", type_name(&raw))));
                     }
+                    let shape: Vec<usize> = raw.getattr("shape")?.extract()?;
+                    check_elements(py, "risk", &shape, MAX_GRID_CELLS, "cells")?;
                     converted = raw.call_method1("astype", ("float32",))?;
                     converted.cast::<PyArray2<f32>>().map_err(|_| input_error(py, format!("argument `risk` must be {what}")))?.clone()
                 }
@@ -297,9 +266,9 @@ impl PyMpcResult {
 
 /// The MPC path tracker of a ground robot (STEP, Fan et al. 2021): keeps its last plan to warm-start
 /// the next solve.
-#[pyclass(name = "MpcTracker", module = "subterra._core")]
+#[pyclass(name = "MpcTracker", module = "subterra._core", frozen)]
 pub struct PyMpcTracker {
-    inner: MpcTracker,
+    inner: Shared<MpcTracker>,
 }
 
 #[pymethods]
@@ -310,7 +279,7 @@ impl PyMpcTracker {
     #[pyo3(signature = (config = None))]
     fn new(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
         let config = resolve_config(py, config)?;
-        Ok(Self { inner: MpcTracker::new(config).py_err(py)? })
+        Ok(Self { inner: Shared::new(MpcTracker::new(config).py_err(py)?) })
     }
 
     /// The default config as a nested dict.
@@ -328,7 +297,7 @@ impl PyMpcTracker {
     #[pyo3(signature = (state, reference_path, *, risk = None, resolution = None, origin = None, risk_map = None, desired_speed = None))]
     #[allow(clippy::too_many_arguments)]
     fn solve(
-        &mut self,
+        &self,
         py: Python<'_>,
         state: &Bound<'_, PyAny>,
         reference_path: &Bound<'_, PyAny>,
@@ -340,7 +309,8 @@ impl PyMpcTracker {
     ) -> PyResult<PyMpcResult> {
         let state = state_of(py, state)?;
         let path = path_of(py, reference_path)?;
-        let tracker = &mut self.inner;
+        let mut this = self.inner.lock();
+        let tracker = &mut *this;
         let result = with_risk(py, risk, resolution, origin, risk_map, |grid| {
             let grid = match grid {
                 None => None,
@@ -355,30 +325,31 @@ impl PyMpcTracker {
     }
 
     /// Forgets the last plan: the next solve starts from zero inputs.
-    fn reset(&mut self) {
-        self.inner.reset();
+    fn reset(&self) {
+        self.inner.lock().reset();
     }
 
     /// The config as a nested dict.
     #[getter]
     fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        config_dict(py, self.inner.config())
+        config_dict(py, self.inner.lock().config())
     }
 
     /// Steps N of the horizon.
     #[getter]
     fn horizon(&self) -> usize {
-        self.inner.config().horizon
+        self.inner.lock().config().horizon
     }
 
     /// Step [s].
     #[getter]
     fn dt(&self) -> f64 {
-        self.inner.config().dt_s
+        self.inner.lock().config().dt_s
     }
 
     fn __repr__(&self) -> String {
-        let c = self.inner.config();
+        let this = self.inner.lock();
+        let c = this.config();
         format!("MpcTracker(horizon={}, dt={}, max_speed_m_s={})", c.horizon, c.dt_s, c.limits.max_speed_m_s)
     }
 }

@@ -10,21 +10,15 @@ use subterra::plan::navigator::{Navigator, NavigatorConfig, NavigatorOutput};
 use subterra::plan::Transition;
 use subterra::Isometry3;
 
-use crate::convert::{isometry, type_name};
-use crate::errors::{input_error, IntoPyResult};
-use crate::terrain::{merged, parse_error, resolve_config, resolve_robot, to_py_dict, with_points, PyRiskMap, PyRobotConfig};
+use crate::shared::Shared;
+use crate::convert::{isometry, small_vector};
+use crate::errors::IntoPyResult;
+use crate::terrain::{merged, from_json_value, resolve_config, resolve_robot, to_py_dict, with_points, PyRiskMap, PyRobotConfig};
 
 /// Two finite numbers `(x, y)`.
 fn xy(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<DVec2> {
-    let v: Vec<f64> = py
-        .import("numpy")?
-        .call_method1("asarray", (value, "float64"))
-        .and_then(|a| a.call_method0("ravel")?.call_method0("tolist")?.extract())
-        .map_err(|_| input_error(py, format!("argument `{argument}` must be two numbers (x, y) [m], got {}", type_name(value))))?;
-    match v[..] {
-        [x, y] | [x, y, _] if x.is_finite() && y.is_finite() => Ok(DVec2::new(x, y)),
-        _ => Err(input_error(py, format!("argument `{argument}` must be two finite numbers (x, y) [m], got {v:?}"))),
-    }
+    let v = small_vector(py, argument, value, 2, "two numbers (x, y) [m]")?;
+    Ok(DVec2::new(v[0], v[1]))
 }
 
 fn transition_dict<'py>(py: Python<'py>, t: &Transition) -> PyResult<Bound<'py, PyDict>> {
@@ -160,10 +154,10 @@ impl PyNavigatorOutput {
 
 /// The ground robot's navigation stack (STEP, Fan et al. 2021): terrain mapper, risk-aware A*, MPC
 /// tracker and recovery behaviours, one `step` per control tick.
-#[pyclass(name = "Navigator", module = "subterra._core")]
+#[pyclass(name = "Navigator", module = "subterra._core", frozen)]
 pub struct PyNavigator {
-    inner: Navigator,
-    last_stamp: Option<f64>,
+    inner: Shared<Navigator>,
+    last_stamp: Shared<Option<f64>>,
 }
 
 #[pymethods]
@@ -194,12 +188,12 @@ impl PyNavigator {
         let config = match config {
             Some(d) if !d.is_none() => {
                 let value = merged(py, "config", serde_json::to_value(&defaults), d)?;
-                serde_json::from_value::<NavigatorConfig>(value).map_err(|e| parse_error(py, "config", e))?
+                from_json_value::<NavigatorConfig>(py, "config", value)?
             }
             _ => defaults,
         };
         let inner = Navigator::new(robot, terrain, config, goal, home).py_err(py)?;
-        Ok(Self { inner, last_stamp: None })
+        Ok(Self { inner: Shared::new(inner), last_stamp: Shared::new(None) })
     }
 
     /// One control tick. `points`: a new scan `(N, 3)` in the sensor frame [m], or None.
@@ -209,7 +203,7 @@ impl PyNavigator {
     #[pyo3(signature = (points, *, stamp = None, world_from_body, body_from_sensor = None, confidence = 1.0, speed = 0.0))]
     #[allow(clippy::too_many_arguments)]
     fn step(
-        &mut self,
+        &self,
         py: Python<'_>,
         points: Option<&Bound<'_, PyAny>>,
         stamp: Option<f64>,
@@ -223,8 +217,11 @@ impl PyNavigator {
             Some(m) if !m.is_none() => isometry(py, "body_from_sensor", m)?,
             _ => Isometry3::IDENTITY,
         };
-        let stamp_s = stamp.unwrap_or_else(|| self.last_stamp.map_or(0.0, |t| t + 0.1));
-        let nav = &mut self.inner;
+        // The navigator's lock is held from the default stamp to its step (threads sharing it
+        // never compute the same default).
+        let mut this = self.inner.lock();
+        let stamp_s = stamp.unwrap_or_else(|| self.last_stamp.lock().map_or(0.0, |t| t + 0.1));
+        let nav = &mut *this;
         let mut run = |points: Option<&[f32]>| {
             py.detach(|| {
                 nav.step(&subterra::plan::navigator::NavigatorInput {
@@ -241,17 +238,19 @@ impl PyNavigator {
             Some(p) if !p.is_none() => with_points(py, "points", p, |flat| run(Some(flat)))?,
             _ => run(None),
         }
+        .map_err(|e| e.renamed(&["stamp_s", "time_s"], "stamp"))
         .py_err(py)?;
-        self.last_stamp = Some(stamp_s);
+        *self.last_stamp.lock() = Some(stamp_s);
         Ok(PyNavigatorOutput { inner: out })
     }
 
     /// The last coarse risk map (None before the first scan).
     #[getter]
     fn risk_map(&self, py: Python<'_>) -> PyResult<Option<Py<PyRiskMap>>> {
-        match self.inner.risk_map() {
+        let this = self.inner.lock();
+        match this.risk_map() {
             Some(m) => {
-                let (stats, timings) = self.inner.last_terrain_stats();
+                let (stats, timings) = this.last_terrain_stats();
                 Ok(Some(Py::new(py, PyRiskMap::from_core(m.clone(), "coarse", stats, timings))?))
             }
             None => Ok(None),
@@ -262,9 +261,10 @@ impl PyNavigator {
     /// observed, raised by the hazard memory, NaN where unobserved (None before the first scan).
     #[getter]
     fn plan_grid<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray2<f32>>>> {
-        let Some(map) = self.inner.risk_map() else { return Ok(None) };
+        let this = self.inner.lock();
+        let Some(map) = this.risk_map() else { return Ok(None) };
         let g = map.geometry();
-        let grid = numpy::ndarray::Array2::from_shape_vec((g.ny, g.nx), self.inner.plan_grid().to_vec())
+        let grid = numpy::ndarray::Array2::from_shape_vec((g.ny, g.nx), this.plan_grid().to_vec())
             .map_err(|e| PyRuntimeError::new_err(format!("plan grid: {e}")))?;
         Ok(Some(grid.into_pyarray(py)))
     }
@@ -273,49 +273,52 @@ impl PyNavigator {
     /// Cells the robot's footprint has stood on (the driven memory).
     #[getter]
     fn driven_cells(&self) -> usize {
-        self.inner.driven_cells()
+        self.inner.lock().driven_cells()
     }
 
     #[getter]
     fn remembered_hazards(&self) -> usize {
-        self.inner.remembered_hazards()
+        self.inner.lock().remembered_hazards()
     }
 
     /// The robot.
     #[getter]
     fn robot(&self) -> PyRobotConfig {
-        PyRobotConfig::from_core(*self.inner.robot())
+        PyRobotConfig::from_core(*self.inner.lock().robot())
     }
 
     /// The configuration as a dict (sections `planner`, `tracker`, `recovery`, `navigator`).
     #[getter]
     fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py_dict(py, serde_json::to_string(self.inner.config()))
+        to_py_dict(py, serde_json::to_string(self.inner.lock().config()))
     }
 
     /// Every transition of the recovery machine so far (dicts, oldest first).
     #[getter]
     fn transitions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-        let items = self.inner.recovery().transitions().iter().map(|t| transition_dict(py, t)).collect::<PyResult<Vec<_>>>()?;
+        let items = self.inner.lock().recovery().transitions().iter().map(|t| transition_dict(py, t)).collect::<PyResult<Vec<_>>>()?;
         PyList::new(py, items)
     }
 
     /// The goal (x, y) [m].
     #[getter]
     fn goal(&self) -> (f64, f64) {
-        (self.inner.goal().x, self.inner.goal().y)
+        let this = self.inner.lock();
+        let goal = this.goal();
+        (goal.x, goal.y)
     }
 
     /// Home (x, y) [m].
     #[getter]
     fn home(&self) -> (f64, f64) {
-        let h = self.inner.recovery().home();
+        let h = self.inner.lock().recovery().home();
         (h.x, h.y)
     }
 
     fn __repr__(&self) -> String {
-        let g = self.inner.goal();
-        format!("Navigator(goal=({:.2}, {:.2}), behaviour={:?})", g.x, g.y, self.inner.recovery().behaviour().name())
+        let this = self.inner.lock();
+        let g = this.goal();
+        format!("Navigator(goal=({:.2}, {:.2}), behaviour={:?})", g.x, g.y, this.recovery().behaviour().name())
     }
 }
 

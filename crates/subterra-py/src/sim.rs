@@ -15,6 +15,7 @@ use subterra_sim::SimError;
 use xoshiro::Xoshiro256PlusPlus;
 use rand::SeedableRng;
 
+use crate::shared::Shared;
 use crate::convert::{isometry, vec3};
 use crate::errors::{input_error, raise, to_py};
 use crate::PyPinholeCamera;
@@ -356,9 +357,9 @@ fn status_name(status: &RunStatus) -> &'static str {
 }
 
 /// A closed-loop simulation: one vehicle, its sensors, a goal, metrics.
-#[pyclass(name = "Simulation", module = "subterra._core.sim")]
+#[pyclass(name = "Simulation", module = "subterra._core.sim", frozen)]
 pub struct PySimulation {
-    inner: Simulation,
+    inner: Shared<Simulation>,
 }
 
 #[pymethods]
@@ -395,7 +396,7 @@ impl PySimulation {
         }
         .sim_err(py)?;
         let w = world.inner.clone();
-        let mut sim = Self { inner: Simulation::new(w, v, seed).sim_err(py)? };
+        let sim = Self { inner: Shared::new(Simulation::new(w, v, seed).sim_err(py)?) };
         if let Some(sensors) = sensors {
             for (name, mount) in sensors.iter() {
                 let name: String = name.extract().map_err(|_| input_error(py, "argument `sensors` must map names (str) to sensors"))?;
@@ -424,45 +425,45 @@ impl PySimulation {
 
     /// Mounts a depth camera (default pose: looking forward from the body origin).
     #[pyo3(signature = (name, camera, body_from_camera = None, noise = "none"))]
-    fn add_depth_camera(&mut self, py: Python<'_>, name: &str, camera: &PyDepthCamera, body_from_camera: Option<&Bound<'_, PyAny>>, noise: &str) -> PyResult<()> {
+    fn add_depth_camera(&self, py: Python<'_>, name: &str, camera: &PyDepthCamera, body_from_camera: Option<&Bound<'_, PyAny>>, noise: &str) -> PyResult<()> {
         let pose = match body_from_camera {
             Some(m) => isometry(py, "body_from_camera", m)?,
             None => Isometry3::body_from_forward_optical(),
         };
         let model = depth_noise(py, noise)?;
-        self.inner.add_depth_camera(name, *camera.inner.config(), pose, model).sim_err(py)
+        self.inner.lock().add_depth_camera(name, *camera.inner.config(), pose, model).sim_err(py)
     }
 
     /// Mounts a lidar (default pose: at the body origin, axes aligned).
     #[pyo3(signature = (name, lidar, body_from_sensor = None, noise = "none"))]
-    fn add_lidar(&mut self, py: Python<'_>, name: &str, lidar: &PyLidar, body_from_sensor: Option<&Bound<'_, PyAny>>, noise: &str) -> PyResult<()> {
+    fn add_lidar(&self, py: Python<'_>, name: &str, lidar: &PyLidar, body_from_sensor: Option<&Bound<'_, PyAny>>, noise: &str) -> PyResult<()> {
         let pose = match body_from_sensor {
             Some(m) => isometry(py, "body_from_sensor", m)?,
             None => Isometry3::IDENTITY,
         };
         let model = lidar_noise(py, noise)?;
-        self.inner.add_lidar(name, lidar.inner.config().clone(), pose, model).sim_err(py)
+        self.inner.lock().add_lidar(name, lidar.inner.config().clone(), pose, model).sim_err(py)
     }
 
     /// The goal: a region of the world by name, or a point with a radius [m].
     #[pyo3(signature = (region = None, point = None, radius_m = 0.5))]
-    fn set_goal(&mut self, py: Python<'_>, region: Option<String>, point: Option<&Bound<'_, PyAny>>, radius_m: f64) -> PyResult<()> {
+    fn set_goal(&self, py: Python<'_>, region: Option<String>, point: Option<&Bound<'_, PyAny>>, radius_m: f64) -> PyResult<()> {
         let goal = match (region, point) {
             (Some(r), None) => Goal::Region(r),
             (None, Some(p)) => Goal::Point { centre: vec3(py, "point", p)?, radius_m },
             _ => return Err(input_error(py, "give exactly one of `region` and `point`")),
         };
-        self.inner.set_goal(goal).sim_err(py)
+        self.inner.lock().set_goal(goal).sim_err(py)
     }
 
     /// Ends the run as timed out after `limit_s` simulated seconds (None: no limit).
-    fn set_time_limit(&mut self, py: Python<'_>, limit_s: Option<f64>) -> PyResult<()> {
-        self.inner.set_time_limit(limit_s).sim_err(py)
+    fn set_time_limit(&self, py: Python<'_>, limit_s: Option<f64>) -> PyResult<()> {
+        self.inner.lock().set_time_limit(limit_s).sim_err(py)
     }
 
     /// Ends the run with the caller's cause (e.g. "local_minimum").
-    fn abort(&mut self, cause: &str) {
-        self.inner.abort(cause);
+    fn abort(&self, cause: &str) {
+        self.inner.lock().abort(cause);
     }
 
     /// Renders every sensor at the true pose: a dict with `time_s`, `depth` ({name: (H, W)
@@ -471,9 +472,10 @@ impl PySimulation {
     /// closest noise-free depth [m] or None}), `scans` ({name: (N, 3) float32}),
     /// `world_from_body` and `odometry` (4x4), `velocity_world`, `world_from_sensor` ({name: 4x4}).
     #[pyo3(signature = (*, depth_dtype = "float32"))]
-    fn observe<'py>(&mut self, py: Python<'py>, depth_dtype: &str) -> PyResult<Bound<'py, PyDict>> {
+    fn observe<'py>(&self, py: Python<'py>, depth_dtype: &str) -> PyResult<Bound<'py, PyDict>> {
         let dtype = self::depth_dtype(py, "depth_dtype", depth_dtype)?;
-        let sim = &mut self.inner;
+        let mut this = self.inner.lock();
+        let sim = &mut *this;
         let obs = py.detach(|| sim.observe());
         let d = PyDict::new(py);
         d.set_item("time_s", obs.time_s)?;
@@ -509,7 +511,7 @@ impl PySimulation {
     /// uses v_x and yaw_rate). `compute_time_s` is the controller's time for this step (for
     /// the metrics). Returns `{time_s, status, collided, clearance_m, failure}`.
     #[pyo3(signature = (command, dt = 0.1, *, compute_time_s = 0.0))]
-    fn step<'py>(&mut self, py: Python<'py>, command: &Bound<'py, PyAny>, dt: f64, compute_time_s: f64) -> PyResult<Bound<'py, PyDict>> {
+    fn step<'py>(&self, py: Python<'py>, command: &Bound<'py, PyAny>, dt: f64, compute_time_s: f64) -> PyResult<Bound<'py, PyDict>> {
         let cmd = if let Ok(c) = command.cast::<crate::PyCommand>() {
             let c = c.get();
             BodyVelocityCommand::new(c.inner.v_x_m_s, c.inner.v_y_m_s, c.inner.v_z_m_s, c.inner.yaw_rate_rad_s)
@@ -522,7 +524,8 @@ impl PySimulation {
             }
             BodyVelocityCommand::new(v[0], v[1], v[2], v[3])
         };
-        let sim = &mut self.inner;
+        let mut this = self.inner.lock();
+        let sim = &mut *this;
         let out = py.detach(|| sim.step(&cmd, dt, compute_time_s)).sim_err(py)?;
         let d = PyDict::new(py);
         d.set_item("time_s", out.time_s)?;
@@ -535,7 +538,8 @@ impl PySimulation {
 
     /// Run metrics so far: success, failure, collisions, min clearance, path length, time, compute time.
     fn metrics<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let m = self.inner.metrics();
+        let this = self.inner.lock();
+        let m = this.metrics();
         let d = PyDict::new(py);
         d.set_item("success", m.success)?;
         d.set_item("failure", m.failure)?;
@@ -552,19 +556,20 @@ impl PySimulation {
     /// `running`, `goal_reached`, `failed`, `timed_out` or `aborted`.
     #[getter]
     fn status(&self) -> &'static str {
-        status_name(self.inner.status())
+        status_name(self.inner.lock().status())
     }
 
     /// Simulation time [s].
     #[getter]
     fn time_s(&self) -> f64 {
-        self.inner.time_s()
+        self.inner.lock().time_s()
     }
 
     /// True pose of the body (4x4).
     #[getter]
     fn world_from_body<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        matrix(py, &self.inner.vehicle().world_from_body())
+        let this = self.inner.lock();
+        matrix(py, &this.vehicle().world_from_body())
     }
 }
 

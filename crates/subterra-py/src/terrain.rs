@@ -13,7 +13,8 @@ use serde_json::Value;
 use subterra::terrain::{segment_ground as core_segment_ground, GroundConfig, Layer, MissionItem, RiskMap, RobotConfig, TerrainConfig, TerrainMapper, TerrainStats, TerrainTimings};
 use subterra::Isometry3;
 
-use crate::convert::{isometry, type_name};
+use crate::shared::Shared;
+use crate::convert::{check_elements, isometry, type_name, MAX_POINTS};
 use crate::errors::{config_error, input_error, raise, IntoPyResult};
 
 /// Time between scans when `update` is not given a stamp [s] (a 10 Hz lidar).
@@ -27,8 +28,47 @@ const UNKNOWN_RGB: [u8; 3] = [128, 128, 128];
 
 // ---------------------------------------------------------------- dict / JSON conversions
 
+/// Deepest nesting of a config dict accepted (the deepest config has 3 levels).
+const MAX_CONFIG_DEPTH: usize = 16;
+
+/// Checks a config value before it is serialised: every float finite (JSON has no NaN) and
+/// dicts and lists nested at most [`MAX_CONFIG_DEPTH`] deep, with errors naming the field.
+pub(crate) fn check_config_value(py: Python<'_>, argument: &str, field: &str, value: &Bound<'_, PyAny>, depth: usize) -> PyResult<()> {
+    let name = |f: &str| if f.is_empty() { format!("argument `{argument}`") } else { format!("config field `{f}`") };
+    if depth > MAX_CONFIG_DEPTH {
+        return Err(config_error(py, format!("{} is nested deeper than {MAX_CONFIG_DEPTH} levels", name(field))));
+    }
+    if let Ok(dict) = value.cast::<PyDict>() {
+        for (key, v) in dict.iter() {
+            let key = key.str()?.to_string();
+            let sub = if field.is_empty() { key } else { format!("{field}.{key}") };
+            check_config_value(py, argument, &sub, &v, depth + 1)?;
+        }
+    } else if let Ok(list) = value.cast::<pyo3::types::PyList>() {
+        for (i, v) in list.iter().enumerate() {
+            check_config_value(py, argument, &format!("{field}[{i}]"), &v, depth + 1)?;
+        }
+    } else if value.is_instance_of::<pyo3::types::PyFloat>() {
+        let x: f64 = value.extract()?;
+        if !x.is_finite() {
+            return Err(config_error(py, format!("{} is invalid: must be finite (got {x})", name(field))));
+        }
+    }
+    Ok(())
+}
+
+/// Deserialises a config from JSON, naming the field of an error (`planner.lam`).
+pub(crate) fn from_json_value<T: serde::de::DeserializeOwned>(py: Python<'_>, argument: &str, value: Value) -> PyResult<T> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let path = e.path().to_string();
+        let at = if path.is_empty() || path == "." { String::new() } else { format!(" field `{path}`") };
+        config_error(py, format!("argument `{argument}`{at}: config could not be parsed: {}", e.inner()))
+    })
+}
+
 /// A Python value as JSON through `json.dumps` (numpy scalars become numbers).
 fn to_json_value(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<Value> {
+    check_config_value(py, argument, "", value, 0)?;
     let text: String = py
         .import("json")?
         .call_method1("dumps", (value,))
@@ -66,10 +106,6 @@ pub(crate) fn merged(py: Python<'_>, argument: &str, base: serde_json::Result<Va
     Ok(base)
 }
 
-pub(crate) fn parse_error(py: Python<'_>, argument: &str, e: serde_json::Error) -> PyErr {
-    config_error(py, format!("argument `{argument}`: config could not be parsed: {e}"))
-}
-
 /// A config as a Python dict (through JSON).
 pub(crate) fn to_py_dict<'py>(py: Python<'py>, json: serde_json::Result<String>) -> PyResult<Bound<'py, PyAny>> {
     let text = json.map_err(|e| config_error(py, e.to_string()))?;
@@ -85,8 +121,14 @@ fn as_path(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<Option<String>>
     Ok(None)
 }
 
+/// The text of a config file, read by `subterra._files` like every other file: regular files
+/// only (a FIFO or a device is a FileFormatError, never a hang), bounded, UTF-8.
+pub(crate) fn read_config_text(py: Python<'_>, path: &str) -> PyResult<String> {
+    py.import("subterra._files")?.call_method1("read_regular_text", (path, "config file"))?.extract()
+}
+
 fn read_config_file(py: Python<'_>, path: &str) -> PyResult<TerrainConfig> {
-    let text = std::fs::read_to_string(path).map_err(|e| raise(py, "FileFormatError", format!("cannot read config file: {e}: {path}")))?;
+    let text = read_config_text(py, path)?;
     TerrainConfig::from_toml_str(&text).map_err(|e| raise(py, "ConfigError", format!("{e}: {path}")))
 }
 
@@ -128,7 +170,7 @@ impl PyRobotConfig {
     #[staticmethod]
     fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
         let value = merged(py, "robot", serde_json::to_value(RobotConfig::husky()), d)?;
-        let inner: RobotConfig = serde_json::from_value(value).map_err(|e| parse_error(py, "robot", e))?;
+        let inner: RobotConfig = from_json_value(py, "robot", value)?;
         inner.validate().py_err(py)?;
         Ok(Self { inner })
     }
@@ -179,7 +221,7 @@ impl PyTerrainConfig {
     #[staticmethod]
     fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
         let value = merged(py, "config", serde_json::to_value(TerrainConfig::default()), d)?;
-        let inner: TerrainConfig = serde_json::from_value(value).map_err(|e| parse_error(py, "config", e))?;
+        let inner: TerrainConfig = from_json_value(py, "config", value)?;
         inner.validate().py_err(py)?;
         Ok(Self { inner })
     }
@@ -242,6 +284,11 @@ pub(crate) fn with_points<T>(py: Python<'_>, argument: &str, value: &Bound<'_, P
             if !matches!(kind.as_str(), "f" | "i" | "u") {
                 return Err(input_error(py, format!("argument `{argument}` must be an (N, 3) array of real numbers (float32 preferred), got {}", type_name(&raw))));
             }
+            let shape: Vec<usize> = raw.getattr("shape")?.extract()?;
+            if shape.len() != 2 || shape[1] != 3 {
+                return Err(input_error(py, format!("argument `{argument}` must have shape (N, 3), got {shape:?}")));
+            }
+            check_elements(py, argument, &shape[..1], MAX_POINTS, "points")?;
             converted = raw.call_method1("astype", ("float32",))?;
             converted
                 .cast::<PyArray2<f32>>()
@@ -257,6 +304,7 @@ pub(crate) fn with_points<T>(py: Python<'_>, argument: &str, value: &Bound<'_, P
     if shape[0] == 0 {
         return Err(input_error(py, format!("argument `{argument}` is empty (shape {shape:?}); a scan needs at least one point")));
     }
+    check_elements(py, argument, &shape[..1], MAX_POINTS, "points")?;
     let flat = match view.as_array().to_slice() {
         Some(s) => Cow::Borrowed(s),
         None => Cow::Owned(view.as_array().iter().copied().collect()),
@@ -506,12 +554,12 @@ impl PyRiskMap {
 type PointsAndHeights<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<f32>>);
 
 /// Terrain risk mapping for one ground robot and one sensor stream.
-#[pyclass(name = "TerrainMapper", module = "subterra._core")]
+#[pyclass(name = "TerrainMapper", module = "subterra._core", frozen)]
 pub struct PyTerrainMapper {
-    inner: TerrainMapper,
-    last_stamp: Option<f64>,
-    last_coarse: Option<Py<PyRiskMap>>,
-    last_fine: Option<Py<PyRiskMap>>,
+    inner: Shared<TerrainMapper>,
+    last_stamp: Shared<Option<f64>>,
+    last_coarse: Shared<Option<Py<PyRiskMap>>>,
+    last_fine: Shared<Option<Py<PyRiskMap>>>,
 }
 
 #[pymethods]
@@ -522,7 +570,7 @@ impl PyTerrainMapper {
         let robot = resolve_robot(py, robot)?;
         let config = resolve_config(py, config)?;
         let inner = TerrainMapper::new(robot, config).py_err(py)?;
-        Ok(Self { inner, last_stamp: None, last_coarse: None, last_fine: None })
+        Ok(Self { inner: Shared::new(inner), last_stamp: Shared::new(None), last_coarse: Shared::new(None), last_fine: Shared::new(None) })
     }
 
     /// Adds one scan and returns the coarse (fused) map; the fine map is `last_fine`.
@@ -534,7 +582,7 @@ impl PyTerrainMapper {
     /// Releases the GIL while it runs.
     #[pyo3(signature = (points, *, stamp = None, world_from_body = None, body_from_sensor = None, confidence = 1.0))]
     fn update(
-        &mut self,
+        &self,
         py: Python<'_>,
         points: &Bound<'_, PyAny>,
         stamp: Option<f64>,
@@ -550,38 +598,41 @@ impl PyTerrainMapper {
             Some(m) => isometry(py, "body_from_sensor", m)?,
             None => Isometry3::IDENTITY,
         };
+        // The mapper's lock is held from the default stamp to its update, so that threads
+        // sharing the mapper never compute the same default.
+        let mut this = self.inner.lock();
         let stamp_s = match stamp {
             Some(s) => s,
-            None => self.last_stamp.map_or(0.0, |t| t + DEFAULT_SCAN_PERIOD_S),
+            None => self.last_stamp.lock().map_or(0.0, |t| t + DEFAULT_SCAN_PERIOD_S),
         };
-        let inner = &mut self.inner;
+        let inner = &mut *this;
         let result = with_points(py, "points", points, |flat| py.detach(|| inner.update(flat, stamp_s, &world_from_body, &body_from_sensor, confidence)))?;
-        let out = result.py_err(py)?;
-        self.last_stamp = Some(stamp_s);
+        let out = result.map_err(|e| e.renamed(&["stamp_s"], "stamp")).py_err(py)?;
+        *self.last_stamp.lock() = Some(stamp_s);
         let coarse = Py::new(py, PyRiskMap { inner: out.coarse, kind: "coarse", stats: out.stats, timings: out.timings })?;
-        self.last_fine = match out.fine {
+        *self.last_fine.lock() = match out.fine {
             Some(fine) => Some(Py::new(py, PyRiskMap { inner: fine, kind: "fine", stats: out.stats, timings: out.timings })?),
             None => None,
         };
-        self.last_coarse = Some(coarse.clone_ref(py));
+        *self.last_coarse.lock() = Some(coarse.clone_ref(py));
         Ok(coarse)
     }
 
     /// The coarse map of the last update, or None before the first.
     #[getter]
     fn last_coarse(&self, py: Python<'_>) -> Option<Py<PyRiskMap>> {
-        self.last_coarse.as_ref().map(|m| m.clone_ref(py))
+        self.last_coarse.lock().as_ref().map(|m| m.clone_ref(py))
     }
 
     /// The fine map of the last update, or None (before the first, or `fine_enabled = false`).
     #[getter]
     fn last_fine(&self, py: Python<'_>) -> Option<Py<PyRiskMap>> {
-        self.last_fine.as_ref().map(|m| m.clone_ref(py))
+        self.last_fine.lock().as_ref().map(|m| m.clone_ref(py))
     }
 
     /// Replaces the keep-out circles of the `mission` layer. Each item is `(x, y, radius)`
     /// [m, world frame] or a dict `{"position": (x, y), "radius": r}`; an empty list clears them.
-    fn set_mission_items(&mut self, py: Python<'_>, items: &Bound<'_, PyAny>) -> PyResult<()> {
+    fn set_mission_items(&self, py: Python<'_>, items: &Bound<'_, PyAny>) -> PyResult<()> {
         let np = py.import("numpy")?;
         let mut parsed = Vec::new();
         let iter = items.try_iter().map_err(|_| input_error(py, format!("argument `items` must be a sequence, got {}", type_name(items))))?;
@@ -605,31 +656,31 @@ impl PyTerrainMapper {
             })?;
             parsed.push(MissionItem { position_world: DVec2::new(v[0], v[1]), radius_m: v[2] });
         }
-        self.inner.set_mission_items(&parsed).py_err(py)
+        self.inner.lock().set_mission_items(&parsed).py_err(py)
     }
 
     /// Forgets every scan (the recovery behaviour "clear the map"); the next stamp may be any.
-    fn reset(&mut self) {
-        self.inner.reset();
-        self.last_stamp = None;
+    fn reset(&self) {
+        self.inner.lock().reset();
+        *self.last_stamp.lock() = None;
     }
 
     /// Scans held in the fusion window.
     #[getter]
     fn window_len(&self) -> usize {
-        self.inner.window_len()
+        self.inner.lock().window_len()
     }
 
     /// The robot model.
     #[getter]
     fn robot(&self) -> PyRobotConfig {
-        PyRobotConfig { inner: *self.inner.robot() }
+        PyRobotConfig { inner: *self.inner.lock().robot() }
     }
 
     /// The config.
     #[getter]
     fn config(&self) -> PyTerrainConfig {
-        PyTerrainConfig { inner: *self.inner.config() }
+        PyTerrainConfig { inner: *self.inner.lock().config() }
     }
 
     /// The newest scan's kept points relative to the body origin, world-aligned axes
@@ -638,14 +689,15 @@ impl PyTerrainMapper {
     /// A point is ground iff `|height| <= config.ground.max_dist_to_line_m`. None before
     /// the first update.
     fn newest_points<'py>(&self, py: Python<'py>) -> PyResult<Option<PointsAndHeights<'py>>> {
-        let Some((points, heights)) = self.inner.newest_points_level() else { return Ok(None) };
+        let this = self.inner.lock();
+        let Some((points, heights)) = this.newest_points_level() else { return Ok(None) };
         let n = points.len();
         let flat: Vec<f32> = points.into_iter().flatten().collect();
         Ok(Some((flat.into_pyarray(py).reshape([n, 3])?, heights.to_vec().into_pyarray(py))))
     }
 
     fn __repr__(&self) -> String {
-        format!("TerrainMapper(window_len={}, last_stamp={:?})", self.inner.window_len(), self.last_stamp)
+        format!("TerrainMapper(window_len={}, last_stamp={:?})", self.inner.lock().window_len(), self.last_stamp)
     }
 }
 
@@ -664,7 +716,7 @@ fn segment_ground<'py>(py: Python<'py>, points: &Bound<'_, PyAny>, sensor_height
                 t.get().inner.ground
             } else if c.cast::<PyDict>().is_ok() {
                 let value = merged(py, "config", serde_json::to_value(GroundConfig::default()), c)?;
-                let g: GroundConfig = serde_json::from_value(value).map_err(|e| parse_error(py, "config", e))?;
+                let g: GroundConfig = from_json_value(py, "config", value)?;
                 g.validate().py_err(py)?;
                 g
             } else {

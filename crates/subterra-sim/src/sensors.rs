@@ -38,10 +38,13 @@ pub const OS1_AZIMUTH_STEPS: u32 = 1024;
 /// OS1-64 vertical field of view, half angle [deg] (Ouster OS1 Gen1: 33.2° uniform).
 pub const OS1_HALF_FOV_DEG: f64 = 16.6;
 
+/// Largest simulated depth image [px] (4.2 MP: 2048x2048; a frame is one ray per pixel).
+const MAX_CAMERA_PIXELS: u64 = 1 << 22;
 /// Most azimuth steps accepted; beyond this a value is a mistake, not a lidar.
 const MAX_AZIMUTH_STEPS: u32 = 1 << 20;
-/// Most rays per lidar revolution accepted (rings x azimuth steps).
-const MAX_LIDAR_RAYS: u64 = 1 << 26;
+/// Most rays per lidar revolution accepted (rings x azimuth steps): 4.2 M, 16 times an
+/// OS1-128 at 2048 steps.
+const MAX_LIDAR_RAYS: u64 = 1 << 22;
 
 /// A depth camera: intrinsics and the depth range it reports.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -63,6 +66,10 @@ impl DepthCameraConfig {
     /// Checks every field: valid intrinsics (`camera.*`), `0 <= min_range_m < max_range_m`, both finite.
     pub fn validate(&self) -> SimResult<()> {
         self.camera.validate().map_err(core_to_sim)?;
+        let pixels = self.camera.pixel_count() as u64;
+        if pixels > MAX_CAMERA_PIXELS {
+            return Err(SimError::config("camera.height", format!("gives {pixels} pixels to render each frame; the simulator renders at most {MAX_CAMERA_PIXELS}"), self.camera.height));
+        }
         validate_range(self.min_range_m, self.max_range_m)
     }
 }

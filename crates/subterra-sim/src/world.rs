@@ -253,16 +253,7 @@ impl World {
     /// [`SimError::InvalidWorld`] with `field = "line L, column C"` for syntax errors, unknown
     /// keys and wrong types; the field's name for invalid values.
     pub fn from_toml_str(text: &str) -> SimResult<World> {
-        let spec: WorldSpec = toml::from_str(text).map_err(|e| {
-            let field = match e.span() {
-                Some(span) => {
-                    let (line, column) = line_column(text, span.start);
-                    format!("line {line}, column {column}")
-                }
-                None => "toml".to_string(),
-            };
-            SimError::world(field, e.message().trim().to_string())
-        })?;
+        let spec: WorldSpec = subterra::error::parse_toml_located(text).map_err(|(at, message)| SimError::world(at, message))?;
         World::from_spec(spec)
     }
 
@@ -695,16 +686,6 @@ fn inv_component(d: f64) -> f32 {
 
 fn to_f32(p: DVec3) -> Vector {
     Vector::new(p.x as f32, p.y as f32, p.z as f32)
-}
-
-/// 1-based line and column (in characters) of byte offset `at` in `text`.
-fn line_column(text: &str, at: usize) -> (usize, usize) {
-    let at = at.min(text.len());
-    let before = text.get(..at).unwrap_or(text);
-    let line = before.matches('\n').count() + 1;
-    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
-    let column = before.get(line_start..).map_or(0, |s| s.chars().count()) + 1;
-    (line, column)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -2992,8 +2973,11 @@ mod tests {
     #[test]
     fn toml_errors_give_line_and_column() {
         let err = World::from_toml_str("name = \"x\"\n\n[[sphere]]\ncentre = [0, 0, 0]\nradius = 1\ncolour = 3\n").unwrap_err();
-        assert_eq!(field_of(err), "line 6, column 1");
-        assert_eq!(line_column("ab\ncdé\nf", 7), (2, 4));
+        let field = field_of(err);
+        assert!(field.starts_with("sphere[0]") && field.ends_with("(line 6, column 1)"), "{field}");
+        assert_eq!(subterra::error::line_column("ab\ncdé\nf", 7), (2, 4));
+        let err = World::from_toml_str("name = \"x\"\n[[sphere]]\ncentre = [0, 0, 0]\nradius = \"big\"\n").unwrap_err();
+        assert_eq!(field_of(err), "sphere[0].radius (line 4, column 10)");
     }
 
     #[test]

@@ -600,11 +600,11 @@ fn bad_worlds_name_the_field_or_line() {
     assert_eq!(invalid_field("name = \"x\"\n[[sphere]\n").0, "line 2, column 10");
     // Unknown key, and a wrong type.
     let (field, reason) = invalid_field("[[sphere]]\ncentre = [0, 0, 0]\nradius = 1\nradiuss = 2\n");
-    assert_eq!(field, "line 4, column 1");
+    assert_eq!(field, "sphere[0].radiuss (line 4, column 1)");
     assert!(reason.contains("radiuss"), "{reason}");
     let (field, _) = invalid_field("[[box]]\ncentre = [0, 0, 0]\nsize = \"big\"\n");
-    assert_eq!(field, "line 3, column 8");
-    assert_eq!(invalid_field("[[cylindre]]\n").0, "line 1, column 3");
+    assert_eq!(field, "box[0].size (line 3, column 8)");
+    assert_eq!(invalid_field("[[cylindre]]\n").0, "cylindre (line 1, column 3)");
 }
 
 #[test]
@@ -650,7 +650,7 @@ fn documented_example_parses() {
     assert!((world.ground_height(6.5, 0.5).expect("terrain") - 0.1).abs() < 1e-12);
     assert_eq!(world.ground_height(7.0, 0.5), None); // cell (1, 2) touches the hole at (1, 3)
     let err = World::from_toml_str("[[sphere]]\ncentre = [0, 0, 0]\nradius = 1\nradiuss = 2\n").unwrap_err().to_string();
-    assert!(err.starts_with("world: line 4, column 1: unknown field `radiuss`, expected"), "{err}");
+    assert!(err.starts_with("world: sphere[0].radiuss (line 4, column 1): unknown field `radiuss`, expected"), "{err}");
 }
 
 /// Cost of one ray into a 200-object world (printed; run with `--release -- --nocapture`).
@@ -730,4 +730,22 @@ fn single_ray_cost_in_a_200_object_world() {
     }
     per_ray_ns.sort_by(f64::total_cmp);
     println!("cast_ray, 17 x 8 m hall (6 planes, 200 objects), {} rays from inside: median {:.0} ns/ray", rays.len(), per_ray_ns[BATCHES / 2]);
+}
+
+#[path = "../../subterra/tests/common/mutate.rs"]
+mod mutate;
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { cases: 300, rng_seed: proptest::test_runner::RngSeed::Fixed(22), ..Default::default() })]
+
+    /// The example world damaged in any way parses, or gives a one-line error; never a panic.
+    #[test]
+    fn damaged_worlds_parse_or_give_a_one_line_error(edits in proptest::collection::vec(mutate::edit_strategy(), 1..4)) {
+        let text = include_str!("../../../docs/examples/world.toml");
+        let damaged = edits.iter().fold(text.to_string(), |t, e| mutate::apply(&t, e));
+        if let Err(e) = World::from_toml_str(&damaged) {
+            let message = e.to_string();
+            proptest::prop_assert!(!message.contains('\n') && message.len() < 2000, "{message}");
+        }
+    }
 }

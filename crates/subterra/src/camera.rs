@@ -7,6 +7,11 @@ use crate::error::{require_positive, Error, Result};
 
 /// Largest image side accepted [px]; beyond this a value is a mistake, not a camera.
 const MAX_IMAGE_SIDE_PX: u32 = 16_384;
+/// Largest image accepted [px]: 16.7 MP, four times the largest depth camera sold.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 24;
+/// Focal lengths accepted [px]: below 1 px a pixel spans more than 90 degrees, above
+/// 10^6 px the whole image is a pinhole's view of a few millidegrees.
+const FOCAL_RANGE_PX: (f64, f64) = (1.0, 1e6);
 
 /// Pinhole intrinsics of a depth camera in the optical frame (x right, y down, z forward).
 /// Pixel `(u, v)` has its centre at integer coordinates (the OpenCV / ROS convention).
@@ -43,15 +48,26 @@ impl PinholeCamera {
     pub fn validate(&self) -> Result<()> {
         require_positive("camera.fx", self.fx)?;
         require_positive("camera.fy", self.fy)?;
-        if !self.cx.is_finite() {
-            return Err(Error::config("camera.cx", "must be finite", self.cx));
-        }
-        if !self.cy.is_finite() {
-            return Err(Error::config("camera.cy", "must be finite", self.cy));
+        let (lo, hi) = FOCAL_RANGE_PX;
+        for (field, f) in [("camera.fx", self.fx), ("camera.fy", self.fy)] {
+            if !(lo..=hi).contains(&f) {
+                return Err(Error::config(field, format!("must be in [{lo}, {hi:e}] px (a focal length in pixels)"), f));
+            }
         }
         for (field, side) in [("camera.width", self.width), ("camera.height", self.height)] {
             if side == 0 || side > MAX_IMAGE_SIDE_PX {
                 return Err(Error::config(field, format!("must be in 1..={MAX_IMAGE_SIDE_PX} px"), side));
+            }
+        }
+        let pixels = u64::from(self.width) * u64::from(self.height);
+        if pixels > MAX_IMAGE_PIXELS {
+            return Err(Error::config("camera.height", format!("gives {pixels} pixels with camera.width = {}; at most {MAX_IMAGE_PIXELS}", self.width), self.height));
+        }
+        // The principal point lies on the image or near it (cropped or shifted sensors).
+        for (field, c, side) in [("camera.cx", self.cx, self.width), ("camera.cy", self.cy, self.height)] {
+            let side = f64::from(side);
+            if !(c.is_finite() && (-side..=2.0 * side).contains(&c)) {
+                return Err(Error::config(field, format!("must be finite and within one image size of the image ([{}, {}] px)", -side, 2.0 * side), c));
             }
         }
         Ok(())

@@ -13,6 +13,12 @@ pub const PRESET_NAMES: [&str; 5] = ["flight", "cable", "flight-memory", "acc202
 
 /// Largest number of states (voxels + free) accepted; past this the grid is a mistake.
 const MAX_STATES: usize = 4_000_000;
+/// Largest memory the transition model's tables may take [bytes].
+const MAX_TRANSITION_BYTES: usize = 1 << 30;
+/// Bytes of transition tables per (state, depth bin): the class tables hold about
+/// `(MAX_CLASSES + 1)² = 25` offsets and alias slots of 8 bytes each per entry (measured
+/// 175-195 on the D435 with 11-150 bins).
+const TRANSITION_BYTES_PER_STATE_BIN: usize = 200;
 /// Largest particle count accepted.
 const MAX_PARTICLES: usize = 50_000_000;
 /// Largest block side [px].
@@ -425,7 +431,7 @@ impl PerceptionConfig {
 
     /// Parses and validates a TOML document of the same layout as `configs/flight.toml`.
     pub fn from_toml_str(text: &str) -> Result<Self> {
-        let config: Self = toml::from_str(text).map_err(|e| Error::ConfigParse { message: e.to_string() })?;
+        let config: Self = crate::error::parse_toml(text)?;
         config.validate()?;
         Ok(config)
     }
@@ -516,6 +522,19 @@ impl PerceptionConfig {
         if states > MAX_STATES {
             return Err(Error::config("grid", format!("gives {states} states for a {width}x{height} image; at most {MAX_STATES}"), states));
         }
+        let bytes = states.saturating_mul(self.depth_bins()).saturating_mul(TRANSITION_BYTES_PER_STATE_BIN);
+        if bytes > MAX_TRANSITION_BYTES {
+            return Err(Error::config(
+                "grid.depth_bin_m",
+                format!(
+                    "gives {states} states in {} depth bins for a {width}x{height} image: the transition model would take about {:.1} GB, at most {:.1} GB (use wider depth bins or larger blocks)",
+                    self.depth_bins(),
+                    bytes as f64 / 1e9,
+                    MAX_TRANSITION_BYTES as f64 / 1e9
+                ),
+                self.grid.depth_bin_m,
+            ));
+        }
         Ok(())
     }
 }
@@ -582,6 +601,12 @@ mod tests {
         c.grid.block_width_px = 1;
         c.grid.block_height_px = 1;
         assert!(c.validate_for_image(4000, 4000).unwrap_err().to_string().contains("states"));
+        // 1000 bins of 1 cm over 0.1-10.1 m: 130k states would need about 26 GB of tables.
+        let mut c = PerceptionConfig::flight();
+        (c.grid.depth_bin_m, c.grid.depth_min_m, c.grid.depth_max_m) = (0.01, 0.1, 10.1);
+        c.validate().unwrap();
+        let err = c.validate_for_image(640, 480).unwrap_err().to_string();
+        assert!(err.contains("grid.depth_bin_m") && err.contains("GB"), "{err}");
     }
 
     #[test]

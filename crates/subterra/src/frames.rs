@@ -12,6 +12,11 @@ use crate::error::{Error, Result};
 /// Tolerance on `RᵀR = I` and `det R = 1` when a rotation comes from user data.
 const ROTATION_TOLERANCE: f64 = 1e-6;
 
+/// Largest translation of a pose accepted [m]: 1000 km from the world origin. Beyond it a
+/// value is a mistake (or geographic coordinates that must be re-centred): `f32` map points
+/// would be off by more than 6 cm.
+pub const MAX_TRANSLATION_M: f64 = 1e6;
+
 /// A rigid transform `target_from_source`: rotation then translation.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Isometry3 {
@@ -71,7 +76,14 @@ impl Isometry3 {
                 format!("upper 3x3 block is not a rotation (|RᵀR - I| = {worst:.2e}, det = {:.6})", rotation.determinant()),
             ));
         }
-        Ok(Self { rotation, translation: DVec3::new(m[0][3], m[1][3], m[2][3]) })
+        let translation = DVec3::new(m[0][3], m[1][3], m[2][3]);
+        if translation.abs().max_element() > MAX_TRANSLATION_M {
+            return Err(Error::input(
+                argument,
+                format!("translation {:?} m is beyond {MAX_TRANSLATION_M:e} m of the world origin; re-centre the coordinates", translation.to_array()),
+            ));
+        }
+        Ok(Self { rotation, translation })
     }
 
     /// The row-major 4x4 homogeneous matrix.
@@ -146,6 +158,12 @@ mod tests {
         let mut m = Isometry3::IDENTITY.to_matrix_rows();
         m[1][3] = f64::NAN;
         assert!(Isometry3::from_matrix_rows("m", &m).is_err());
+        let mut m = Isometry3::IDENTITY.to_matrix_rows();
+        m[0][3] = 1e308;
+        let err = Isometry3::from_matrix_rows("world_from_body", &m).unwrap_err().to_string();
+        assert!(err.contains("world_from_body") && err.contains("re-centre"), "{err}");
+        m[0][3] = 0.99 * MAX_TRANSLATION_M;
+        assert!(Isometry3::from_matrix_rows("world_from_body", &m).is_ok());
         // A reflection is orthogonal but not a rotation.
         let mut m = Isometry3::IDENTITY.to_matrix_rows();
         m[2][2] = -1.0;

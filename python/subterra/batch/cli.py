@@ -17,11 +17,13 @@ __all__ = ["add_engine_options", "engine_options", "out_dir", "save_and_report"]
 
 def add_engine_options(p: argparse.ArgumentParser, *, unit: str) -> None:
     """Adds ``--engine``, ``--address``, ``--workers``, ``--resume`` and ``--out``."""
+    from subterra.cli import int_in
+
     p.add_argument("--engine", default="threads", choices=ENGINES,
                    help="threads (default: a thread pool here) or ray (a Ray cluster; pip install 'subterra[cluster]')")
     p.add_argument("--address", default=None,
                    help="ray: join this cluster (e.g. ray://head:10001 or auto) instead of starting a local one")
-    p.add_argument("--workers", type=int, default=None,
+    p.add_argument("--workers", type=int_in(1, 256), default=None,
                    help=f"parallel {unit}s (default: the CPU count; ray: the local cluster's CPUs, or no cap on a cluster)")
     p.add_argument("--resume", action="store_true",
                    help=f"continue the batch in --out: run only the {unit}s its log does not hold")

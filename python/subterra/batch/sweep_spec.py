@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from subterra._files import read_regular_text
 from subterra.batch.jobs import seed_list
 from subterra.errors import ConfigError, InputError, SubterraError
 
@@ -269,17 +270,23 @@ def _check_axes(spec: SweepSpec) -> None:
 
 
 def load_sweep(spec: str | os.PathLike[str] | Mapping[str, Any]) -> SweepSpec:
-    """Reads a sweep file (or its parsed TOML) and checks it; see the module docs."""
+    """Reads a sweep file (or its parsed TOML) and checks it; see the module docs.
+
+    Raises :class:`~subterra.errors.FileFormatError` if the file cannot be read (missing,
+    not a regular file, over 16 MiB, not UTF-8) and :class:`~subterra.errors.ConfigError`
+    if it is not valid TOML or a value is invalid.
+    """
     if isinstance(spec, Mapping):
         table, where = dict(spec), "sweep"
     else:
         path = Path(spec)
+        text = read_regular_text(path, "sweep file")  # a FIFO, a device or a folder fails at once
         try:
-            table = tomllib.loads(path.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise ConfigError(f"sweep file {path}: cannot read it: {exc.strerror or exc}") from exc
+            table = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"sweep file {path} is not valid TOML: {exc}") from exc
+        except RecursionError as exc:  # tomllib parses nested arrays and tables recursively
+            raise ConfigError(f"sweep file {path} is not valid TOML: nested too deeply") from exc
         where = str(path)
     kind = table.get("kind", "fly")
     if kind not in KINDS:

@@ -19,14 +19,6 @@ from subterra.errors import ConfigError, InputError
 __all__ = ["register_cli"]
 
 
-def _xy(text: str) -> tuple[float, float]:
-    try:
-        x, y = (float(v) for v in text.split(","))
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"expected x,y in metres, got {text!r}") from exc
-    return x, y
-
-
 def _navigator_config(path: str | None) -> dict[str, Any] | None:
     """The ``--config`` TOML as a dict of sections (``planner``, ``tracker``, ``recovery``,
     ``navigator``); the navigator checks the keys."""
@@ -37,6 +29,8 @@ def _navigator_config(path: str | None) -> dict[str, Any] | None:
         config = tomllib.loads(p.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ConfigError(f"argument --config: cannot read {p}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"argument --config: {p} is not UTF-8 text (byte {exc.start}: {exc.reason})") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"argument --config: {p} is not valid TOML: {exc}") from exc
     return config
@@ -53,6 +47,7 @@ def _merged(base: dict[str, Any], over: dict[str, Any] | None) -> dict[str, Any]
 def register_cli(subparsers: argparse._SubParsersAction) -> None:
     """Adds ``drive`` and ``drive-batch`` to ``subparsers``; their handlers are ``args.handler``."""
     from subterra.batch.cli import add_engine_options
+    from subterra.cli import finite_floats, positive_rate, seed_int, sim_seconds
     from subterra.drive.run import GROUND_SCENARIOS, PLANNERS
     from subterra.scenarios.ground import RECOVERY_SCENARIOS
     from subterra.sim import LIDAR_NOISE_PRESETS
@@ -62,13 +57,13 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default="mine", help=f"{scenarios} (default mine)")
     p.add_argument("--world", default=None, help="drive in this world file (TOML, docs/world-format.md) instead")
     p.add_argument("--planner", default="risk-aware", choices=PLANNERS, help="risk-aware (STEP, Fan et al. 2021; default) or additive (the baseline)")
-    p.add_argument("--seed", type=int, default=0, help="world layout and lidar noise seed (default 0)")
-    p.add_argument("--start", type=_xy, default=None, help="start x,y [m] (default: the world's start region)")
-    p.add_argument("--goal", type=_xy, default=None, help="goal x,y [m] (default: the world's goal region)")
+    p.add_argument("--seed", type=seed_int, default=0, help="world layout and lidar noise seed (default 0)")
+    p.add_argument("--start", type=finite_floats(2, "x,y in metres"), default=None, help="start x,y [m] (default: the world's start region)")
+    p.add_argument("--goal", type=finite_floats(2, "x,y in metres"), default=None, help="goal x,y [m] (default: the world's goal region)")
     p.add_argument("--noise", default="os1_64", choices=LIDAR_NOISE_PRESETS, help="lidar noise (default os1_64)")
     p.add_argument("--config", default=None, help="navigator TOML: sections [planner], [tracker], [recovery], [navigator]")
-    p.add_argument("--rate", type=float, default=10.0, help="lidar and control rate [Hz] (default 10)")
-    p.add_argument("--time-limit", type=float, default=None, help="seconds of simulated time (default: 4x the straight-line time at half speed, >= 90)")
+    p.add_argument("--rate", type=positive_rate, default=10.0, help="lidar and control rate [Hz] (default 10)")
+    p.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time (default: 4x the straight-line time at half speed, >= 90)")
     p.add_argument("--no-rerun", action="store_true", help="do not write drive.rrd even if rerun-sdk is installed")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--out", default=None, help="run folder (default runs/drive-<scenario>-<planner>-s<seed>)")
@@ -76,10 +71,11 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
 
     b = subparsers.add_parser("drive-batch", help="many randomized drives, risk-aware planner and additive baseline side by side")
     b.add_argument("--scenario", default="mine", help=f"built-in scenario: {', '.join(GROUND_SCENARIOS)} (default mine)")
+    # --seeds: an int checked by the handler (an error line and exit code 2, which tests rely on).
     b.add_argument("--seeds", type=int, default=100, help="seeds 0..N-1 from --first-seed, one world each (default 100)")
-    b.add_argument("--first-seed", type=int, default=0, help="start the seeds here (default 0)")
+    b.add_argument("--first-seed", type=seed_int, default=0, help="start the seeds here (default 0)")
     b.add_argument("--planners", default=",".join(PLANNERS), help=f"comma-separated (default {','.join(PLANNERS)})")
-    b.add_argument("--time-limit", type=float, default=None, help="seconds of simulated time per drive (default as drive)")
+    b.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time per drive (default as drive)")
     b.add_argument("--no-plots", action="store_true", help="skip the maps of the first seed")
     add_engine_options(b, unit="drive")
     b.set_defaults(handler=_drive_batch)
@@ -131,8 +127,10 @@ def _drive_batch(args: argparse.Namespace) -> int:
     from subterra.batch.cli import engine_options, out_dir, save_and_report
     from subterra.drive.batch import drive_batch
 
-    if args.seeds < 1 or args.first_seed < 0:
-        raise InputError(f"arguments --seeds must be >= 1 and --first-seed >= 0, got {args.seeds} and {args.first_seed}")
+    from subterra.cli import MAX_COUNT
+
+    if not 1 <= args.seeds <= MAX_COUNT:
+        raise InputError(f"argument --seeds must be >= 1 and <= {MAX_COUNT}, got {args.seeds}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
     out = out_dir(args, f"drive-batch-{args.scenario}")

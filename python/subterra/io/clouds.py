@@ -72,7 +72,7 @@ from typing import Union
 import numpy as np
 
 from ..errors import FileFormatError, InputError
-from .depth import _as_path, _check_readable_file, _read_bytes
+from .depth import _as_path, _check_readable_file, _read_bytes, _read_head
 
 __all__ = [
     "CLOUD_EXTENSIONS",
@@ -157,6 +157,8 @@ _PLY_ENCODINGS: dict[str, str] = {
     "binary_big_endian": ">",
 }
 _PLY_VERTEX = "vertex"
+# Bytes that may follow the last element of a binary PLY (a final newline).
+_PLY_TRAILING_SPACE = b" \t\r\n"
 
 # KITTI velodyne: float32 x, y, z, intensity.
 _KITTI_COLUMNS = 4
@@ -168,6 +170,8 @@ _KITTI_RECORD_BYTES = 4 * _KITTI_COLUMNS
 _LZF_LITERAL_LIMIT = 32
 _LZF_LONG_REF = 7
 _LZF_MIN_REF_LEN = 2
+# The most output per input byte: a 3-byte long back-reference copies up to 264 bytes.
+_LZF_MAX_RATIO = 88
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -270,7 +274,7 @@ def read_cloud(path: PathLike, *, format: str | None = None) -> PointCloud:  # n
     if kind == "npy":
         points, fields, shape = _read_npy(file_path)
     else:
-        raw = _read_bytes(file_path)
+        raw = _read_bytes(file_path, "point cloud")
         if kind == "pcd":
             points, fields, shape = _read_pcd(raw, file_path)
         elif kind == "ply":
@@ -406,13 +410,7 @@ def write_ply(
 
 
 def _sniff_format(path: Path) -> str:
-    try:
-        with open(path, "rb") as handle:
-            head = handle.read(_SNIFF_BYTES)
-    except OSError as exc:
-        raise FileFormatError(
-            f"path: expected a readable file, got {type(exc).__name__} ({exc.strerror}): {path}"
-        ) from exc
+    head = _read_head(path, _SNIFF_BYTES, "point cloud")
     if head.startswith(_NPY_MAGIC):
         return "npy"
     if head[:3] == b"ply" and head[3:4] in (b"\n", b"\r"):
@@ -778,6 +776,12 @@ def _pcd_compressed_columns(raw: bytes, header: _PcdHeader, path: Path) -> dict[
             f"({header.points} points of {point_size} bytes), got {uncompressed} (corrupt "
             f"file or wrong header): {path}"
         )
+    if uncompressed > compressed * _LZF_MAX_RATIO:
+        raise FileFormatError(
+            f"PCD binary_compressed data: an uncompressed size of {uncompressed} bytes cannot "
+            f"come from {compressed} LZF bytes (at most {_LZF_MAX_RATIO}x; corrupt file or "
+            f"wrong header): {path}"
+        )
     start += _PCD_COMPRESSED_SIZES_BYTES
     available = len(raw) - start
     if available < compressed:
@@ -927,13 +931,25 @@ def _read_ply(raw: bytes, path: Path) -> tuple[np.ndarray, dict, None]:
                 f"PLY header: expected vertex properties x, y and z, got {names}: {path}"
             )
     before = elements[:vertex_index]
+    after = elements[vertex_index + 1 :]
+    declared = _ply_declared(elements)
     if encoding == "ascii":
-        columns = _ply_ascii_vertices(raw, offset, before, vertex, path)
+        columns = _ply_ascii_vertices(raw, offset, before, vertex, after, declared, path)
     else:
         byte_order = _PLY_ENCODINGS[encoding]
         for element in before:
-            offset = _ply_skip_binary(raw, offset, element, byte_order, path)
-        columns = _ply_binary_vertices(raw, offset, vertex, byte_order, path)
+            offset = _ply_skip_binary(raw, offset, element, byte_order, path, "before the vertices", declared)
+        columns, end = _ply_binary_vertices(raw, offset, vertex, byte_order, declared, path)
+        # The elements after the vertices must fill the rest of the file: a vertex count
+        # that is too large reads faces as vertices, one too small leaves data over.
+        for element in after:
+            end = _ply_skip_binary(raw, end, element, byte_order, path, "after the vertices", declared)
+        left = len(raw) - end
+        if raw[end:].strip(_PLY_TRAILING_SPACE):
+            raise FileFormatError(
+                f"PLY binary data: {left} bytes after the last element the header declares "
+                f"({declared}): a wrong element count or trailing garbage: {path}"
+            )
     fields = {name: _own(array) for name, array in columns.items() if name not in _XYZ}
     return _xyz_from(columns, vertex.count), fields, None
 
@@ -1021,8 +1037,19 @@ def _ply_property(words: list[str], line: str, line_no: int, path: Path) -> _Ply
     )
 
 
+def _ply_declared(elements: list[_PlyElement]) -> str:
+    """The element counts of a header, for messages: ``"vertex 8, face 12"``."""
+    return ", ".join(f"{e.name} {e.count}" for e in elements)
+
+
 def _ply_ascii_vertices(
-    raw: bytes, offset: int, before: list[_PlyElement], vertex: _PlyElement, path: Path
+    raw: bytes,
+    offset: int,
+    before: list[_PlyElement],
+    vertex: _PlyElement,
+    after: list[_PlyElement],
+    declared: str,
+    path: Path,
 ) -> dict[str, np.ndarray]:
     skip = sum(element.count for element in before)
     n = vertex.count
@@ -1040,6 +1067,19 @@ def _ply_ascii_vertices(
             f"PLY ascii data: expected {n} vertex lines of {nprops} values = {n * nprops} "
             f"numbers, got {len(tokens)} (truncated file or wrong header): {path}"
         )
+    # One line per element instance: the lines after the vertices must be exactly those
+    # of the later elements. A vertex count that is too large reads face lines as
+    # vertices (and leaves too few lines for the faces); one too small leaves lines over.
+    rest = lines[skip + n].rstrip() if len(lines) > skip + n else b""
+    rest_lines = rest.count(b"\n") + 1 if rest else 0
+    expected_rest = sum(element.count for element in after)
+    if rest_lines != expected_rest:
+        total = skip + n + expected_rest
+        raise FileFormatError(
+            f"PLY ascii data: the header declares {total} element lines ({declared}), got "
+            f"{skip + n + rest_lines} (a wrong element count, a truncated file or trailing "
+            f"garbage): {path}"
+        )
     table = np.array(tokens, dtype=bytes).reshape(n, nprops)
     return {
         p.name: _parse_numbers(table[:, i], np.dtype(p.code), f"PLY vertex {p.name!r}", path)
@@ -1048,28 +1088,38 @@ def _ply_ascii_vertices(
 
 
 def _ply_binary_vertices(
-    raw: bytes, offset: int, vertex: _PlyElement, byte_order: str, path: Path
-) -> dict[str, np.ndarray]:
+    raw: bytes, offset: int, vertex: _PlyElement, byte_order: str, declared: str, path: Path
+) -> tuple[dict[str, np.ndarray], int]:
+    """The vertex columns and the offset just after them."""
     dtype = np.dtype([(f"f{i}", byte_order + p.code) for i, p in enumerate(vertex.properties)])
     needed = vertex.count * dtype.itemsize
     available = len(raw) - offset
     if available < needed:
         raise FileFormatError(
             f"PLY binary data: expected {needed} bytes for {vertex.count} vertices of "
-            f"{dtype.itemsize} bytes, got {available} (truncated file): {path}"
+            f"{dtype.itemsize} bytes, got {available} (truncated file, or a vertex count "
+            f"larger than the data; the header declares {declared}): {path}"
         )
     records = np.frombuffer(raw, dtype=dtype, count=vertex.count, offset=offset)
-    return {p.name: records[f"f{i}"] for i, p in enumerate(vertex.properties)}
+    return {p.name: records[f"f{i}"] for i, p in enumerate(vertex.properties)}, offset + needed
 
 
 def _ply_skip_binary(
-    raw: bytes, offset: int, element: _PlyElement, byte_order: str, path: Path
+    raw: bytes,
+    offset: int,
+    element: _PlyElement,
+    byte_order: str,
+    path: Path,
+    place: str = "before the vertices",
+    declared: str = "",
 ) -> int:
     """The offset just after ``element``'s data (which may hold list properties)."""
     available = len(raw) - offset
+    header = f"; the header declares {declared}" if declared else ""
     truncated = FileFormatError(
-        f"PLY binary data: expected {element.count} {element.name!r} records before the "
-        f"vertices, got {available} bytes that end inside them (truncated file): {path}"
+        f"PLY binary data: expected {element.count} {element.name!r} records {place}, got "
+        f"{available} bytes that end inside them (truncated file, or an element count "
+        f"larger than the data{header}): {path}"
     )
     if all(p.count_code is None for p in element.properties):
         size = sum(int(p.code[1]) for p in element.properties)
@@ -1080,6 +1130,9 @@ def _ply_skip_binary(
         return offset
     if element.count > available:  # a record with a list holds at least its length byte
         raise truncated
+    uniform_end = _ply_skip_uniform(raw, offset, element, byte_order)
+    if uniform_end is not None:
+        return uniform_end
     # Records have variable size. For every byte position compute where a record
     # starting there would end (vectorised), then jump `count` records from position 0
     # by repeated squaring of that table.
@@ -1111,6 +1164,38 @@ def _ply_skip_binary(
     return offset + position
 
 
+def _ply_skip_uniform(raw: bytes, offset: int, element: _PlyElement, byte_order: str) -> int | None:
+    """The end of ``element``'s data if every record has the lists of the first one
+    (a triangle mesh), else None. Needs memory for a boolean per record only."""
+    names, formats, offsets, lengths = [], [], [], []
+    pos = offset
+    for i, prop in enumerate(element.properties):
+        if prop.count_code is None:
+            pos += int(prop.code[1])
+            continue
+        size = int(prop.count_code[1])
+        if pos + size > len(raw):
+            return None
+        length = int.from_bytes(
+            raw[pos : pos + size], "little" if byte_order == "<" else "big", signed=prop.count_code[0] == "i"
+        )
+        if length < 0:
+            return None
+        names.append(f"n{i}")
+        formats.append(byte_order + prop.count_code)
+        offsets.append(pos - offset)
+        lengths.append(length)
+        pos += size + length * int(prop.code[1])
+    record = pos - offset
+    if element.count * record > len(raw) - offset:
+        return None
+    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": record})
+    records = np.frombuffer(raw, dtype=dtype, count=element.count, offset=offset)
+    if all(bool((records[name] == length).all()) for name, length in zip(names, lengths)):
+        return offset + element.count * record
+    return None
+
+
 def _ply_list_lengths(data: np.ndarray, at: np.ndarray, code: str, byte_order: str) -> np.ndarray:
     """The list lengths (type ``code``) stored at byte positions ``at`` of ``data``."""
     size = int(code[1])
@@ -1140,13 +1225,7 @@ def _read_kitti(raw: bytes, path: Path) -> tuple[np.ndarray, dict, None]:
 
 
 def _read_npy(path: Path) -> tuple[np.ndarray, dict, tuple[int, int] | None]:
-    try:
-        with open(path, "rb") as handle:
-            head = handle.read(len(_NPY_MAGIC))
-    except OSError as exc:
-        raise FileFormatError(
-            f"path: expected a readable file, got {type(exc).__name__} ({exc.strerror}): {path}"
-        ) from exc
+    head = _read_head(path, len(_NPY_MAGIC), "point cloud")
     if head != _NPY_MAGIC:
         raise FileFormatError(
             f"cloud .npy: expected the NumPy magic {_NPY_MAGIC!r}, got {head!r} (not a .npy "

@@ -26,6 +26,11 @@ Formats
 ``.npz``
     The array named ``depth``, or the only array in the archive; same dtypes as
     ``.npy``.
+
+Only regular files are read (a FIFO, a device or a folder is refused at once), and an
+image over :data:`MAX_DEPTH_PIXELS` pixels or :data:`MAX_DEPTH_BYTES` bytes is refused
+before it is decoded (a ``.npz`` or PNG whose header declares a huge image is a
+decompression bomb, not a depth image).
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ import math
 import numbers
 import os
 import re
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Union
@@ -41,11 +47,14 @@ from typing import Union
 import numpy as np
 from PIL import Image
 
+from .._files import MAX_BINARY_BYTES, check_regular_file, open_regular, read_regular_bytes
 from ..errors import ConfigError, FileFormatError, InputError
 
 __all__ = [
     "DEFAULT_UINT16_SCALE_M_PER_UNIT",
     "DEPTH_EXTENSIONS",
+    "MAX_DEPTH_BYTES",
+    "MAX_DEPTH_PIXELS",
     "DepthImage",
     "list_depth_files",
     "read_depth",
@@ -59,6 +68,11 @@ DEPTH_EXTENSIONS: tuple[str, ...] = (".png", ".pgm", ".npy", ".npz")
 
 #: Default scale of ``uint16`` depth [m/unit]: millimetres (docs/conventions.md).
 DEFAULT_UINT16_SCALE_M_PER_UNIT = 0.001
+
+#: The most pixels a depth image file may declare (64 megapixels; a 4K sensor has 8).
+MAX_DEPTH_PIXELS = 64 * 1024 * 1024
+#: The most bytes of samples a depth image file may declare (1 GiB).
+MAX_DEPTH_BYTES = 1024 * 1024 * 1024
 
 # Pillow modes of a 16-bit single-channel image. "I" (32-bit signed) is what older
 # Pillow versions return for 16-bit PNGs; its values are checked to fit uint16.
@@ -87,6 +101,8 @@ _PNM_DIGITS = b"0123456789"
 _PNM_MAX_DIGITS = 9
 _PGM_MAX_MAXVAL = 65535
 _PGM_8BIT_MAXVAL = 255
+# Room for the header (and its comments) of a PGM of MAX_DEPTH_BYTES samples.
+_PGM_MAX_HEADER_BYTES = 1024 * 1024
 
 
 @dataclass(frozen=True, eq=False)
@@ -306,37 +322,36 @@ def _checked_scale(value: object, name: str) -> float:
 
 
 def _check_readable_file(path: Path, what: str) -> None:
-    if not path.exists():
-        raise FileFormatError(f"path: expected an existing {what} file, got a missing path: {path}")
-    if not path.is_file():
-        raise FileFormatError(f"path: expected a {what} file, got a folder: {path}")
-    try:
-        size = path.stat().st_size
-    except OSError as exc:
-        raise FileFormatError(
-            f"path: expected a readable {what} file, got {type(exc).__name__}: {path}"
-        ) from exc
-    if size == 0:
-        raise FileFormatError(f"{what}: expected file content, got an empty file (0 bytes): {path}")
+    """``path`` is an existing, non-empty regular file (not a FIFO, device or folder)."""
+    check_regular_file(path, what, allow_empty=False)
 
 
-def _read_bytes(path: Path) -> bytes:
-    try:
-        return path.read_bytes()
-    except OSError as exc:
-        raise FileFormatError(
-            f"path: expected a readable file, got {type(exc).__name__} ({exc.strerror}): {path}"
-        ) from exc
+def _read_bytes(path: Path, what: str = "file", max_bytes: int = MAX_BINARY_BYTES) -> bytes:
+    """The whole file (a regular file of at most ``max_bytes`` bytes)."""
+    return read_regular_bytes(path, what, max_bytes=max_bytes)
 
 
-def _read_head(path: Path, count: int) -> bytes:
-    try:
-        with open(path, "rb") as handle:
+def _read_head(path: Path, count: int, what: str = "file") -> bytes:
+    """The first ``count`` bytes of a regular file."""
+    with open_regular(path, what) as handle:
+        try:
             return handle.read(count)
-    except OSError as exc:
+        except OSError as exc:
+            raise FileFormatError(
+                f"cannot read {what}: {exc.strerror or exc}: {path}"
+            ) from exc
+
+
+def _check_depth_size(shape: tuple[int, ...], itemsize: int, what: str, path: object) -> None:
+    """Refuse an image whose declared size is over :data:`MAX_DEPTH_PIXELS` / ``_BYTES``."""
+    pixels = math.prod(int(n) for n in shape)
+    nbytes = pixels * int(itemsize)
+    if pixels > MAX_DEPTH_PIXELS or nbytes > MAX_DEPTH_BYTES:
         raise FileFormatError(
-            f"path: expected a readable file, got {type(exc).__name__} ({exc.strerror}): {path}"
-        ) from exc
+            f"{what}: declares shape {tuple(int(n) for n in shape)} ({pixels} pixels, {nbytes} "
+            f"bytes), over the limit of {MAX_DEPTH_PIXELS} pixels and {MAX_DEPTH_BYTES} bytes "
+            f"(a corrupt header or a decompression bomb){_path_suffix(path)}"
+        )
 
 
 def _is_uint16(dtype: np.dtype) -> bool:
@@ -385,14 +400,25 @@ def _natural_key(name: str) -> tuple:
 
 
 def _read_png(path: Path) -> np.ndarray:
-    head = _read_head(path, len(_PNG_MAGIC))
+    with open_regular(path, "depth image") as handle:
+        return _decode_png(handle, path)
+
+
+def _decode_png(handle: object, path: Path) -> np.ndarray:
+    try:
+        head = handle.read(len(_PNG_MAGIC))  # type: ignore[attr-defined]
+        handle.seek(0)  # type: ignore[attr-defined]
+    except OSError as exc:
+        raise FileFormatError(f"cannot read depth image: {exc.strerror or exc}: {path}") from exc
     if head != _PNG_MAGIC[: len(head)] or len(head) < len(_PNG_MAGIC):
         raise FileFormatError(
             f"depth PNG: expected the PNG signature {_PNG_MAGIC!r}, got {head!r} "
             f"(not a PNG file, or truncated): {path}"
         )
     try:
-        with Image.open(path, formats=["PNG"]) as image:
+        with Image.open(handle, formats=["PNG"]) as image:
+            width, height = image.size
+            _check_depth_size((height, width), 2, "depth PNG", path)
             image.load()
             mode = image.mode
             if mode not in _PNG_16BIT_MODES:
@@ -405,6 +431,11 @@ def _read_png(path: Path) -> np.ndarray:
             array = np.array(image)
     except FileFormatError:
         raise
+    except Image.DecompressionBombError as exc:  # Pillow's own limit, checked in open()
+        raise FileFormatError(
+            f"depth PNG: declares an image over the limit of {MAX_DEPTH_PIXELS} pixels "
+            f"(a corrupt header or a decompression bomb; {exc}): {path}"
+        ) from exc
     except Exception as exc:  # Pillow signals corrupt data with many exception types
         raise FileFormatError(
             f"depth PNG: expected a valid PNG, got a corrupt or truncated file "
@@ -440,8 +471,9 @@ def _png_array_to_uint16(array: np.ndarray, mode: str, path: object) -> np.ndarr
 
 
 def _read_pgm(path: Path) -> np.ndarray:
-    raw = _read_bytes(path)
+    raw = _read_bytes(path, "depth image", MAX_DEPTH_BYTES + _PGM_MAX_HEADER_BYTES)
     width, height, maxval, offset = _parse_pgm_header(raw, path)
+    _check_depth_size((height, width), 2, "depth PGM", path)
     if maxval <= _PGM_8BIT_MAXVAL:
         raise FileFormatError(
             f"depth PGM: expected a 16-bit PGM (maxval > {_PGM_8BIT_MAXVAL}), got maxval "
@@ -562,7 +594,7 @@ def _skip_pnm_comment(raw: bytes, pos: int) -> int:
 
 
 def _read_npy(path: Path) -> np.ndarray:
-    head = _read_head(path, len(_NPY_MAGIC))
+    head = _read_head(path, len(_NPY_MAGIC), "depth image")
     if head != _NPY_MAGIC:
         raise FileFormatError(
             f"depth .npy: expected the NumPy magic {_NPY_MAGIC!r}, got {head!r} "
@@ -577,6 +609,7 @@ def _read_npy(path: Path) -> np.ndarray:
                 f"depth .npy: expected a single array, got {type(mapped).__name__}: {path}"
             )
         try:
+            _check_depth_size(mapped.shape, mapped.dtype.itemsize, "depth .npy", path)
             data = _checked_depth_array(mapped, "depth .npy", FileFormatError, path)
             if np.may_share_memory(data, mapped):
                 data = data.copy()  # own the pixels; do not keep the file mapped
@@ -593,30 +626,90 @@ def _read_npy(path: Path) -> np.ndarray:
 
 
 def _read_npz(path: Path) -> np.ndarray:
-    head = _read_head(path, len(_ZIP_MAGIC))
-    if head != _ZIP_MAGIC:
-        raise FileFormatError(
-            f"depth .npz: expected a zip archive (magic b'PK'), got {head!r} "
-            f"(not a .npz file): {path}"
-        )
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            names = list(archive.files)
-            if "depth" in names:
-                key = "depth"
-            elif len(names) == 1:
-                key = names[0]
-            else:
-                raise FileFormatError(
-                    "depth .npz: expected an array named 'depth' or exactly one array, "
-                    f"got {len(names)} arrays {names}: {path}"
-                )
-            array = archive[key]
-    except FileFormatError:
-        raise
-    except Exception as exc:  # zipfile / zlib / NumPy errors for corrupt archives
-        raise FileFormatError(
-            f"depth .npz: expected a valid .npz archive, got a corrupt or truncated one "
-            f"({type(exc).__name__}: {exc}): {path}"
-        ) from exc
+    with open_regular(path, "depth image") as handle:
+        try:
+            head = handle.read(len(_ZIP_MAGIC))
+            handle.seek(0)
+        except OSError as exc:
+            raise FileFormatError(f"cannot read depth image: {exc.strerror or exc}: {path}") from exc
+        if head != _ZIP_MAGIC:
+            raise FileFormatError(
+                f"depth .npz: expected a zip archive (magic b'PK'), got {head!r} "
+                f"(not a .npz file): {path}"
+            )
+        try:
+            with zipfile.ZipFile(handle) as archive:
+                # The names np.load gives the arrays: the member names without ".npy".
+                members = {
+                    (name[: -len(".npy")] if name.endswith(".npy") else name): name
+                    for name in archive.namelist()
+                }
+                names = list(members)
+                if "depth" in members:
+                    key = "depth"
+                elif len(names) == 1:
+                    key = names[0]
+                else:
+                    raise FileFormatError(
+                        "depth .npz: expected an array named 'depth' or exactly one array, "
+                        f"got {len(names)} arrays {names}: {path}"
+                    )
+                array = _read_npz_member(archive, members[key], f"depth .npz array {key!r}", path)
+        except FileFormatError:
+            raise
+        except Exception as exc:  # zipfile / zlib / NumPy errors for corrupt archives
+            raise FileFormatError(
+                f"depth .npz: expected a valid .npz archive, got a corrupt or truncated one "
+                f"({type(exc).__name__}: {exc}): {path}"
+            ) from exc
     return _checked_depth_array(array, f"depth .npz array {key!r}", FileFormatError, path)
+
+
+def _read_npz_member(archive: zipfile.ZipFile, member: str, what: str, path: Path) -> np.ndarray:
+    """One ``.npy`` member of an archive, its declared size checked before it is inflated.
+
+    A few kilobytes of deflated zeros can declare gigabytes: the shape in the member's
+    ``.npy`` header is checked against :data:`MAX_DEPTH_PIXELS` / :data:`MAX_DEPTH_BYTES`
+    and against the member's uncompressed size in the zip directory before any sample
+    is read.
+    """
+    info = archive.getinfo(member)
+    with archive.open(info) as entry:
+        magic = entry.read(len(_NPY_MAGIC))
+        if magic != _NPY_MAGIC:
+            raise FileFormatError(
+                f"{what}: expected a .npy member (magic {_NPY_MAGIC!r}), got {magic!r}: {path}"
+            )
+        version = tuple(entry.read(2))
+        if version == (1, 0):
+            shape, fortran_order, dtype = np.lib.format.read_array_header_1_0(entry)
+        elif version == (2, 0):
+            shape, fortran_order, dtype = np.lib.format.read_array_header_2_0(entry)
+        else:
+            raise FileFormatError(
+                f"{what}: expected .npy format version 1.0 or 2.0, got {version}: {path}"
+            )
+        if dtype.hasobject:
+            raise FileFormatError(f"{what}: expected numbers, got object dtype {dtype}: {path}")
+        if any(n < 0 for n in shape):
+            raise FileFormatError(f"{what}: expected a shape of sizes >= 0, got {shape}: {path}")
+        _check_depth_size(shape, dtype.itemsize, what, path)
+        nbytes = math.prod(shape) * dtype.itemsize
+        available = info.file_size - entry.tell()
+        if available < nbytes:
+            raise FileFormatError(
+                f"{what}: shape {shape} of {dtype} needs {nbytes} bytes, the archive member "
+                f"holds {max(available, 0)} (truncated or corrupt): {path}"
+            )
+        buffer = np.empty(nbytes, np.uint8)
+        view = memoryview(buffer)
+        filled = 0
+        while filled < nbytes:
+            count = entry.readinto(view[filled:])
+            if not count:
+                raise FileFormatError(
+                    f"{what}: expected {nbytes} bytes of samples, got {filled} (truncated or "
+                    f"corrupt archive): {path}"
+                )
+            filled += count
+    return buffer.view(dtype).reshape(shape, order="F" if fortran_order else "C")

@@ -33,6 +33,7 @@ from typing import Any, Union
 
 import yaml
 
+from .._files import read_regular_text
 from ..errors import ConfigError, FileFormatError, InputError, SubterraError
 
 __all__ = [
@@ -166,24 +167,8 @@ def read_intrinsics(path: PathLike) -> Intrinsics:
             f"{', '.join(INTRINSICS_EXTENSIONS)}, got {file_path.suffix or 'no extension'!r}: "
             f"{file_path}"
         )
-    if not file_path.exists():
-        raise FileFormatError(
-            f"path: expected an existing intrinsics file, got a missing path: {file_path}"
-        )
-    if not file_path.is_file():
-        raise FileFormatError(f"path: expected an intrinsics file, got a folder: {file_path}")
-    try:
-        text = file_path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise FileFormatError(
-            f"path: expected a readable file, got {type(exc).__name__} ({exc.strerror}): "
-            f"{file_path}"
-        ) from exc
-    except UnicodeDecodeError as exc:
-        raise FileFormatError(
-            f"intrinsics: expected UTF-8 text, got undecodable bytes ({exc.reason} at byte "
-            f"{exc.start}): {file_path}"
-        ) from exc
+    # A regular file of at most 16 MiB of UTF-8 text: a FIFO, device or folder fails at once.
+    text = read_regular_text(file_path, "intrinsics file")
 
     document = _parse_json(text, file_path) if suffix == ".json" else _parse_yaml(text, file_path)
     try:
@@ -328,6 +313,8 @@ def _parse_json(text: str, path: Path) -> object:
             f"intrinsics: expected valid JSON, got {exc.msg} at line {exc.lineno} column "
             f"{exc.colno}: {path}"
         ) from exc
+    except RecursionError as exc:  # the decoder recurses once per nested array / object
+        raise FileFormatError(f"intrinsics: expected valid JSON, got nesting too deep to read: {path}") from exc
 
 
 def _parse_yaml(text: str, path: Path) -> object:
@@ -347,6 +334,8 @@ def _parse_yaml(text: str, path: Path) -> object:
         raise FileFormatError(
             f"intrinsics: expected valid YAML, got {problem}{where}: {path}"
         ) from exc
+    except RecursionError as exc:  # the composer recurses once per nested node
+        raise FileFormatError(f"intrinsics: expected valid YAML, got nesting too deep to read: {path}") from exc
     if not documents:
         raise FileFormatError(f"intrinsics: expected a YAML mapping, got an empty document: {path}")
     return documents[0]

@@ -33,6 +33,7 @@ from typing import Union
 import numpy as np
 
 from ..errors import ConfigError, FileFormatError, InputError
+from .._files import read_regular_text
 from .depth import _as_path, _check_readable_file
 
 __all__ = [
@@ -54,6 +55,8 @@ DEFAULT_ROTATION_TOLERANCE = 1e-3
 POSE_FORMATS: dict[str, int] = {"kitti": 12, "tum": 8, "tum-no-stamp": 7}
 
 _FORMAT_BY_COLUMNS = {columns: name for name, columns in POSE_FORMATS.items()}
+# The largest trajectory file read: about 10 million TUM lines.
+_MAX_POSE_FILE_BYTES = 1024 * 1024 * 1024
 _FORMATS_HELP = (
     "12 values (KITTI: 3x4 [R | t] row-major), 8 (TUM: t tx ty tz qx qy qz qw) or 7 "
     "(tx ty tz qx qy qz qw)"
@@ -132,7 +135,7 @@ def read_trajectory(
         raise InputError(f"format: expected None or one of {list(POSE_FORMATS)}, got {format!r}")
     tolerance = _checked_tolerance(rotation_tolerance)
     file_path = _as_path(path, "path")
-    _check_readable_file(file_path, "pose")
+    _check_readable_file(file_path, "pose file")
     line_numbers, table = _read_table(file_path, format)
     kind = format or _FORMAT_BY_COLUMNS[table.shape[1]]
     if kind == "kitti":
@@ -182,17 +185,8 @@ def _checked_tolerance(value: object) -> float:
 
 def _read_table(path: Path, kind: str | None) -> tuple[np.ndarray, np.ndarray]:
     """``(line numbers, values (M, C))`` of the pose lines; C from ``kind`` or line 1."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise FileFormatError(
-            f"path: expected a readable file, got {type(exc).__name__} ({exc.strerror}): {path}"
-        ) from exc
-    except UnicodeDecodeError as exc:
-        raise FileFormatError(
-            f"poses: expected UTF-8 text, got undecodable bytes ({exc.reason} at byte "
-            f"{exc.start}): {path}"
-        ) from exc
+    # A regular file (a FIFO, device or folder fails at once) of UTF-8 text.
+    text = read_regular_text(path, "pose file", max_bytes=_MAX_POSE_FILE_BYTES)
     columns = POSE_FORMATS[kind] if kind is not None else None
     numbers_found: list[int] = []
     rows: list[list[str]] = []

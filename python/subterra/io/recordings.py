@@ -39,9 +39,10 @@ import os
 import sqlite3
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any, NamedTuple
 
+from .._files import check_regular_file, open_regular, read_regular_text
 from ..errors import ConfigError, FileFormatError, InputError, SubterraError
 
 __all__ = [
@@ -217,12 +218,13 @@ def open_recording(path: str | os.PathLike[str]) -> Recording:
     """Opens a ROS 1 bag, a ROS 2 bag (folder or ``.db3``) or an MCAP file.
 
     The kind is recognised by content (MCAP, ROS 1 bag and SQLite signatures) or, for a
-    folder, by its ``metadata.yaml``.
+    folder, by its ``metadata.yaml``. Only regular files are opened: a FIFO or a device
+    (at the path, or as the metadata or a storage file of a bag folder) fails at once.
 
     Raises:
-        FileFormatError: the path is missing, not a recording, truncated so that it
-            cannot be opened (a bag without its index), or corrupt; the message ends with
-            the path.
+        FileFormatError: the path is missing, not a recording, not a regular file or
+            folder, truncated so that it cannot be opened (a bag without its index), or
+            corrupt; the message ends with the path.
     """
     if not isinstance(path, (str, os.PathLike)):
         raise InputError(f"path: expected a str or os.PathLike, got {type(path).__name__}")
@@ -230,14 +232,15 @@ def open_recording(path: str | os.PathLike[str]) -> Recording:
     if not p.exists():
         raise FileFormatError(f"recording not found: {p}")
     if p.is_dir():
-        if not (p / "metadata.yaml").is_file():
+        if not os.path.lexists(p / "metadata.yaml"):
             raise FileFormatError(f"folder is not a ROS 2 bag (no metadata.yaml): {p}")
-        return Recording(p, "ros2-bag", _RosbagsSource(p, ros2=True))
-    try:
-        with open(p, "rb") as f:
+        meta = _bag_metadata(p)
+        return Recording(p, "ros2-bag", _RosbagsSource(p, ros2=True, metadata=meta))
+    with open_regular(p, "recording") as f:  # a FIFO or a device fails here, at once
+        try:
             head = f.read(16)
-    except OSError as exc:
-        raise FileFormatError(f"cannot read recording: {exc.strerror or exc}: {p}") from exc
+        except OSError as exc:
+            raise FileFormatError(f"cannot read recording: {exc.strerror or exc}: {p}") from exc
     if not head:
         raise FileFormatError(f"recording is empty (0 bytes): {p}")
     if head.startswith(MCAP_MAGIC):
@@ -253,6 +256,32 @@ def open_recording(path: str | os.PathLike[str]) -> Recording:
     raise FileFormatError(f"not a recording: expected an MCAP file, a ROS 1 .bag or a ROS 2 bag (.db3 or folder): {p}")
 
 
+def _bag_metadata(folder: Path) -> dict[str, Any]:
+    """The ``rosbag2_bagfile_information`` of a bag folder's ``metadata.yaml``, after checking
+    that it and the storage files it lists are regular files (rosbags would block on a FIFO)."""
+    import yaml
+
+    meta_path = folder / "metadata.yaml"
+    text = read_regular_text(meta_path, "ROS 2 bag metadata")
+    try:
+        document = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise FileFormatError(f"ROS 2 bag metadata is not valid YAML ({exc}): {meta_path}") from exc
+    except RecursionError as exc:  # the composer recurses once per nested node
+        raise FileFormatError(f"ROS 2 bag metadata is not valid YAML: nested too deeply: {meta_path}") from exc
+    info = document.get("rosbag2_bagfile_information") if isinstance(document, dict) else None
+    if not isinstance(info, dict):
+        raise FileFormatError(f"ROS 2 bag metadata has no rosbag2_bagfile_information mapping: {meta_path}")
+    names = info.get("relative_file_paths") or []
+    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+        raise FileFormatError(f"ROS 2 bag metadata: relative_file_paths is not a list of file names: {meta_path}")
+    for name in names:
+        storage = folder / PurePath(name).name  # where rosbags looks for it
+        if os.path.lexists(storage):  # a missing file is reported by rosbags
+            check_regular_file(storage, "ROS 2 bag storage file")
+    return info
+
+
 def _wrap(exc: BaseException, what: str, path: Path) -> SubterraError:
     if isinstance(exc, SubterraError):
         return exc
@@ -264,7 +293,7 @@ def _wrap(exc: BaseException, what: str, path: Path) -> SubterraError:
 
 
 class _RosbagsSource:
-    def __init__(self, path: Path, *, ros2: bool) -> None:
+    def __init__(self, path: Path, *, ros2: bool, metadata: dict[str, Any] | None = None) -> None:
         highlevel = _need("rosbags.highlevel")
         typesys = _need("rosbags.typesys")
         self.path = path
@@ -278,14 +307,8 @@ class _RosbagsSource:
         self.profile = ""
         if ros2:
             self.profile = "sqlite3"
-            if path.is_dir():
-                try:
-                    import yaml
-
-                    meta = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))
-                    self.profile = str(meta["rosbag2_bagfile_information"]["storage_identifier"])
-                except Exception:  # noqa: BLE001 - only for display; rosbags has read the file already
-                    self.profile = ""
+            if metadata is not None:  # a bag folder: open_recording has read its metadata.yaml
+                self.profile = str(metadata.get("storage_identifier", ""))
         self.topics: dict[str, TopicInfo] = {}
         self._connections: dict[str, list[Any]] = {}
         for conn in self._reader.connections:
@@ -335,7 +358,7 @@ class _McapSource:
         self._mcap_reader = _need("mcap.reader")
         self.path = path
         self.damage = None
-        self._file = open(path, "rb")  # noqa: SIM115 - closed in close()
+        self._file = open_regular(path, "recording")  # closed in close()
         self._decoders: dict[int, Callable[[bytes], Any]] = {}
         try:
             reader = self._mcap_reader.make_reader(self._file, validate_crcs=True)

@@ -42,6 +42,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
+import numbers
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -118,6 +119,14 @@ _NS_PER_S = 1_000_000_000
 #: How far a :class:`TransformBuffer` lookup may reach past a dynamic transform's first
 #: or last sample and still take that sample [ns] (one 10 Hz tf period).
 DEFAULT_EXTRAPOLATION_NS = 100_000_000
+
+# A tf quaternion is a rotation when | |q|^2 - 1 | is below this (tf2's
+# QUATERNION_NORMALIZATION_TOLERANCE: it rejects the transform otherwise).
+_QUATERNION_NORM2_TOLERANCE = 1e-2
+# A TransformBuffer rotation is rigid when max |R^T R - I| is below this and det R > 0.
+_ROTATION_TOLERANCE = 1e-3
+# The largest translation a TransformBuffer takes [m] (beyond it: a corrupt value).
+_MAX_TRANSLATION_M = 1e7
 
 
 # --------------------------------------------------------------------------- small helpers
@@ -375,7 +384,10 @@ class CloudMessage:
 
 
 def _cloud_dtype(msg: Any, point_step: int, order: str, where: str) -> np.dtype:
-    names, formats, offsets = [], [], []
+    names: list[str] = []
+    formats: list[Any] = []
+    offsets: list[int] = []
+    sizes: list[int] = []
     for f in msg.fields:
         name = str(f.name)
         if name in _PADDING_FIELD_NAMES:
@@ -395,6 +407,15 @@ def _cloud_dtype(msg: Any, point_step: int, order: str, where: str) -> np.dtype:
         names.append(name)
         formats.append(code if count == 1 else (code, (count,)))
         offsets.append(offset)
+        sizes.append(size)
+    # NumPy accepts overlapping fields; a PointCloud2 whose fields share bytes is corrupt.
+    spans = sorted(zip(offsets, sizes, names))
+    for (start_a, size_a, name_a), (start_b, _, name_b) in zip(spans, spans[1:]):
+        if start_b < start_a + size_a:
+            raise FileFormatError(
+                f"point cloud: field {name_b!r} at offset {start_b} overlaps field {name_a!r} "
+                f"(bytes {start_a}..{start_a + size_a - 1}){_where(where)}"
+            )
     missing = [a for a in _XYZ if a not in names]
     if missing:
         raise FileFormatError(
@@ -551,17 +572,71 @@ def decode_odometry(msg: Any, *, where: str = "") -> OdometrySample:
 
 def decode_transforms(msg: Any, *, where: str = "") -> list[tuple[str, str, int, np.ndarray]]:
     """``(parent, child, stamp_ns, parent_from_child)`` for each transform of a
-    ``tf2_msgs/TFMessage`` (ROS 1 ``tf/tfMessage`` too)."""
+    ``tf2_msgs/TFMessage`` (ROS 1 ``tf/tfMessage`` too).
+
+    Raises:
+        InputError: a rotation quaternion is not a unit quaternion (``| |q|^2 - 1 |``
+            over 0.01, which tf2 rejects too) or a value is not finite; the message names
+            the frames.
+    """
     out = []
     for t in msg.transforms:
         tr = t.transform
+        q = (float(tr.rotation.x), float(tr.rotation.y), float(tr.rotation.z), float(tr.rotation.w))
+        norm2 = math.fsum(v * v for v in q)
+        if not (math.isfinite(norm2) and abs(norm2 - 1.0) <= _QUATERNION_NORM2_TOLERANCE):
+            raise InputError(
+                f"transform {t.header.frame_id} -> {t.child_frame_id}: expected a unit rotation quaternion "
+                f"(x, y, z, w), got {q} of norm {math.sqrt(norm2) if math.isfinite(norm2) else norm2:.6g}{_where(where)}"
+            )
         m = np.eye(4)
-        m[:3, :3] = matrix_from_quaternion(tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w, where)
+        m[:3, :3] = matrix_from_quaternion(*q, where=where)
         m[:3, 3] = (tr.translation.x, tr.translation.y, tr.translation.z)
         if not np.all(np.isfinite(m)):
             raise InputError(f"transform {t.header.frame_id} -> {t.child_frame_id}: not finite{_where(where)}")
         out.append((_strip(t.header.frame_id), _strip(t.child_frame_id), stamp_ns(t), m))
     return out
+
+
+def _checked_rigid(value: Any, label: str) -> np.ndarray:
+    """A copy of ``value`` as a finite rigid 4x4 ``float64`` transform, or an InputError."""
+    try:
+        m = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{label}: expected a 4x4 matrix of numbers, got {type(value).__name__}") from exc
+    if m.shape != (4, 4):
+        raise InputError(f"{label}: expected shape (4, 4), got {m.shape}")
+    if not np.isfinite(m).all():
+        raise InputError(f"{label}: expected finite values, got NaN or inf")
+    if np.abs(m[3] - (0.0, 0.0, 0.0, 1.0)).max() > 1e-9:
+        raise InputError(f"{label}: expected the bottom row 0 0 0 1, got {m[3].tolist()}")
+    rotation = m[:3, :3]
+    error = float(np.abs(rotation.T @ rotation - np.eye(3)).max())
+    if error > _ROTATION_TOLERANCE:
+        raise InputError(
+            f"{label}: expected a rotation (orthonormal), got max |R^T R - I| = {error:.3g} "
+            f"(over {_ROTATION_TOLERANCE:g}; a scale, a shear or a corrupt value)"
+        )
+    det = float(np.linalg.det(rotation))
+    if det <= 0.0:
+        raise InputError(f"{label}: expected a rotation with det +1, got det {det:.3g} (a reflection)")
+    reach = float(np.abs(m[:3, 3]).max())
+    if reach > _MAX_TRANSLATION_M:
+        raise InputError(
+            f"{label}: expected a translation within {_MAX_TRANSLATION_M:g} m, got {m[:3, 3].tolist()}"
+        )
+    return m
+
+
+def _checked_stamp(value: Any, label: str) -> int:
+    """``value`` as an int of nanoseconds, or an InputError."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise InputError(f"stamp_ns of {label}: expected an integer [ns], got {type(value).__name__}")
+    if not isinstance(value, numbers.Integral):
+        as_float = float(value)
+        if not (math.isfinite(as_float) and as_float.is_integer()):
+            raise InputError(f"stamp_ns of {label}: expected an integer [ns], got {value!r}")
+    return int(value)
 
 
 def _strip(frame: str) -> str:
@@ -598,17 +673,35 @@ class TransformBuffer:
     def is_static(self, child: str) -> bool:
         return child in self._static
 
-    def add(self, parent: str, child: str, parent_from_child: np.ndarray, *, stamp_ns: int = 0, static: bool = False) -> None:
-        """Adds one transform ``parent_from_child`` (4x4) at ``stamp_ns``."""
+    def add(
+        self,
+        parent: str,
+        child: str,
+        parent_from_child: np.ndarray,
+        *,
+        stamp_ns: int = 0,
+        static: bool = False,
+        where: str = "",
+    ) -> None:
+        """Adds one transform ``parent_from_child`` (4x4) at ``stamp_ns``.
+
+        Raises:
+            InputError: the parent is the child; ``parent_from_child`` is not a finite
+                rigid transform (rotation orthonormal within 1e-3 with det +1, bottom row
+                ``0 0 0 1``, translation within 1e7 m); ``stamp_ns`` is not an integer.
+                The message names the frames.
+        """
         parent, child = _strip(parent), _strip(child)
         if parent == child:
-            raise InputError(f"transform: parent and child are both {parent!r}")
+            raise InputError(f"transform: parent and child are both {parent!r}{_where(where)}")
+        label = f"parent_from_child (transform {parent!r} -> {child!r}{', ' + where if where else ''})"
+        m = _checked_rigid(parent_from_child, label)
+        stamp_ns = _checked_stamp(stamp_ns, label)
         if self._parent.get(child, parent) != parent:  # re-parented: forget the old edge
             self._static.pop(child, None)
             self._stamps.pop(child, None)
             self._poses.pop(child, None)
         self._parent[child] = parent
-        m = np.asarray(parent_from_child, dtype=np.float64)
         if static:
             self._static[child] = m
             return
@@ -625,7 +718,7 @@ class TransformBuffer:
         """Adds every transform of a ``TFMessage``; returns how many."""
         items = decode_transforms(msg, where=where)
         for parent, child, stamp, m in items:
-            self.add(parent, child, m, stamp_ns=stamp, static=static)
+            self.add(parent, child, m, stamp_ns=stamp, static=static, where=where)
         return len(items)
 
     def _edge(self, child: str, stamp: int | None) -> np.ndarray | None:

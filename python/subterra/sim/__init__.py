@@ -18,6 +18,7 @@ import os
 from pathlib import Path
 
 from subterra._core import sim as _sim
+from subterra._files import read_regular_text
 from subterra.errors import FileFormatError
 
 World = _sim.World
@@ -44,12 +45,13 @@ __all__ = [
 
 
 def load_world(path: str | os.PathLike[str]) -> World:
-    """Reads a world file (TOML). Errors name the field or the line, and end with the path."""
+    """Reads a world file (TOML). Errors name the field or the line, and end with the path.
+
+    Raises :class:`~subterra.errors.FileFormatError` if the file cannot be read (missing,
+    not a regular file, over 16 MiB, not UTF-8) or is not a valid world.
+    """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"cannot read world file: {exc}: {p}") from exc
+    text = read_regular_text(p, "world file")  # a FIFO, a device or a folder fails at once
     try:
         return World.from_toml(text)
     except FileFormatError as exc:

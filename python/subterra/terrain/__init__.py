@@ -71,9 +71,18 @@ def load_terrain_config(path: str | os.PathLike[str]) -> TerrainConfig:
 
     Raises :class:`~subterra.errors.FileFormatError` if the file cannot be read and
     :class:`~subterra.errors.ConfigError` if a value is invalid (the message names the
-    field and ends with the path).
+    field and ends with the path). The file must be a regular file of at most 16 MiB of
+    UTF-8 text: a FIFO, a device or a folder fails at once.
     """
-    return TerrainConfig.load(path)
+    from subterra._files import read_regular_text
+    from subterra.errors import ConfigError
+
+    p = Path(path)
+    text = read_regular_text(p, "terrain config file")
+    try:
+        return TerrainConfig.from_toml(text)
+    except ConfigError as exc:
+        raise ConfigError(f"{exc}: {p}") from exc
 
 
 def translation(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> np.ndarray:

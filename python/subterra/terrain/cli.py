@@ -32,22 +32,28 @@ __all__ = ["parse_body_from_sensor", "register_cli", "run_cli", "run_terrain"]
 DEFAULT_PERIOD_S = 0.1
 #: Most points drawn in the top view of the cloud (a seeded subsample beyond that).
 TOP_VIEW_MAX_POINTS = 200_000
+#: Largest ``--sensor-height`` [m] (beyond: a typo, or millimetres).
+MAX_SENSOR_HEIGHT_M = 100.0
+#: Largest ``--period`` between scans [s].
+MAX_PERIOD_S = 3600.0
 
 
 def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Adds the ``terrain`` subcommand to ``subparsers``; its handler is ``args.handler``."""
+    from subterra.cli import float_in, unit_float
+
     p = subparsers.add_parser("terrain", help="terrain risk maps from point-cloud files (PCD, PLY, KITTI .bin, .npy)")
     p.add_argument("files", nargs="+", metavar="FILE", help="point clouds in the sensor frame, in scan order")
     p.add_argument("--poses", default=None, help="world_from_sensor per file: KITTI (3x4) or TUM text file (default identity)")
     mount = p.add_mutually_exclusive_group()
-    mount.add_argument("--sensor-height", type=float, default=None, help="height of a level sensor above the ground [m] (default: estimated)")
+    mount.add_argument("--sensor-height", type=float_in(0.0, MAX_SENSOR_HEIGHT_M, unit="m"), default=None, help="height of a level sensor above the ground [m] (default: estimated)")
     mount.add_argument(
         "--body-from-sensor", default=None,
         help="sensor mounting: x,y,z [m] | x,y,z,roll,pitch,yaw [m, deg] | 12 or 16 numbers of the 3x4 / 4x4 matrix, row-major",
     )
     p.add_argument("--config", default=None, help="terrain config TOML (default configs/terrain.toml values)")
-    p.add_argument("--period", type=float, default=DEFAULT_PERIOD_S, help=f"seconds between scans without TUM stamps (default {DEFAULT_PERIOD_S})")
-    p.add_argument("--confidence", type=float, default=1.0, help="odometry confidence in [0, 1] (default 1)")
+    p.add_argument("--period", type=float_in(0.0, MAX_PERIOD_S, unit="s"), default=DEFAULT_PERIOD_S, help=f"seconds between scans without TUM stamps (default {DEFAULT_PERIOD_S})")
+    p.add_argument("--confidence", type=unit_float, default=1.0, help="odometry confidence in [0, 1] (default 1)")
     p.add_argument("--out", default=None, help="output folder (default runs/terrain-<time>)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(handler=run_cli)
@@ -78,6 +84,8 @@ def parse_body_from_sensor(text: str) -> np.ndarray:
         v = [float(s) for s in text.replace(" ", ",").split(",") if s]
     except ValueError as exc:
         raise InputError(f"argument `--body-from-sensor` must be comma-separated numbers, got {text!r}") from exc
+    if not all(math.isfinite(x) for x in v):
+        raise InputError(f"argument `--body-from-sensor` must be finite numbers, got {text!r}")
     t = np.eye(4)
     if len(v) in (3, 6):
         t[:3, 3] = v[:3]
@@ -134,6 +142,8 @@ def run_terrain(
         raise InputError("argument `files` is empty: give at least one point-cloud file")
     if not (math.isfinite(period_s) and period_s > 0):
         raise InputError(f"argument `--period` must be a finite number > 0 s, got {period_s}")
+    if sensor_height is not None and not (math.isfinite(sensor_height) and sensor_height > 0):
+        raise InputError(f"argument `--sensor-height` must be a finite number > 0 m, got {sensor_height}")
     if poses is not None:
         trajectory = read_trajectory(poses)
         if len(trajectory) < len(files):
@@ -157,6 +167,11 @@ def run_terrain(
         if i == 0 and body_from_sensor is None:
             if sensor_height is None:
                 sensor_height = estimate_sensor_height(points)
+                if not sensor_height > 0:
+                    raise InputError(
+                        f"cannot estimate the height of the sensor above the ground from {path} (got {sensor_height:.2f} m): "
+                        "give --sensor-height or --body-from-sensor"
+                    )
             body_from_sensor = translation(z=sensor_height)
         body_world = world_from_sensor[i] @ np.linalg.inv(body_from_sensor)
         risk_map = mapper.update(points, stamp=float(stamps[i]), world_from_body=body_world, body_from_sensor=body_from_sensor, confidence=confidence)
@@ -236,7 +251,9 @@ def _write_figures(mapper, risk_map, body_world: np.ndarray, out: Path) -> list[
         fig, ax = plt.subplots(figsize=(5.6, 4.8))
         ax.imshow(m.to_image(), origin="lower", extent=m.extent, interpolation="nearest")
         ax.plot(*robot_xy, "k+", ms=10)
-        ax.legend(handles=[Patch(color=(0, 200 / 255, 0), label="risk 0"), Patch(color=(220 / 255, 0, 0), label="lethal"),
+        # The lethal count of the summary (RiskMap.lethal_count: observed or not, all red).
+        ax.legend(handles=[Patch(color=(0, 200 / 255, 0), label="risk 0"),
+                           Patch(color=(220 / 255, 0, 0), label=f"lethal ({m.lethal_count()} cells)"),
                            Patch(color=(0.5, 0.5, 0.5), label="unobserved")], loc="upper right", fontsize=7)
         ax.set(title=f"combined risk ({m.kind}, {m.resolution} m cells)", xlabel="world x [m]", ylabel="world y [m]")
         fig.tight_layout()

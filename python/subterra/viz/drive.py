@@ -32,7 +32,7 @@ def _check(result: Any) -> dict[str, np.ndarray]:
 
 def plot_drive_map(result: Any, path: str | os.PathLike[str], *, title: str | None = None) -> Path:
     """The world from above with the last coarse risk map laid over it (green = 0 to red =
-    lethal, unobserved cells left out), the driven path coloured by behaviour, the last
+    lethal, unobserved cells left out unless lethal), the driven path coloured by behaviour, the last
     planned path (dashed), start, goal and home, and a marker at every recovery transition.
     Written to ``path`` (PNG); returns it."""
     steps = _check(result)
@@ -55,7 +55,7 @@ def plot_drive_map(result: Any, path: str | os.PathLike[str], *, title: str | No
         risk = np.clip(np.nan_to_num(rm.layer("risk")), 0.0, 1.0)
         rgba[..., 0] = 0.86 * risk
         rgba[..., 1] = 0.78 * (1.0 - risk)
-        rgba[..., 3] = np.where(rm.layer("observed") > 0, 0.55, 0.0)
+        rgba[..., 3] = np.where((rm.layer("observed") > 0) | rm.lethal(), 0.55, 0.0)  # a lethal cell is never unknown
         ax.imshow(rgba, origin="lower", extent=rm.extent, interpolation="nearest", zorder=1.5)
         e = rm.extent
         ax.plot([e[0], e[1], e[1], e[0], e[0]], [e[2], e[2], e[3], e[3], e[2]], color="0.4", lw=0.6, ls=":",

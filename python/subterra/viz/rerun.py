@@ -23,7 +23,7 @@ Entities (world frame ENU, z up, metres; time on the ``sim_time`` timeline [s]):
 * ``robot/command/{v_x,v_y,v_z,yaw_rate}`` and ``perception/p_free``: time series.
 * Ground robot and terrain (:meth:`RerunRecorder.log_drive_step`,
   :meth:`RerunRecorder.log_cloud`): ``world/plan`` (the planned path),
-  ``world/risk`` (the risk map's observed cells, green to red), ``world/cloud`` (the
+  ``world/risk`` (the risk map's observed and lethal cells, green to red), ``world/cloud`` (the
   lidar scan, coloured by height) and ``robot/command/{v,yaw_rate}``.
 """
 
@@ -392,7 +392,7 @@ class RerunRecorder:
         """Logs one step of a ground-robot drive at sim time ``time_s`` [s]: ``position``
         (3,) [m, world], ``command`` ``(v, ω)`` [m/s, rad/s], the planned ``path`` (N, 2)
         [m, world] drawn ``z_m`` above the ground plane, and a ``subterra.RiskMap`` as a
-        coloured point grid of its observed cells (costly: log it every few steps)."""
+        coloured point grid of its observed and lethal cells (costly: log it every few steps)."""
         self._check_open()
         t = _finite_float(time_s, "time_s")
         rr, rec = self._rr, self._rec
@@ -413,13 +413,15 @@ class RerunRecorder:
             rec.log("world/plan", rr.LineStrips3D([np.c_[path, np.full(len(path), z_m)]], radii=PATH_LINE_RADIUS_M, colors=[(250, 160, 0)]))
         if risk_map is not None:
             risk = risk_map.layer("risk")
-            seen = risk_map.layer("observed") > 0
+            lethal = risk_map.lethal()
+            seen = (risk_map.layer("observed") > 0) | lethal  # a lethal cell is never unknown
             iy, ix = np.nonzero(seen)
             ground = risk_map.layer("ground_height")[iy, ix]
             z = np.where(np.isfinite(ground), ground, 0.0) + z_m
             pts = np.c_[risk_map.x_centres[ix], risk_map.y_centres[iy], z]
             r = np.clip(risk[iy, ix], 0.0, 1.0)
             colours = np.c_[220 * r, 200 * (1 - r), np.zeros_like(r)].astype(np.uint8)
+            colours[lethal[iy, ix]] = (220, 0, 0)  # red, as RiskMap.to_image draws a lethal cell
             rec.log("world/risk", rr.Points3D(pts, radii=0.45 * risk_map.resolution, colors=colours))
 
 

@@ -85,6 +85,8 @@ pub struct ObstacleMemory {
     cells: BTreeMap<(i64, i64, i64), RememberedObstacle>,
     last_stamp_s: Option<f64>,
     frames: u64,
+    /// The perception whose outputs it takes.
+    fingerprint: u64,
 }
 
 impl ObstacleMemory {
@@ -113,6 +115,7 @@ impl ObstacleMemory {
             cells: BTreeMap::new(),
             last_stamp_s: None,
             frames: 0,
+            fingerprint: perception.fingerprint(),
         })
     }
 
@@ -155,6 +158,12 @@ impl ObstacleMemory {
         }
         if !(world_from_body.translation.is_finite() && world_from_body.rotation.is_finite()) {
             return Err(Error::input("world_from_body", "must be finite"));
+        }
+        if output.fingerprint != self.fingerprint {
+            return Err(Error::input(
+                "output",
+                "comes from a different perception (camera, mounting or grid): a memory takes the outputs of the perception it was made for",
+            ));
         }
         if output.belief_states.len() != output.belief_probabilities.len() {
             return Err(Error::input("output", "belief states and probabilities differ in length"));
@@ -258,6 +267,7 @@ mod tests {
             max_count: 0,
             repulsive_body: DVec3::ZERO,
             timings: StageTimings::default(),
+            fingerprint: p.fingerprint(),
         }
     }
 
@@ -270,6 +280,20 @@ mod tests {
 
     fn pose(x: f64, y: f64, yaw: f64) -> Isometry3 {
         Isometry3 { rotation: DMat3::from_rotation_z(yaw), translation: DVec3::new(x, y, 0.0) }
+    }
+
+    #[test]
+    fn an_output_of_another_perception_is_refused() {
+        let p = perception();
+        let mut other_config = PerceptionConfig::flight_memory();
+        other_config.filter.particles = 100;
+        let camera = PinholeCamera::new(200.0, 200.0, 99.5, 99.5, 200, 200).unwrap();
+        let other = DepthPerception::new(camera, Isometry3::body_from_forward_optical(), other_config, 0).unwrap();
+        let mut memory = ObstacleMemory::new(&p).unwrap();
+        let foreign = output(&other, (0, 0, 0), 0.9);
+        let err = memory.update(&foreign, 0.0, &pose(0.0, 0.0, 0.0)).unwrap_err().to_string();
+        assert!(err.contains("output") && err.contains("different perception"), "{err}");
+        assert!(memory.update(&output(&p, (0, 0, 0), 0.9), 0.0, &pose(0.0, 0.0, 0.0)).is_ok());
     }
 
     #[test]

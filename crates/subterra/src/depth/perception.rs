@@ -71,6 +71,9 @@ pub struct PerceptionOutput {
     pub repulsive_body: DVec3,
     /// Stage timings.
     pub timings: StageTimings,
+    /// [`DepthPerception::fingerprint`] of the perception that made this output: its
+    /// states mean voxels of that camera, grid and mounting only.
+    pub fingerprint: u64,
 }
 
 /// Histogram-mode beliefs below this are left out of the sparse view (the dense belief
@@ -102,6 +105,22 @@ pub struct DepthPerception {
     last_counts: Option<VoxelCounts>,
     transition_build_s: f64,
     frames: u64,
+    fingerprint: u64,
+}
+
+/// [`DepthPerception::fingerprint`]: SipHash with fixed keys, the same on every run.
+fn fingerprint_of(camera: &PinholeCamera, body_from_camera: &Isometry3, config: &PerceptionConfig) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for x in [camera.fx, camera.fy, camera.cx, camera.cy] {
+        x.to_bits().hash(&mut h);
+    }
+    (camera.width, camera.height).hash(&mut h);
+    for x in body_from_camera.to_matrix_rows().iter().flatten() {
+        x.to_bits().hash(&mut h);
+    }
+    format!("{:?} {:?}", config.grid, config.apf.voxel_position).hash(&mut h);
+    h.finish()
 }
 
 impl DepthPerception {
@@ -136,6 +155,7 @@ impl DepthPerception {
             forces_body.push(repulsive_force(&config.apf, body_from_camera.transform_point(point)));
         }
         forces_body.push(DVec3::ZERO); // s_free repels nothing
+        let fingerprint = fingerprint_of(&camera, &body_from_camera, &config);
         let mut perception = Self {
             config,
             body_from_camera,
@@ -149,6 +169,7 @@ impl DepthPerception {
             last_counts: None,
             transition_build_s,
             frames: 0,
+            fingerprint,
         };
         perception.refresh_belief();
         Ok(perception)
@@ -172,6 +193,12 @@ impl DepthPerception {
     /// `body_from_camera`.
     pub fn body_from_camera(&self) -> &Isometry3 {
         &self.body_from_camera
+    }
+
+    /// A hash of what gives a state its meaning: the camera, its mounting, the grid and the
+    /// voxel position. Two perceptions whose states mean the same voxels share it.
+    pub fn fingerprint(&self) -> u64 {
+        self.fingerprint
     }
 
     /// Seconds spent building the transition model.
@@ -294,6 +321,7 @@ impl DepthPerception {
                 apf_s: (done - updated).as_secs_f64(),
                 total_s: (done - started).as_secs_f64(),
             },
+            fingerprint: self.fingerprint,
         };
         Ok(output)
     }

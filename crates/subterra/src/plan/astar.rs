@@ -183,7 +183,7 @@ impl RiskAStarConfig {
 
     /// Parses and validates a TOML document laid out like `configs/astar.toml`.
     pub fn from_toml_str(text: &str) -> Result<Self> {
-        let config: Self = toml::from_str(text).map_err(|e| Error::ConfigParse { message: e.to_string() })?;
+        let config: Self = crate::error::parse_toml(text)?;
         config.validate()?;
         Ok(config)
     }

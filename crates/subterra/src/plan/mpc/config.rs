@@ -219,7 +219,7 @@ impl MpcConfig {
 
     /// Parses and validates a TOML document of this layout.
     pub fn from_toml_str(text: &str) -> Result<Self> {
-        let config: Self = toml::from_str(text).map_err(|e| Error::ConfigParse { message: e.to_string() })?;
+        let config: Self = crate::error::parse_toml(text)?;
         config.validate()?;
         Ok(config)
     }

@@ -293,7 +293,7 @@ impl NavigatorConfig {
     /// Parses and validates a TOML document laid out like `configs/navigator.toml` (missing
     /// fields keep the defaults of [`NavigatorConfig::default`]).
     pub fn from_toml_str(text: &str) -> Result<Self> {
-        let config: Self = toml::from_str(text).map_err(|e| Error::ConfigParse { message: e.to_string() })?;
+        let config: Self = crate::error::parse_toml(text)?;
         config.validate()?;
         Ok(config)
     }

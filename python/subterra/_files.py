@@ -1,0 +1,183 @@
+"""Reading input files safely: regular files only, never blocking, bounded in size.
+
+Every file entry point of subterra (configs, worlds, sweeps, depth images, clouds,
+intrinsics, poses, recordings) reads through these helpers, so that a path naming a
+FIFO, a device (``/dev/zero``, a tty) or a folder fails at once with a
+:class:`~subterra.errors.FileFormatError` instead of blocking forever or filling the
+memory, and a file larger than the reader's limit is refused before it is read.
+
+The helpers ``stat`` the path first (which never blocks and has no side effect on a
+device), then open it with ``O_NONBLOCK`` and check the opened file again with
+``fstat``, so a path swapped for a FIFO between the two checks cannot block either.
+
+Every error is a :class:`~subterra.errors.FileFormatError` whose message starts with
+``cannot read <what>:``, gives the reason and ends with the path.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import stat
+from typing import BinaryIO, Union
+
+from .errors import FileFormatError
+
+__all__ = [
+    "MAX_BINARY_BYTES",
+    "MAX_TEXT_BYTES",
+    "check_regular_file",
+    "open_regular",
+    "read_regular_bytes",
+    "read_regular_text",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+#: The largest text file read (configs, worlds, sweeps, intrinsics) [bytes].
+MAX_TEXT_BYTES = 16 * 1024 * 1024
+#: The largest binary file read whole into memory (point clouds, PGM images) [bytes].
+MAX_BINARY_BYTES = 4 * 1024 * 1024 * 1024
+
+_OPEN_FLAGS = (
+    os.O_RDONLY
+    | getattr(os, "O_NONBLOCK", 0)
+    | getattr(os, "O_CLOEXEC", 0)
+    | getattr(os, "O_BINARY", 0)  # Windows: no newline translation
+)
+
+
+def _describe(mode: int) -> str:
+    """What a non-regular file is, for a message."""
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode):
+        return "a character device"
+    if stat.S_ISBLK(mode):
+        return "a block device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "a special file"
+
+
+def _os_error(exc: OSError, path: PathLike, what: str) -> FileFormatError:
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    if exc.errno == errno.ENOENT:
+        reason = f"missing path ({reason})"
+    return FileFormatError(f"cannot read {what}: {reason}: {os.fspath(path)}")
+
+
+def _check_stat(
+    st: os.stat_result, path: PathLike, what: str, allow_empty: bool, max_bytes: int | None
+) -> None:
+    if not stat.S_ISREG(st.st_mode):
+        raise FileFormatError(
+            f"cannot read {what}: not a regular file (got {_describe(st.st_mode)}): {os.fspath(path)}"
+        )
+    if max_bytes is not None and st.st_size > max_bytes:
+        raise FileFormatError(
+            f"cannot read {what}: the file holds {st.st_size} bytes, over the limit of "
+            f"{max_bytes} bytes: {os.fspath(path)}"
+        )
+    if not allow_empty and st.st_size == 0:
+        raise FileFormatError(f"cannot read {what}: empty file (0 bytes): {os.fspath(path)}")
+
+
+def check_regular_file(
+    path: PathLike, what: str, *, allow_empty: bool = True, max_bytes: int | None = None
+) -> os.stat_result:
+    """``os.stat`` of ``path`` (symlinks followed), which must be a regular file.
+
+    Use it before handing a path to a library that opens it itself (NumPy, Pillow,
+    rosbags). It never opens the file, so it never blocks.
+
+    Args:
+        path: the file.
+        what: what the file is, for messages (``"world file"``, ``"depth image"``).
+        allow_empty: False: a file of 0 bytes is an error.
+        max_bytes: the largest size accepted [bytes]; None: no limit.
+
+    Raises:
+        FileFormatError: the path is missing, unreadable, not a regular file (a FIFO,
+            a device, a folder), empty (with ``allow_empty=False``) or too large.
+    """
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise _os_error(exc, path, what) from exc
+    except (TypeError, ValueError) as exc:  # not a path, or a NUL byte in it
+        raise FileFormatError(f"cannot read {what}: not a valid path ({exc}): {path!s}") from exc
+    _check_stat(st, path, what, allow_empty, max_bytes)
+    return st
+
+
+def open_regular(
+    path: PathLike, what: str, *, allow_empty: bool = True, max_bytes: int | None = None
+) -> BinaryIO:
+    """Open a regular file for binary reading, without ever blocking.
+
+    The file is checked with ``stat`` before it is opened (a device is never opened)
+    and with ``fstat`` after (``O_NONBLOCK``, so opening a FIFO does not wait for a
+    writer). The returned file object is in blocking mode, as libraries expect; reads
+    from a regular file do not block.
+
+    Raises:
+        FileFormatError: as :func:`check_regular_file`.
+    """
+    check_regular_file(path, what, allow_empty=allow_empty, max_bytes=max_bytes)
+    try:
+        fd = os.open(path, _OPEN_FLAGS)
+    except OSError as exc:
+        raise _os_error(exc, path, what) from exc
+    try:
+        _check_stat(os.fstat(fd), path, what, allow_empty, max_bytes)
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_regular_bytes(
+    path: PathLike, what: str, *, max_bytes: int = MAX_BINARY_BYTES, allow_empty: bool = True
+) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes`` bytes.
+
+    Raises:
+        FileFormatError: as :func:`check_regular_file`; also when the file grows past
+            ``max_bytes`` while it is read.
+    """
+    with open_regular(path, what, allow_empty=allow_empty, max_bytes=max_bytes) as handle:
+        try:
+            data = handle.read(max_bytes + 1)
+        except OSError as exc:
+            raise _os_error(exc, path, what) from exc
+    if len(data) > max_bytes:
+        raise FileFormatError(
+            f"cannot read {what}: the file holds more than {max_bytes} bytes, over the limit: "
+            f"{os.fspath(path)}"
+        )
+    if not allow_empty and not data:
+        raise FileFormatError(f"cannot read {what}: empty file (0 bytes): {os.fspath(path)}")
+    return data
+
+
+def read_regular_text(path: PathLike, what: str, *, max_bytes: int = MAX_TEXT_BYTES) -> str:
+    """The UTF-8 text of a regular file of at most ``max_bytes`` bytes.
+
+    Raises:
+        FileFormatError: as :func:`read_regular_bytes`, or the bytes are not UTF-8
+            (the message gives the byte offset and the line of the first bad byte).
+    """
+    data = read_regular_bytes(path, what, max_bytes=max_bytes)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise FileFormatError(
+            f"cannot read {what}: not UTF-8 text (byte offset {exc.start}, line {line}: "
+            f"{exc.reason}): {os.fspath(path)}"
+        ) from exc

@@ -1,0 +1,259 @@
+"""Inputs that once killed the process, hung it or were accepted as garbage, through the
+compiled core: each gives the error named here, at once, without allocating what it implies.
+
+Resource limits are checked on the view before any copy (a broadcast 10^10-element array costs
+nothing to make and must cost nothing to refuse), physically absurd values are errors, every
+argument conversion names its argument, config errors name the field, and the stateful objects
+can be shared between threads (calls run one at a time)."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+import subterra
+from subterra.errors import ConfigError, InputError
+from subterra.sim import DepthCamera
+
+HUGE = (100_000, 100_000)
+
+
+def _huge(dtype) -> np.ndarray:
+    """A read-only view of 10^10 elements backed by one."""
+    return np.broadcast_to(np.zeros(1, dtype), HUGE)
+
+
+def _config(**grid) -> subterra.PerceptionConfig:
+    d = subterra.PerceptionConfig.preset("flight").to_dict()
+    d["grid"].update(grid)
+    return subterra.PerceptionConfig.from_dict(d)
+
+
+# ------------------------------------------------------------------ resource limits
+
+
+def test_a_grid_whose_transition_model_would_not_fit_is_a_config_error():
+    # 1 cm bins over 0.1-10.1 m: 130k states, about 26 GB of transition tables (aborted).
+    with pytest.raises(ConfigError, match=r"grid\.depth_bin_m.*GB"):
+        subterra.DepthPerception(subterra.PinholeCamera.d435(), config=_config(depth_bin_m=0.01, depth_min_m=0.1, depth_max_m=10.1))
+    # 500 bins (took 18 s and 5.5 GB).
+    with pytest.raises(ConfigError, match=r"grid\.depth_bin_m"):
+        subterra.DepthPerception(subterra.PinholeCamera.d435(), config=_config(depth_bin_m=0.02, depth_min_m=0.1, depth_max_m=10.1))
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: subterra.DepthPerception(subterra.PinholeCamera.d435()).update(_huge(np.uint16)),
+        lambda: subterra.DepthPerception(subterra.PinholeCamera.d435()).update(_huge(np.float32)),
+        lambda: subterra.RiskAStar().plan(_huge(np.float32), [0, 0], [1, 1], resolution=0.1),
+        lambda: subterra.RiskAStar().plan(_huge(np.float64), [0, 0], [1, 1], resolution=0.1),
+        lambda: subterra.MpcTracker().solve([0, 0, 0, 0], [[0, 0], [1, 0]], risk=_huge(np.float32), resolution=0.1, origin=(0, 0)),
+        lambda: subterra.MpcTracker().solve([0, 0, 0, 0], [[0, 0], [1, 0]], risk=_huge(np.float64), resolution=0.1, origin=(0, 0)),
+        lambda: subterra.MpcTracker().solve([0, 0, 0, 0], np.broadcast_to(np.zeros(2), (10**9, 2))),
+        lambda: subterra.TerrainMapper().update(_huge(np.float32)),
+        lambda: subterra.TerrainMapper().update(np.broadcast_to(np.ones(3, np.float64), (10**9, 3))),
+        lambda: subterra.RiskAStar().plan(np.zeros((4, 4), np.float32), np.broadcast_to(np.zeros(1), (10**8,)), [1, 1], resolution=0.1),
+    ],
+    ids=["depth-u16", "depth-f32", "astar-f32", "astar-f64", "mpc-f32", "mpc-f64", "mpc-path", "terrain", "terrain-f64", "astar-start"],
+)
+def test_a_huge_view_is_refused_before_it_is_copied(call):
+    with pytest.raises(InputError, match=r"argument `(depth|risk|reference_path|points|start)`"):
+        call()
+
+
+def test_the_depth_image_must_have_the_camera_shape():
+    p = subterra.DepthPerception(subterra.PinholeCamera.d435())
+    with pytest.raises(InputError, match=r"must be \(480, 640\)"):
+        p.update(np.zeros((640, 480), np.uint16))
+    with pytest.raises(InputError, match="argument `scale`"):
+        p.update(np.zeros((480, 640), np.uint16), scale=float("nan"))
+
+
+def test_a_camera_the_simulator_cannot_render_is_refused():
+    big = subterra.PinholeCamera(1000, 1000, 2047.5, 2047.5, 4096, 4096)
+    with pytest.raises(ConfigError, match="camera.height"):
+        DepthCamera(big)
+    with pytest.raises(ConfigError, match="pixels"):
+        subterra.PinholeCamera(1000, 1000, 8000, 8000, 16384, 16384)
+
+
+# ------------------------------------------------------------------ physically absurd values
+
+
+@pytest.mark.parametrize("fx", [1e-310, 1e-3, 0.5, 1e7])
+def test_a_focal_length_no_camera_has_is_refused(fx):
+    # A denormal focal length once gave NaN forces (and the error named `repulsive_body`).
+    with pytest.raises(ConfigError, match=r"camera\.fx.*\[1, 1e6\] px"):
+        subterra.PinholeCamera(fx, 300, 320, 240, 640, 480)
+
+
+def test_a_denormal_is_printed_short():
+    with pytest.raises(ConfigError) as info:
+        subterra.PinholeCamera(1e-310, 300, 320, 240, 640, 480)
+    assert len(str(info.value)) < 200 and "1e-310" in str(info.value)
+
+
+def test_a_principal_point_far_off_the_image_is_refused():
+    with pytest.raises(ConfigError, match=r"camera\.cx"):
+        subterra.PinholeCamera(300, 300, 1e9, 240, 640, 480)
+
+
+@pytest.mark.parametrize("t", [1e308, -2e6, 1.5e6])
+def test_a_pose_far_beyond_any_world_is_refused(t):
+    # Translated by 1e308 the map origin became 9.2e17 and plans were "found".
+    pose = np.eye(4)
+    pose[1, 3] = t
+    points = np.random.default_rng(0).normal(size=(100, 3))
+    with pytest.raises(InputError, match=r"world_from_body.*re-centre"):
+        subterra.TerrainMapper().update(points, world_from_body=pose)
+    with pytest.raises(InputError, match="world_from_body"):
+        subterra.Navigator([5, 0]).step(points, world_from_body=pose)
+
+
+def test_risk_outside_0_1_and_complex_arrays_are_refused():
+    for bad in (2.0, np.inf, -0.5):
+        risk = np.zeros((8, 8), np.float32)
+        risk[3, 4] = bad
+        with pytest.raises(InputError, match=r"risk.*row 3, column 4"):
+            subterra.RiskAStar().plan(risk, [0.05, 0.05], [0.75, 0.75], resolution=0.1)
+    with pytest.raises(InputError, match="complex"):
+        subterra.RiskAStar().plan(np.zeros((8, 8), np.complex64), [0.05, 0.05], [0.75, 0.75], resolution=0.1)
+    with pytest.raises(InputError, match=r"argument `points`.*real numbers"):
+        subterra.TerrainMapper().update(np.zeros((10, 3), np.complex128))
+
+
+@pytest.mark.parametrize("goal", [[1, 2, 3], [1], [[1, 2], [3, 4]], [1, float("nan")], [1j, 2]])
+def test_a_navigator_goal_is_two_finite_numbers(goal):
+    # [1, 2, 3] once dropped z silently.
+    with pytest.raises(InputError, match="argument `goal`"):
+        subterra.Navigator(goal)
+
+
+def test_an_obstacle_memory_takes_only_its_own_perceptions_outputs():
+    d = subterra.PerceptionConfig.preset("flight-memory")
+    own = subterra.DepthPerception(subterra.PinholeCamera.d435(), config=d)
+    other = subterra.DepthPerception(subterra.PinholeCamera(200, 200, 99.5, 99.5, 200, 200), config=d)
+    memory = subterra.ObstacleMemory(own)
+    with pytest.raises(InputError, match=r"argument `output`.*different perception"):
+        memory.update(other.update(np.full((200, 200), 1000, np.uint16)), stamp=0.0, world_from_body=np.eye(4))
+    memory.update(own.update(np.full((480, 640), 1000, np.uint16)), stamp=0.0, world_from_body=np.eye(4))
+
+
+# ------------------------------------------------------------------ errors that name their argument
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"fx": None}, "fx"),
+        ({"fy": "300"}, "fy"),
+        ({"cx": 1j}, "cx"),
+        ({"width": 2**64}, "width"),
+        ({"height": -1}, "height"),
+        ({"width": 640.5}, "width"),
+        ({"height": True}, "height"),
+    ],
+)
+def test_camera_arguments_are_named(kwargs, name):
+    # A value of the right type but out of range is a ConfigError naming `camera.<name>`; a
+    # value of the wrong type an InputError naming the argument.
+    args = {"fx": 300.0, "fy": 300.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480, **kwargs}
+    with pytest.raises((InputError, ConfigError), match=f"(argument `|camera\\.){name}`"):
+        subterra.PinholeCamera(**args)
+
+
+def test_seed_errors_name_the_seed():
+    with pytest.raises(InputError, match="argument `seed`"):
+        subterra.DepthPerception(subterra.PinholeCamera.d435(), seed=-1)
+
+
+def test_config_parse_errors_name_the_field_on_one_line():
+    toml = subterra.PerceptionConfig.preset("flight").to_toml()
+    with pytest.raises(ConfigError) as info:
+        subterra.PerceptionConfig.from_toml(toml.replace("particles = 20000", "particles = -5"))
+    message = str(info.value)
+    assert "filter.particles" in message and "line" in message and "\n" not in message
+    with pytest.raises(ConfigError) as info:
+        subterra.PerceptionConfig.from_toml("[[[[ ]]] = ==")
+    assert "\n" not in str(info.value) and "line 1" in str(info.value)
+
+
+def test_a_nan_in_a_config_dict_names_the_field():
+    # Once "expected value at line 1 column 29".
+    d = subterra.PerceptionConfig.preset("flight").to_dict()
+    d["grid"]["depth_bin_m"] = float("nan")
+    with pytest.raises(ConfigError, match=r"grid\.depth_bin_m.*finite"):
+        subterra.PerceptionConfig.from_dict(d)
+    with pytest.raises(ConfigError, match=r"planner\.lam.*finite"):
+        subterra.Navigator([5, 0], config={"planner": {"lam": float("inf")}})
+    with pytest.raises(ConfigError, match=r"field `planner\.lam`"):
+        subterra.Navigator([5, 0], config={"planner": {"lam": "x"}})
+    with pytest.raises(ConfigError, match="NaN"):
+        subterra.PerceptionConfig.from_json('{"grid": {"depth_bin_m": NaN}}')
+
+
+def test_a_deeply_nested_config_is_an_error_not_a_recursion_error():
+    deep: dict = {}
+    node = deep
+    for _ in range(10_000):
+        node["a"] = {}
+        node = node["a"]
+    with pytest.raises(ConfigError, match="nested deeper"):
+        subterra.Navigator([5, 0], config=deep)
+    with pytest.raises(ConfigError, match="could not be parsed"):
+        subterra.PerceptionConfig.from_json("[" * 100_000 + "]" * 100_000)
+
+
+# ------------------------------------------------------------------ threads
+
+
+def _hammer(objects_and_calls, threads=4, rounds=20):
+    errors: list[BaseException] = []
+
+    def work(call):
+        try:
+            for _ in range(rounds):
+                call()
+        except BaseException as exc:  # noqa: BLE001 - collected and re-raised below
+            errors.append(exc)
+
+    pool = [threading.Thread(target=work, args=(c,)) for c in objects_and_calls for _ in range(threads)]
+    for t in pool:
+        t.start()
+    for t in pool:
+        t.join(timeout=60)
+        assert not t.is_alive(), "a thread hung"
+    assert not errors, errors[0]
+
+
+def test_a_perception_shared_by_threads_runs_one_update_at_a_time():
+    # Once RuntimeError("Already borrowed").
+    p = subterra.DepthPerception(subterra.PinholeCamera.d435(), config=subterra.PerceptionConfig.preset("flight"), seed=1)
+    depth = np.full((480, 640), 1000, np.uint16)
+    _hammer([lambda: p.update(depth), lambda: p.frames, lambda: p.belief()], rounds=10)
+    assert p.frames == 4 * 10
+
+
+def test_a_navigator_and_a_mapper_shared_by_threads_work():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-5, 5, size=(2000, 3)).astype(np.float32)
+    points[:, 2] = -0.6
+    nav = subterra.Navigator([5, 0])
+    mapper = subterra.TerrainMapper()
+    stamp = iter(np.arange(0, 1000, 0.1))
+    lock = threading.Lock()
+
+    def nav_step():
+        with lock:
+            t = next(stamp)
+        # Stamps from several threads may reach the navigator out of order: that is an error
+        # of its own (named), never a crash.
+        try:
+            nav.step(points, stamp=t, world_from_body=np.eye(4))
+        except InputError as exc:
+            assert "argument `stamp`" in str(exc)
+
+    _hammer([nav_step, lambda: nav.risk_map, lambda: mapper.update(points), lambda: mapper.last_coarse], threads=2, rounds=5)
