@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import subterra
+import subterra.sim
 from subterra.errors import ConfigError, InputError
 from subterra.sim import DepthCamera
 
@@ -113,6 +114,15 @@ def test_a_pose_far_beyond_any_world_is_refused(t):
         subterra.Navigator([5, 0]).step(points, world_from_body=pose)
 
 
+def test_a_vehicle_cannot_start_far_off_the_world():
+    # A start translated by 1e308 once gave a simulation (and the error of a NaN named `vehicle`).
+    world = subterra.sim.World.scenario("highbay", 0)
+    for start in ([1e308, 0, 1], [0, -1e7, 1]):
+        for vehicle in ("quadrotor", "ground"):
+            with pytest.raises(InputError, match=r"argument `start`.*outside the world"):
+                subterra.sim.Simulation(world, vehicle, start=start)
+
+
 def test_risk_outside_0_1_and_complex_arrays_are_refused():
     for bad in (2.0, np.inf, -0.5):
         risk = np.zeros((8, 8), np.float32)
@@ -163,6 +173,30 @@ def test_camera_arguments_are_named(kwargs, name):
     args = {"fx": 300.0, "fy": 300.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480, **kwargs}
     with pytest.raises((InputError, ConfigError), match=f"(argument `|camera\\.){name}`"):
         subterra.PinholeCamera(**args)
+
+
+@pytest.mark.parametrize(
+    ("call", "name"),
+    [
+        (lambda p: p.state_of(1.5, 0, 0), "i"),
+        (lambda p: p.state_of(0, 0, 2**70), "k"),
+        (lambda p: p.transition_row("1"), "state"),
+        (lambda p: p.update(np.zeros((480, 640), np.uint16), scale="1"), "scale"),
+        (lambda p: subterra.TerrainMapper().update(np.ones((10, 3)), confidence=None), "confidence"),
+        (lambda p: subterra.TerrainMapper().update(np.ones((10, 3)), stamp="now"), "stamp"),
+        (lambda p: subterra.sim.Simulation(subterra.sim.World.scenario("highbay", 0), "quadrotor", yaw=None), "yaw"),
+        (lambda p: subterra.sim.World.scenario("mine", -1), "seed"),
+        (lambda p: subterra.PathFollower([[0, 0, 0], [1, 0, 0]], lookahead_m=[1.0]), "lookahead_m"),
+        (lambda p: subterra.Navigator([5, 0]).step(None, world_from_body=np.eye(4), speed=1j), "speed"),
+    ],
+    ids=["float-index", "huge-index", "str-state", "str-scale", "none-confidence", "str-stamp", "none-yaw", "negative-seed", "list-lookahead", "complex-speed"],
+)
+def test_a_value_of_the_wrong_type_is_an_input_error_naming_the_argument(call, name):
+    # pyo3's own conversion raised a bare TypeError or OverflowError ("while processing 'x'"
+    # only as a note, which the CLI's one-line errors do not show).
+    perception = subterra.DepthPerception(subterra.PinholeCamera.d435())
+    with pytest.raises(InputError, match=f"argument `{name}`"):
+        call(perception)
 
 
 def test_seed_errors_name_the_seed():

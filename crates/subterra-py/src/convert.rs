@@ -205,3 +205,50 @@ pub fn with_depth<T>(
 fn dim(py: Python<'_>, n: usize) -> PyResult<u32> {
     u32::try_from(n).map_err(|_| input_error(py, format!("argument `depth` is too large ({n} pixels on a side)")))
 }
+
+/// Extractors for `#[pyo3(from_py_with = ...)]`: one per argument name, so that a value of the
+/// wrong type or out of range is an `InputError` naming the argument (pyo3's own conversion
+/// raises a bare `TypeError` or `OverflowError`). Defaults and signatures stay as they are.
+pub mod arg {
+    use pyo3::prelude::*;
+
+    use super::{integer, real};
+
+    /// `None` (explicit) or a real number.
+    fn opt_real(argument: &str, v: &Bound<'_, PyAny>) -> PyResult<Option<f64>> {
+        if v.is_none() {
+            Ok(None)
+        } else {
+            real(v.py(), argument, v).map(Some)
+        }
+    }
+
+    macro_rules! reals {
+        ($($name:ident),* $(,)?) => {$(
+            #[allow(dead_code)]
+            pub fn $name(v: &Bound<'_, PyAny>) -> PyResult<f64> {
+                real(v.py(), stringify!($name), v)
+            }
+        )*};
+    }
+    macro_rules! opt_reals {
+        ($($fn_name:ident => $name:ident),* $(,)?) => {$(
+            #[allow(dead_code)]
+            pub fn $fn_name(v: &Bound<'_, PyAny>) -> PyResult<Option<f64>> {
+                opt_real(stringify!($name), v)
+            }
+        )*};
+    }
+    macro_rules! integers {
+        ($($fn_name:ident => $name:ident: $ty:ty),* $(,)?) => {$(
+            #[allow(dead_code)]
+            pub fn $fn_name(v: &Bound<'_, PyAny>) -> PyResult<$ty> {
+                integer(v.py(), stringify!($name), v, <$ty>::MIN as i128, <$ty>::MAX as i128).map(|n| n as $ty)
+            }
+        )*};
+    }
+
+    reals!(stamp, remaining_m, lookahead_m, confidence, speed, x, y, alpha, min_range_m, max_range_m, yaw, radius_m, dt, compute_time_s, sensor_height);
+    opt_reals!(opt_scale => scale, opt_resolution => resolution, opt_desired_speed => desired_speed, opt_stamp => stamp, opt_limit_s => limit_s);
+    integers!(state_i64 => state: i64, i_i64 => i: i64, j_i64 => j: i64, k_i64 => k: i64, seed_u64 => seed: u64, id_u32 => id: u32, threads_usize => threads: usize);
+}

@@ -22,7 +22,7 @@ use subterra::apf::memory::{MemoryOutput, ObstacleMemory};
 use subterra::{ApfController, Command, Isometry3, PinholeCamera};
 
 use crate::shared::Shared;
-use crate::convert::{integer, isometry, real, vec3, with_depth};
+use crate::convert::{arg, integer, isometry, real, vec3, with_depth};
 use crate::errors::{config_error, input_error, IntoPyResult};
 
 fn array3<'py>(py: Python<'py>, v: glam::DVec3) -> Bound<'py, PyArray1<f64>> {
@@ -343,7 +343,7 @@ impl PyDepthPerception {
     /// Processes one `(H, W)` depth frame (`uint16` with `scale` metres per unit, default
     /// 0.001, or `float32` metres). Releases the GIL while it runs.
     #[pyo3(signature = (depth, scale = None))]
-    fn update(&self, py: Python<'_>, depth: &Bound<'_, PyAny>, scale: Option<f64>) -> PyResult<PyPerceptionOutput> {
+    fn update(&self, py: Python<'_>, depth: &Bound<'_, PyAny>, #[pyo3(from_py_with = arg::opt_scale)] scale: Option<f64>) -> PyResult<PyPerceptionOutput> {
         let expected = (self.camera.width, self.camera.height);
         let mut this = self.inner.lock();
         let inner = &mut *this;
@@ -436,14 +436,14 @@ impl PyDepthPerception {
         Ok(f.into_pyarray(py).reshape([n, 3])?)
     }
     /// The transition row `T(state -> ·)`, shape `(S,)`.
-    fn transition_row<'py>(&self, py: Python<'py>, state: i64) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn transition_row<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::state_i64)] state: i64) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let s = self.check_state(py, state)?;
         let this = self.inner.lock();
         let t = this.transition().ok_or_else(|| input_error(py, "argument `state`: filter mode `raw` has no transition model"))?;
         Ok(t.row(StateId(s)).into_pyarray(py))
     }
     /// Flat id of voxel `(i, j, k)`.
-    fn state_of(&self, py: Python<'_>, i: i64, j: i64, k: i64) -> PyResult<u32> {
+    fn state_of(&self, py: Python<'_>, #[pyo3(from_py_with = arg::i_i64)] i: i64, #[pyo3(from_py_with = arg::j_i64)] j: i64, #[pyo3(from_py_with = arg::k_i64)] k: i64) -> PyResult<u32> {
         let this = self.inner.lock();
         let (n_w, n_h, n_d) = this.grid().shape();
         let inside = |x: i64, n: usize| x >= 0 && (x as usize) < n;
@@ -453,7 +453,7 @@ impl PyDepthPerception {
         Ok(this.grid().state_of(VoxelIndex { i: i as u32, j: j as u32, k: k as u32 }).0)
     }
     /// `(i, j, k)` of a state, or None for the free state.
-    fn voxel_of(&self, py: Python<'_>, state: i64) -> PyResult<Option<(u32, u32, u32)>> {
+    fn voxel_of(&self, py: Python<'_>, #[pyo3(from_py_with = arg::state_i64)] state: i64) -> PyResult<Option<(u32, u32, u32)>> {
         let s = self.check_state(py, state)?;
         Ok(self.inner.lock().grid().voxel_of(StateId(s)).map(|v| (v.i, v.j, v.k)))
     }
@@ -523,7 +523,7 @@ impl PyObstacleMemory {
     /// Records `output` (a `PerceptionOutput` of that perception) taken at `stamp` [s] with
     /// the odometry pose `world_from_body` (4x4), forgets, and returns the memory's force.
     #[pyo3(signature = (output, *, stamp, world_from_body))]
-    fn update(&self, py: Python<'_>, output: &PyPerceptionOutput, stamp: f64, world_from_body: &Bound<'_, PyAny>) -> PyResult<PyMemoryOutput> {
+    fn update(&self, py: Python<'_>, output: &PyPerceptionOutput, #[pyo3(from_py_with = arg::stamp)] stamp: f64, world_from_body: &Bound<'_, PyAny>) -> PyResult<PyMemoryOutput> {
         let pose = isometry(py, "world_from_body", world_from_body)?;
         let mut this = self.inner.lock();
         let (inner, out) = (&mut *this, &output.inner);
@@ -735,10 +735,10 @@ impl PyEscape {
     fn step(
         &self,
         py: Python<'_>,
-        stamp: f64,
+        #[pyo3(from_py_with = arg::stamp)] stamp: f64,
         world_from_body: &Bound<'_, PyAny>,
         goal_world: &Bound<'_, PyAny>,
-        remaining_m: f64,
+        #[pyo3(from_py_with = arg::remaining_m)] remaining_m: f64,
         memory: Option<&PyObstacleMemory>,
         repulsive_body: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PyEscapeOutput> {
@@ -804,7 +804,7 @@ impl PyPathFollower {
     /// `path`: at least two points, shape `(N, 3)` [m, world].
     #[new]
     #[pyo3(signature = (path, *, lookahead_m = subterra::apf::carrot::DEFAULT_LOOKAHEAD_M))]
-    fn new(py: Python<'_>, path: &Bound<'_, PyAny>, lookahead_m: f64) -> PyResult<Self> {
+    fn new(py: Python<'_>, path: &Bound<'_, PyAny>, #[pyo3(from_py_with = arg::lookahead_m)] lookahead_m: f64) -> PyResult<Self> {
         let items = path.try_iter().map_err(|_| input_error(py, format!("argument `path` must be a sequence of 3-vectors, got {}", convert::type_name(path))))?;
         let mut points = Vec::new();
         for (n, item) in items.enumerate() {

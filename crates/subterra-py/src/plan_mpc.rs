@@ -11,7 +11,7 @@ use pyo3::types::{PyDict, PyString};
 use subterra::plan::mpc::{ConvexPolygon, MpcConfig, MpcOutput, MpcTracker, RiskGrid, UnicycleState};
 
 use crate::shared::Shared;
-use crate::convert::{check_elements, real_array, small_vector, type_name, MAX_GRID_CELLS, MAX_PATH_POINTS};
+use crate::convert::{arg, check_elements, real_array, small_vector, type_name, MAX_GRID_CELLS, MAX_PATH_POINTS};
 use crate::errors::{config_error, input_error, raise, IntoPyResult};
 use crate::terrain::{from_json_value, merged, PyRiskMap};
 
@@ -302,10 +302,10 @@ impl PyMpcTracker {
         state: &Bound<'_, PyAny>,
         reference_path: &Bound<'_, PyAny>,
         risk: Option<&Bound<'_, PyAny>>,
-        resolution: Option<f64>,
+        #[pyo3(from_py_with = arg::opt_resolution)] resolution: Option<f64>,
         origin: Option<&Bound<'_, PyAny>>,
         risk_map: Option<&Bound<'_, PyAny>>,
-        desired_speed: Option<f64>,
+        #[pyo3(from_py_with = arg::opt_desired_speed)] desired_speed: Option<f64>,
     ) -> PyResult<PyMpcResult> {
         let state = state_of(py, state)?;
         let path = path_of(py, reference_path)?;

@@ -11,7 +11,7 @@ use subterra::plan::Transition;
 use subterra::Isometry3;
 
 use crate::shared::Shared;
-use crate::convert::{isometry, small_vector};
+use crate::convert::{arg, isometry, small_vector};
 use crate::errors::IntoPyResult;
 use crate::terrain::{merged, from_json_value, resolve_config, resolve_robot, to_py_dict, with_points, PyRiskMap, PyRobotConfig};
 
@@ -206,11 +206,11 @@ impl PyNavigator {
         &self,
         py: Python<'_>,
         points: Option<&Bound<'_, PyAny>>,
-        stamp: Option<f64>,
+        #[pyo3(from_py_with = arg::opt_stamp)] stamp: Option<f64>,
         world_from_body: &Bound<'_, PyAny>,
         body_from_sensor: Option<&Bound<'_, PyAny>>,
-        confidence: f64,
-        speed: f64,
+        #[pyo3(from_py_with = arg::confidence)] confidence: f64,
+        #[pyo3(from_py_with = arg::speed)] speed: f64,
     ) -> PyResult<PyNavigatorOutput> {
         let world_from_body = isometry(py, "world_from_body", world_from_body)?;
         let body_from_sensor = match body_from_sensor {

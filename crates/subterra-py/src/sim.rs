@@ -16,7 +16,7 @@ use xoshiro::Xoshiro256PlusPlus;
 use rand::SeedableRng;
 
 use crate::shared::Shared;
-use crate::convert::{isometry, vec3};
+use crate::convert::{arg, isometry, vec3};
 use crate::errors::{input_error, raise, to_py};
 use crate::PyPinholeCamera;
 
@@ -116,7 +116,7 @@ impl PyWorld {
     /// A built-in scenario (`highbay`, `cable`, `tunnel`, `mine`, `subway`) generated with `seed`.
     #[staticmethod]
     #[pyo3(signature = (name, seed = 0))]
-    fn scenario(py: Python<'_>, name: &str, seed: u64) -> PyResult<Self> {
+    fn scenario(py: Python<'_>, name: &str, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<Self> {
         let spec = scenarios::generate(name, seed).sim_err(py)?;
         Ok(Self { inner: py.detach(|| World::from_spec(spec)).sim_err(py)? })
     }
@@ -157,14 +157,14 @@ impl PyWorld {
     }
 
     /// Tag, kind and width of primitive `id`: `(tag, kind, width_m, dark)`.
-    fn primitive(&self, py: Python<'_>, id: u32) -> PyResult<(String, String, f64, bool)> {
+    fn primitive(&self, py: Python<'_>, #[pyo3(from_py_with = arg::id_u32)] id: u32) -> PyResult<(String, String, f64, bool)> {
         let p = self.inner.primitive(id).ok_or_else(|| input_error(py, format!("argument `id` must be < {}, got {id}", self.inner.primitive_count())))?;
         Ok((p.tag.clone(), format!("{:?}", p.kind).to_lowercase(), p.width_m, p.dark))
     }
 
     /// Nearest hit along a ray: `{"distance_m", "point", "normal", "primitive"}` or None.
     #[pyo3(signature = (origin, direction, max_range_m = 100.0))]
-    fn cast_ray<'py>(&self, py: Python<'py>, origin: &Bound<'py, PyAny>, direction: &Bound<'py, PyAny>, max_range_m: f64) -> PyResult<Option<Bound<'py, PyDict>>> {
+    fn cast_ray<'py>(&self, py: Python<'py>, origin: &Bound<'py, PyAny>, direction: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::max_range_m)] max_range_m: f64) -> PyResult<Option<Bound<'py, PyDict>>> {
         let o = vec3(py, "origin", origin)?;
         let d = vec3(py, "direction", direction)?;
         if d.length() == 0.0 {
@@ -188,7 +188,7 @@ impl PyWorld {
     }
 
     /// Terrain height at `(x, y)` [m], None over a hole or where nothing is below.
-    fn ground_height(&self, py: Python<'_>, x: f64, y: f64) -> PyResult<Option<f64>> {
+    fn ground_height(&self, py: Python<'_>, #[pyo3(from_py_with = arg::x)] x: f64, #[pyo3(from_py_with = arg::y)] y: f64) -> PyResult<Option<f64>> {
         if !(x.is_finite() && y.is_finite()) {
             return Err(input_error(py, format!("arguments `x`, `y` must be finite, got ({x}, {y})")));
         }
@@ -241,7 +241,7 @@ pub struct PyDepthCamera {
 impl PyDepthCamera {
     #[new]
     #[pyo3(signature = (camera = None, min_range_m = 0.1, max_range_m = 10.0))]
-    fn new(py: Python<'_>, camera: Option<&PyPinholeCamera>, min_range_m: f64, max_range_m: f64) -> PyResult<Self> {
+    fn new(py: Python<'_>, camera: Option<&PyPinholeCamera>, #[pyo3(from_py_with = arg::min_range_m)] min_range_m: f64, #[pyo3(from_py_with = arg::max_range_m)] max_range_m: f64) -> PyResult<Self> {
         let mut config = DepthCameraConfig::d435();
         if let Some(c) = camera {
             config.camera = c.inner;
@@ -269,7 +269,7 @@ impl PyDepthCamera {
     /// Releases the GIL.
     #[pyo3(signature = (world, world_from_camera, noise = "none", seed = 0, threads = 1, *, dtype = "float32"))]
     #[allow(clippy::too_many_arguments)]
-    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, noise: &str, seed: u64, threads: usize, dtype: &str) -> PyResult<Bound<'py, PyAny>> {
+    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, noise: &str, #[pyo3(from_py_with = arg::seed_u64)] seed: u64, #[pyo3(from_py_with = arg::threads_usize)] threads: usize, dtype: &str) -> PyResult<Bound<'py, PyAny>> {
         let dtype = depth_dtype(py, "dtype", dtype)?;
         if threads == 0 || threads > 256 {
             return Err(input_error(py, format!("argument `threads` must be in 1..=256, got {threads}")));
@@ -324,7 +324,7 @@ impl PyLidar {
 
     /// One scan from `world_from_sensor` (4x4): `(points (N, 3) float32 in the sensor frame, ring (N,) uint16)`.
     #[pyo3(signature = (world, world_from_sensor, noise = "none", seed = 0))]
-    fn scan<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_sensor: &Bound<'py, PyAny>, noise: &str, seed: u64) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<u16>>)> {
+    fn scan<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_sensor: &Bound<'py, PyAny>, noise: &str, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<u16>>)> {
         let pose = isometry(py, "world_from_sensor", world_from_sensor)?;
         let model = lidar_noise(py, noise)?;
         let (lidar, w) = (&self.inner, &world.inner);
@@ -356,6 +356,9 @@ fn status_name(status: &RunStatus) -> &'static str {
     }
 }
 
+/// How far outside the world's bounded geometry a vehicle may start [m].
+const START_MARGIN_M: f64 = 100.0;
+
 /// A closed-loop simulation: one vehicle, its sensors, a goal, metrics.
 #[pyclass(name = "Simulation", module = "subterra._core.sim", frozen)]
 pub struct PySimulation {
@@ -375,9 +378,9 @@ impl PySimulation {
         world: &PyWorld,
         vehicle: &str,
         sensors: Option<&Bound<'_, PyDict>>,
-        seed: u64,
+        #[pyo3(from_py_with = arg::seed_u64)] seed: u64,
         start: Option<&Bound<'_, PyAny>>,
-        yaw: f64,
+        #[pyo3(from_py_with = arg::yaw)] yaw: f64,
     ) -> PyResult<Self> {
         let start = match start {
             Some(s) => vec3(py, "start", s)?,
@@ -385,6 +388,15 @@ impl PySimulation {
         };
         if !yaw.is_finite() {
             return Err(input_error(py, format!("argument `yaw` must be finite, got {yaw}")));
+        }
+        // A start far off the world's geometry is a mistake (a typo, or a unit error), not a flight.
+        let (lo, hi) = world.inner.bounds();
+        let margin = DVec3::splat(START_MARGIN_M);
+        if !(start.cmpge(lo - margin).all() && start.cmple(hi + margin).all()) {
+            return Err(input_error(
+                py,
+                format!("argument `start` {:?} m is more than {START_MARGIN_M} m outside the world (its geometry spans {:?} to {:?} m)", start.to_array(), lo.to_array(), hi.to_array()),
+            ));
         }
         let v = match vehicle {
             "quadrotor" => Vehicle::quadrotor(QuadrotorConfig::default(), QuadrotorState::at_rest(start, yaw)),
@@ -447,7 +459,7 @@ impl PySimulation {
 
     /// The goal: a region of the world by name, or a point with a radius [m].
     #[pyo3(signature = (region = None, point = None, radius_m = 0.5))]
-    fn set_goal(&self, py: Python<'_>, region: Option<String>, point: Option<&Bound<'_, PyAny>>, radius_m: f64) -> PyResult<()> {
+    fn set_goal(&self, py: Python<'_>, region: Option<String>, point: Option<&Bound<'_, PyAny>>, #[pyo3(from_py_with = arg::radius_m)] radius_m: f64) -> PyResult<()> {
         let goal = match (region, point) {
             (Some(r), None) => Goal::Region(r),
             (None, Some(p)) => Goal::Point { centre: vec3(py, "point", p)?, radius_m },
@@ -457,7 +469,7 @@ impl PySimulation {
     }
 
     /// Ends the run as timed out after `limit_s` simulated seconds (None: no limit).
-    fn set_time_limit(&self, py: Python<'_>, limit_s: Option<f64>) -> PyResult<()> {
+    fn set_time_limit(&self, py: Python<'_>, #[pyo3(from_py_with = arg::opt_limit_s)] limit_s: Option<f64>) -> PyResult<()> {
         self.inner.lock().set_time_limit(limit_s).sim_err(py)
     }
 
@@ -511,7 +523,7 @@ impl PySimulation {
     /// uses v_x and yaw_rate). `compute_time_s` is the controller's time for this step (for
     /// the metrics). Returns `{time_s, status, collided, clearance_m, failure}`.
     #[pyo3(signature = (command, dt = 0.1, *, compute_time_s = 0.0))]
-    fn step<'py>(&self, py: Python<'py>, command: &Bound<'py, PyAny>, dt: f64, compute_time_s: f64) -> PyResult<Bound<'py, PyDict>> {
+    fn step<'py>(&self, py: Python<'py>, command: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::dt)] dt: f64, #[pyo3(from_py_with = arg::compute_time_s)] compute_time_s: f64) -> PyResult<Bound<'py, PyDict>> {
         let cmd = if let Ok(c) = command.cast::<crate::PyCommand>() {
             let c = c.get();
             BodyVelocityCommand::new(c.inner.v_x_m_s, c.inner.v_y_m_s, c.inner.v_z_m_s, c.inner.yaw_rate_rad_s)

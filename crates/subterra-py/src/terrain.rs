@@ -14,7 +14,7 @@ use subterra::terrain::{segment_ground as core_segment_ground, GroundConfig, Lay
 use subterra::Isometry3;
 
 use crate::shared::Shared;
-use crate::convert::{check_elements, isometry, type_name, MAX_POINTS};
+use crate::convert::{arg, check_elements, isometry, type_name, MAX_POINTS};
 use crate::errors::{config_error, input_error, raise, IntoPyResult};
 
 /// Time between scans when `update` is not given a stamp [s] (a 10 Hz lidar).
@@ -368,12 +368,12 @@ impl PyRiskMap {
     }
 
     /// The combined risk at the world position `(x, y)` [m]; `None` outside the map.
-    fn risk_at(&self, py: Python<'_>, x: f64, y: f64) -> PyResult<Option<f32>> {
+    fn risk_at(&self, py: Python<'_>, #[pyo3(from_py_with = arg::x)] x: f64, #[pyo3(from_py_with = arg::y)] y: f64) -> PyResult<Option<f32>> {
         Ok(self.inner.risk_at(finite(py, "x", x)?, finite(py, "y", y)?))
     }
 
     /// The value of layer `name` at the world position `(x, y)` [m]; `None` outside the map.
-    fn value_at(&self, py: Python<'_>, name: &str, x: f64, y: f64) -> PyResult<Option<f32>> {
+    fn value_at(&self, py: Python<'_>, name: &str, #[pyo3(from_py_with = arg::x)] x: f64, #[pyo3(from_py_with = arg::y)] y: f64) -> PyResult<Option<f32>> {
         let layer = Layer::from_name(name).ok_or_else(|| {
             input_error(py, format!("argument `name`: unknown layer `{name}`; known layers: {}", RiskMap::layer_names().join(", ")))
         })?;
@@ -381,7 +381,7 @@ impl PyRiskMap {
     }
 
     /// `CVaR_alpha` of each cell's risk (normal approximation), `float32` `(ny, nx)` in [0, 1].
-    fn cvar<'py>(&self, py: Python<'py>, alpha: f64) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    fn cvar<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::alpha)] alpha: f64) -> PyResult<Bound<'py, PyArray2<f32>>> {
         let data = self.inner.cvar(alpha).py_err(py)?;
         self.grid(py, data)
     }
@@ -473,7 +473,7 @@ impl PyRiskMap {
         (o.x, o.x + g.nx as f64 * g.resolution_m, o.y, o.y + g.ny as f64 * g.resolution_m)
     }
     /// `(ix, iy)` of the cell holding the world position `(x, y)` [m]; `None` outside.
-    fn cell_of(&self, py: Python<'_>, x: f64, y: f64) -> PyResult<Option<(u32, u32)>> {
+    fn cell_of(&self, py: Python<'_>, #[pyo3(from_py_with = arg::x)] x: f64, #[pyo3(from_py_with = arg::y)] y: f64) -> PyResult<Option<(u32, u32)>> {
         Ok(self.inner.geometry().cell_of(finite(py, "x", x)?, finite(py, "y", y)?).map(|c| (c.ix, c.iy)))
     }
     /// World x of the cell centres, `(nx,)` [m].
@@ -585,10 +585,10 @@ impl PyTerrainMapper {
         &self,
         py: Python<'_>,
         points: &Bound<'_, PyAny>,
-        stamp: Option<f64>,
+        #[pyo3(from_py_with = arg::opt_stamp)] stamp: Option<f64>,
         world_from_body: Option<&Bound<'_, PyAny>>,
         body_from_sensor: Option<&Bound<'_, PyAny>>,
-        confidence: f64,
+        #[pyo3(from_py_with = arg::confidence)] confidence: f64,
     ) -> PyResult<Py<PyRiskMap>> {
         let world_from_body = match world_from_body {
             Some(m) => isometry(py, "world_from_body", m)?,
@@ -708,7 +708,7 @@ impl PyTerrainMapper {
 /// Releases the GIL while it runs.
 #[pyfunction]
 #[pyo3(signature = (points, *, sensor_height, config = None))]
-fn segment_ground<'py>(py: Python<'py>, points: &Bound<'_, PyAny>, sensor_height: f64, config: Option<&Bound<'_, PyAny>>) -> PyResult<Bound<'py, PyArray1<bool>>> {
+fn segment_ground<'py>(py: Python<'py>, points: &Bound<'_, PyAny>, #[pyo3(from_py_with = arg::sensor_height)] sensor_height: f64, config: Option<&Bound<'_, PyAny>>) -> PyResult<Bound<'py, PyArray1<bool>>> {
     let ground: GroundConfig = match config {
         None => GroundConfig::default(),
         Some(c) => {

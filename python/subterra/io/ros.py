@@ -125,8 +125,9 @@ DEFAULT_EXTRAPOLATION_NS = 100_000_000
 _QUATERNION_NORM2_TOLERANCE = 1e-2
 # A TransformBuffer rotation is rigid when max |R^T R - I| is below this and det R > 0.
 _ROTATION_TOLERANCE = 1e-3
-# The largest translation a TransformBuffer takes [m] (beyond it: a corrupt value).
-_MAX_TRANSLATION_M = 1e7
+# The largest translation a TransformBuffer takes [m]: the core's limit for poses (1000 km from
+# the origin; beyond it a value is corrupt, or geographic coordinates that must be re-centred).
+_MAX_TRANSLATION_M = 1e6
 
 
 # --------------------------------------------------------------------------- small helpers

@@ -20,6 +20,10 @@ const MAX_WINDOW_S: f64 = 60.0;
 const MAX_SCANS: usize = 1_000;
 /// Largest number of headings the tilt layer settles the footprint at.
 const MAX_TILT_HEADINGS: u32 = 64;
+/// Largest robot side (length, width, height) accepted [m]: a mining haul truck is 15 m long.
+const MAX_ROBOT_SIDE_M: f64 = 30.0;
+/// Fastest robot accepted [m/s] (108 km/h).
+const MAX_ROBOT_SPEED_M_S: f64 = 30.0;
 
 /// The ground robot (a Clearpath Husky by default; Husky A200 data sheet).
 ///
@@ -80,6 +84,14 @@ impl RobotConfig {
             ));
         }
         require_positive("robot.max_speed_m_s", self.max_speed_m_s)?;
+        for (field, side) in [("robot.length_m", self.length_m), ("robot.width_m", self.width_m), ("robot.height_m", self.height_m)] {
+            if side > MAX_ROBOT_SIDE_M {
+                return Err(Error::config(field, format!("must be at most {MAX_ROBOT_SIDE_M} m"), side));
+            }
+        }
+        if self.max_speed_m_s > MAX_ROBOT_SPEED_M_S {
+            return Err(Error::config("robot.max_speed_m_s", format!("must be at most {MAX_ROBOT_SPEED_M_S} m/s"), self.max_speed_m_s));
+        }
         require_non_negative("robot.tilt_safe_deg", self.tilt_safe_deg)?;
         if !(self.tilt_lethal_deg.is_finite() && self.tilt_lethal_deg > self.tilt_safe_deg && self.tilt_lethal_deg < 90.0) {
             return Err(Error::config(
@@ -591,5 +603,21 @@ mod tests {
         let mut r = RobotConfig::default();
         r.ground_clearance_m = 1.0;
         assert!(r.validate().unwrap_err().to_string().contains("robot.ground_clearance_m"));
+        // Sizes and speeds no ground robot has (1e9 m/s once overflowed a capacity).
+        let mut r = RobotConfig::default();
+        r.max_speed_m_s = 1e9;
+        assert!(r.validate().unwrap_err().to_string().contains("robot.max_speed_m_s"));
+        let mut r = RobotConfig::default();
+        r.length_m = 1e9;
+        assert!(r.validate().unwrap_err().to_string().contains("robot.length_m"));
+    }
+
+    #[test]
+    fn a_window_too_long_for_the_speed_is_refused_before_the_scratch_map_is_allocated() {
+        let robot = RobotConfig { max_speed_m_s: 30.0, ..RobotConfig::default() };
+        let mut c = TerrainConfig::default();
+        c.fusion.window_s = 60.0;
+        let err = crate::terrain::TerrainMapper::new(robot, c).err().expect("refused").to_string();
+        assert!(err.contains("fusion.window_s") && err.contains("robot.max_speed_m_s"), "{err}");
     }
 }

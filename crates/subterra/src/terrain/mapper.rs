@@ -14,6 +14,9 @@ use super::risk::{BinnedSource, MapBuilder, MissionItem, NewestPolar, ScanSource
 use crate::error::{Error, Result};
 use crate::frames::Isometry3;
 
+/// Most cells of the scratch map a fusion window's scans are binned into (about 40 bytes each).
+const MAX_SCRATCH_CELLS: f64 = 25_000_000.0;
+
 /// Wall-clock time of each stage of one update [s].
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct TerrainTimings {
@@ -78,6 +81,19 @@ impl TerrainMapper {
     pub fn new(robot: RobotConfig, config: TerrainConfig) -> Result<Self> {
         robot.validate()?;
         config.validate()?;
+        for (name, map, on) in [("coarse", config.coarse, true), ("fine", config.fine, config.fine_enabled)] {
+            let (nx, ny) = MapBuilder::scratch_map(&map, &robot, config.fusion.window_s).cells();
+            if on && (nx as f64) * (ny as f64) > MAX_SCRATCH_CELLS {
+                return Err(Error::config(
+                    "fusion.window_s",
+                    format!(
+                        "with robot.max_speed_m_s = {} the {name} map's scans are binned on {nx}x{ny} cells (the map grown by the distance driven in the window); at most {MAX_SCRATCH_CELLS:.0}",
+                        robot.max_speed_m_s
+                    ),
+                    config.fusion.window_s,
+                ));
+            }
+        }
         let thr = config.ground.max_dist_to_line_m;
         let builder = |map| MapBuilder::new(map, robot, config.layers, config.risk, config.uncertainty, thr, config.fusion.window_s);
         Ok(Self {

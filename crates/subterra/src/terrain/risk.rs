@@ -196,11 +196,16 @@ pub(crate) struct MapBuilder {
 }
 
 impl MapBuilder {
+    /// The scratch map the scans of one fusion window are binned into: the map grown by the
+    /// distance the robot can drive within the window (plus 1 m of slack for odometry).
+    pub fn scratch_map(map: &MapConfig, robot: &RobotConfig, window_s: f64) -> MapConfig {
+        let margin = robot.max_speed_m_s * window_s + 1.0;
+        MapConfig { size_x_m: map.size_x_m + 2.0 * margin, size_y_m: map.size_y_m + 2.0 * margin, ..*map }
+    }
+
     /// Configs are trusted (validated by the mapper).
     pub fn new(map: MapConfig, robot: RobotConfig, layers: LayerConfig, risk: RiskConfig, uncertainty: UncertaintyConfig, ground_threshold: f64, window_s: f64) -> Self {
-        // The robot cannot leave this margin within the window; 1 m of slack for odometry.
-        let margin = robot.max_speed_m_s * window_s + 1.0;
-        let scratch_map = MapConfig { size_x_m: map.size_x_m + 2.0 * margin, size_y_m: map.size_y_m + 2.0 * margin, ..map };
+        let scratch_map = Self::scratch_map(&map, &robot, window_s);
         let res = map.resolution_m;
         let odd_half = |size: f64| ((size / res).round() as usize).max(1) / 2;
         let stencils = (0..layers.tilt_headings).map(|j| heading_stencil(&robot, res, j as f64 * std::f64::consts::PI / layers.tilt_headings as f64)).collect();
