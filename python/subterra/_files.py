@@ -27,6 +27,7 @@ __all__ = [
     "MAX_BINARY_BYTES",
     "MAX_TEXT_BYTES",
     "check_regular_file",
+    "open_for_writing",
     "open_regular",
     "read_regular_bytes",
     "read_regular_text",
@@ -136,6 +137,37 @@ def open_regular(
         if hasattr(os, "set_blocking"):
             os.set_blocking(fd, True)
         return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def open_for_writing(path: PathLike, what: str) -> BinaryIO:
+    """Open ``path`` for binary writing (created or truncated), never blocking.
+
+    A path that exists and is not a regular file (a FIFO nobody reads, a device, a folder)
+    is refused before it is opened; the open itself uses ``O_NONBLOCK`` (a FIFO swapped in
+    meanwhile fails at once instead of waiting for a reader) and is checked with ``fstat``.
+
+    Raises:
+        FileFormatError: ``cannot write <what>: not a regular file ...: <path>``.
+        OSError: the file cannot be created (missing folder, no permission, ...), as ``open``.
+    """
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        st = None
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        raise FileFormatError(f"cannot write {what}: not a regular file (got {_describe(st.st_mode)}): {os.fspath(path)}")
+    flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
+    fd = os.open(path, flags, 0o666)
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise FileFormatError(f"cannot write {what}: not a regular file (got {_describe(mode)}): {os.fspath(path)}")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "wb")
     except BaseException:
         os.close(fd)
         raise

@@ -409,3 +409,43 @@ def test_transform_buffer_refuses_nan_and_unnormalised_quaternions_from_messages
     assert buf.add_message(_tf_msg((0.0, 0.0, 0.0, 1.002)), static=True) == 1
     np.testing.assert_allclose(buf.lookup("odom", "base_link"), np.eye(4), atol=1e-12)
     assert json.dumps(buf.frames) == '["base_link", "odom"]'
+
+
+@pytest.mark.parametrize("writer", ["pcd", "ply", "png", "mcap"])
+def test_a_writer_given_a_fifo_or_a_folder_fails_at_once(tmp_path, writer) -> None:
+    """A FIFO nobody reads once blocked the writers forever."""
+    from subterra import io as sio
+
+    def write(path):
+        points = np.zeros((3, 3), np.float32)
+        if writer == "pcd":
+            sio.write_pcd(path, points)
+        elif writer == "ply":
+            sio.write_ply(path, points)
+        elif writer == "png":
+            sio.write_depth_png(path, np.zeros((4, 4), np.uint16))
+        else:
+            sio.McapWriter(path).close()
+
+    fifo = tmp_path / f"out.{writer}"
+    os.mkfifo(fifo)
+    folder = tmp_path / f"dir.{writer}"
+    folder.mkdir()
+    for target in (fifo, folder):
+        errors_seen: list[BaseException] = []
+        t = threading.Thread(target=lambda: _collect(errors_seen, write, target), daemon=True)
+        t.start()
+        t.join(5)
+        if t.is_alive():  # unblock the writer before failing
+            with open(fifo, "rb"):
+                pass
+        assert not t.is_alive(), f"{writer} blocked on {target}"
+        assert len(errors_seen) == 1 and isinstance(errors_seen[0], errors.FileFormatError), errors_seen
+        assert "not a regular file" in str(errors_seen[0])
+
+
+def _collect(sink: list, fn, *args) -> None:
+    try:
+        fn(*args)
+    except BaseException as exc:  # noqa: BLE001 - the test inspects it
+        sink.append(exc)

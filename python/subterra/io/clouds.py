@@ -71,6 +71,7 @@ from typing import Union
 
 import numpy as np
 
+from .._files import open_for_writing
 from ..errors import FileFormatError, InputError
 from .depth import _as_path, _check_readable_file, _read_bytes, _read_head
 
@@ -345,7 +346,7 @@ def write_pcd(
     ).encode("ascii")
     all_columns = [("x", xyz[:, 0]), ("y", xyz[:, 1]), ("z", xyz[:, 2])] + columns
     body = _binary_records(all_columns, "<") if binary else _ascii_records(all_columns)
-    with open(file_path, "wb") as handle:
+    with open_for_writing(file_path, "point cloud") as handle:
         handle.write(header)
         handle.write(body)
 
@@ -401,7 +402,7 @@ def write_ply(
     lines += [f"property {_PLY_NAMES_BY_CODE[a.dtype.str[1:]]} {n}" for n, a in columns]
     lines += ["end_header", ""]
     body = _binary_records(columns, "<") if binary else _ascii_records(columns)
-    with open(file_path, "wb") as handle:
+    with open_for_writing(file_path, "point cloud") as handle:
         handle.write("\n".join(lines).encode("ascii"))
         handle.write(body)
 

@@ -47,7 +47,7 @@ from typing import Union
 import numpy as np
 from PIL import Image
 
-from .._files import MAX_BINARY_BYTES, check_regular_file, open_regular, read_regular_bytes
+from .._files import MAX_BINARY_BYTES, check_regular_file, open_for_writing, open_regular, read_regular_bytes
 from ..errors import ConfigError, FileFormatError, InputError
 
 __all__ = [
@@ -291,7 +291,8 @@ def write_depth_png(path: PathLike, data: np.ndarray) -> None:
     # Pillow maps a little-endian uint16 array to mode "I;16" and writes it as a
     # 16-bit grayscale PNG (big-endian on disk, as the PNG spec requires).
     image = Image.fromarray(np.ascontiguousarray(array, dtype="<u2"))
-    image.save(file_path, format="PNG")
+    with open_for_writing(file_path, "depth image") as handle:
+        image.save(handle, format="PNG")
 
 
 # --------------------------------------------------------------------------- helpers

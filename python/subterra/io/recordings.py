@@ -42,7 +42,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path, PurePath
 from typing import Any, NamedTuple
 
-from .._files import check_regular_file, open_regular, read_regular_text
+from .._files import check_regular_file, open_for_writing, open_regular, read_regular_text
 from ..errors import ConfigError, FileFormatError, InputError, SubterraError
 
 __all__ = [
@@ -505,7 +505,7 @@ class McapWriter:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._store = typestore if typestore is not None else default_typestore()
-        self._file = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        self._file = open_for_writing(self.path, "recording")  # closed in close()
         self._writer = mcap_writer.Writer(self._file, chunk_size=chunk_size)
         self._writer.start(profile="ros2", library="subterra")
         self._schemas: dict[str, int] = {}
