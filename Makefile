@@ -9,12 +9,12 @@ MATURIN_TARGET := target/maturin
 STAMP  := $(VENV)/.subterra-built
 SOURCES := $(shell find crates python -name '*.rs' -o -name '*.py' -o -name '*.pyi' -o -name 'Cargo.toml' 2>/dev/null) pyproject.toml Cargo.toml
 
-.PHONY: demo test test-rust test-python build bench clean
+.PHONY: demo test test-rust test-python build bench fuzz clean
 
 $(VENV)/.deps: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet "maturin>=1.9,<2" numpy pillow pyyaml matplotlib tqdm pytest hypothesis mujoco scipy scikit-image rosbags mcap mcap-ros2-support mcap-ros1-support rerun-sdk "ray>=2.9"
+	$(PY) -m pip install --quiet "maturin>=1.9,<2" numpy pillow pyyaml matplotlib tqdm pytest hypothesis mujoco scipy scikit-image rosbags mcap mcap-ros2-support mcap-ros1-support rerun-sdk "ray>=2.9" atheris
 	touch $@
 
 $(STAMP): $(VENV)/.deps $(SOURCES)
@@ -39,6 +39,12 @@ test-python: $(STAMP)
 bench: $(STAMP)
 	cargo bench -p subterra --bench perception
 	$(VENV)/bin/subterra bench perception
+
+# Every fuzz target under libFuzzer for FUZZ_SECONDS each (docs/robustness.md); findings in fuzz/crashes/.
+FUZZ_SECONDS ?= 60
+FUZZ_JOBS    ?= 1
+fuzz: $(STAMP)
+	$(PY) fuzz/run.py --seconds $(FUZZ_SECONDS) --jobs $(FUZZ_JOBS)
 
 clean:
 	rm -rf $(VENV) target runs

@@ -592,8 +592,8 @@ def _parse_pcd_header(raw: bytes, path: Path) -> _PcdHeader:
                 f"PCD header line {line_no}: expected ASCII text, got byte "
                 f"0x{line_bytes[exc.start]:02x} (not a PCD file?): {path}"
             ) from exc
-        if not line or line.startswith("#"):
-            continue
+        if not line.split() or line.startswith("#"):
+            continue  # blank (str.split also counts the separators \x1c-\x1f as space) or a comment
         key, *args = line.split()
         if key not in (
             "VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT",
