@@ -41,10 +41,12 @@ bench: $(STAMP)
 	$(VENV)/bin/subterra bench perception
 
 # Every fuzz target under libFuzzer for FUZZ_SECONDS each (docs/robustness.md); findings in fuzz/crashes/.
+# FUZZ_UNTIL=N stops each target once its running total (fuzz/totals.json) reaches N executions.
 FUZZ_SECONDS ?= 60
 FUZZ_JOBS    ?= 1
+FUZZ_UNTIL   ?=
 fuzz: $(STAMP)
-	$(PY) fuzz/run.py --seconds $(FUZZ_SECONDS) --jobs $(FUZZ_JOBS)
+	$(PY) fuzz/run.py --seconds $(FUZZ_SECONDS) --jobs $(FUZZ_JOBS) $(if $(FUZZ_UNTIL),--until $(FUZZ_UNTIL))
 
 clean:
 	rm -rf $(VENV) target runs

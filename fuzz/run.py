@@ -11,11 +11,13 @@ TARGET`` with
 
 It prints one line per target, writes ``fuzz/last-run.json`` (executions, new corpus
 entries, findings per target) and adds the executions to ``fuzz/totals.json``, the running
-count per target over every run on this checkout. The exit status is 1 when any target
+count per target over every run on this checkout, as each target finishes. ``--until N``
+runs each target only until its total reaches N executions (``-runs``; ``--seconds`` stays
+the cap), and leaves out targets already there. The exit status is 1 when any target
 found something: copy the input from ``fuzz/crashes/`` into
 ``tests/python/test_fuzz_regressions.py`` once it is fixed.
 
-    python fuzz/run.py [--seconds 60] [--jobs 1] [--only NAME ...] [--skip NAME ...] [--list]
+    python fuzz/run.py [--seconds 60] [--jobs 1] [--until N] [--only NAME ...] [--skip NAME ...] [--list]
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import os
 import re
 import subprocess
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -56,7 +59,7 @@ class Outcome:
 
 
 def run_target(name: str, seconds: int, *, corpus_root: Path, seeds_root: Path, crash_root: Path,
-               extra: list[str]) -> Outcome:
+               extra: list[str], runs: int | None = None) -> Outcome:
     corpus, seeds, crashes = corpus_root / name, seeds_root / name, crash_root / name
     corpus.mkdir(parents=True, exist_ok=True)
     crashes.mkdir(parents=True, exist_ok=True)
@@ -65,7 +68,8 @@ def run_target(name: str, seconds: int, *, corpus_root: Path, seeds_root: Path, 
     cmd = [
         sys.executable, str(HERE / "targets.py"), name,
         f"-max_total_time={seconds}", f"-timeout={TIMEOUT_S}", f"-rss_limit_mb={RSS_LIMIT_MB}",
-        f"-max_len={max_len}", f"-artifact_prefix={crashes}/", "-print_final_stats=1", *extra,
+        f"-max_len={max_len}", f"-artifact_prefix={crashes}/", "-print_final_stats=1",
+        *([f"-runs={runs}"] if runs is not None else []), *extra,
         str(corpus), *([str(seeds)] if seeds.is_dir() else []),
     ]
     env = dict(os.environ, PYTHONHASHSEED="0")
@@ -103,11 +107,23 @@ def _first_finding(log: str, rc: int) -> str:
     return f"exit status {rc}" + (": see last.log" if rc else "")
 
 
+def _read_totals(path: Path) -> dict[str, int]:
+    if not path.is_file():
+        return {}
+    try:
+        return {k: int(v) for k, v in json.loads(path.read_text()).items()}
+    except (ValueError, AttributeError, TypeError):
+        print(f"warning: {path} unreadable; starting the totals again", file=sys.stderr)
+        return {}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=int, default=int(os.environ.get("FUZZ_SECONDS", "60")),
                         help="fuzzing time per target (default $FUZZ_SECONDS or 60)")
     parser.add_argument("--jobs", type=int, default=1, help="targets fuzzed at once (default 1)")
+    parser.add_argument("--until", type=int, metavar="N",
+                        help="stop each target once its total in --totals reaches N executions")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="fuzz only these targets")
     parser.add_argument("--skip", nargs="+", metavar="NAME", default=[], help="leave these targets out")
     parser.add_argument("--corpus", type=Path, default=HERE / "corpus", help="grown corpora (default fuzz/corpus)")
@@ -126,6 +142,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seconds must be at least 1, got {args.seconds}")
     if args.jobs < 1:
         parser.error(f"--jobs must be at least 1, got {args.jobs}")
+    if args.until is not None and args.until < 1:
+        parser.error(f"--until must be at least 1, got {args.until}")
     names = list(targets.TARGETS)
     unknown = [n for n in (args.only or []) + args.skip if n not in targets.TARGETS]
     if unknown:
@@ -133,14 +151,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.only:
         names = [n for n in names if n in args.only]
     names = [n for n in names if n not in args.skip]
+    totals = _read_totals(args.totals)
+    if args.until is not None:
+        done = [n for n in names if totals.get(n, 0) >= args.until]
+        if done:
+            print(f"{len(done)} targets already have {args.until:,} executions: {', '.join(done)}")
+        names = [n for n in names if n not in done]
 
     print(f"fuzzing {len(names)} targets for {args.seconds} s each, {args.jobs} at a time "
           f"(-timeout={TIMEOUT_S} -rss_limit_mb={RSS_LIMIT_MB})", flush=True)
     outcomes: list[Outcome] = []
+    lock = threading.Lock()
 
     def one(name: str) -> Outcome:
+        runs = None if args.until is None else args.until - totals.get(name, 0)
         o = run_target(name, args.seconds, corpus_root=args.corpus, seeds_root=args.seeds,
-                       crash_root=args.crashes, extra=args.libfuzzer)
+                       crash_root=args.crashes, extra=args.libfuzzer, runs=runs)
+        with lock:  # written as each target ends, so a stopped campaign keeps its counts
+            totals[name] = totals.get(name, 0) + o.executions
+            args.totals.write_text(json.dumps(dict(sorted(totals.items())), indent=1) + "\n")
         status = "ok" if not (o.returncode or o.findings) else f"FINDING {o.summary}"
         print(f"  {name:<26} {o.executions:>10,} execs  {o.executions / max(o.seconds, 1e-9):>8,.0f}/s  "
               f"+{o.corpus_added:<4} corpus  {status}", flush=True)
@@ -149,15 +178,6 @@ def main(argv: list[str] | None = None) -> int:
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
         outcomes = list(pool.map(one, names))
 
-    totals: dict[str, int] = {}
-    if args.totals.is_file():
-        try:
-            totals = {k: int(v) for k, v in json.loads(args.totals.read_text()).items()}
-        except (ValueError, AttributeError, TypeError):
-            print(f"warning: {args.totals} unreadable; starting the totals again", file=sys.stderr)
-    for o in outcomes:
-        totals[o.target] = totals.get(o.target, 0) + o.executions
-    args.totals.write_text(json.dumps(dict(sorted(totals.items())), indent=1) + "\n")
     found = [o for o in outcomes if o.returncode or o.findings]
     report = {
         "seconds_per_target": args.seconds,
@@ -165,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         "rss_limit_mb": RSS_LIMIT_MB,
         "load_average": os.getloadavg(),
         "executions": sum(o.executions for o in outcomes),
+        "totals": {n: totals.get(n, 0) for n in targets.TARGETS},
         "findings": len(found),
         "targets": [asdict(o) for o in outcomes],
     }

@@ -135,6 +135,22 @@ def test_risk_outside_0_1_and_complex_arrays_are_refused():
         subterra.TerrainMapper().update(np.zeros((10, 3), np.complex128))
 
 
+@pytest.mark.parametrize("value", [np.complex64(1 + 1j), np.array(1 + 2j), np.bool_(True)])
+def test_a_complex_or_boolean_numpy_scalar_is_not_a_real_number(value):
+    # float() of a NumPy complex64 drops the imaginary part with only a warning.
+    with pytest.raises(InputError, match="argument `lookahead_m` must be a real number"):
+        subterra.PathFollower([[0, 0, 0], [1, 0, 0]], lookahead_m=value)
+
+
+def test_a_simulator_command_of_complex_numbers_is_refused():
+    s = subterra.sim.Simulation(subterra.sim.World.scenario("highbay", 0), "quadrotor", start=[2.0, 2.0, 1.0])
+    with pytest.raises(InputError, match=r"argument `command`.*real numbers"):
+        s.step(np.array([1j, 0, 0, 0]))
+    with pytest.raises(InputError, match=r"argument `command`.*got 3 numbers"):
+        s.step([0.1, 0.0, 0.0])
+    s.step(np.zeros(4, np.float32))  # any real dtype is fine
+
+
 @pytest.mark.parametrize("goal", [[1, 2, 3], [1], [[1, 2], [3, 4]], [1, float("nan")], [1j, 2]])
 def test_a_navigator_goal_is_two_finite_numbers(goal):
     # [1, 2, 3] once dropped z silently.
@@ -188,8 +204,18 @@ def test_camera_arguments_are_named(kwargs, name):
         (lambda p: subterra.sim.World.scenario("mine", -1), "seed"),
         (lambda p: subterra.PathFollower([[0, 0, 0], [1, 0, 0]], lookahead_m=[1.0]), "lookahead_m"),
         (lambda p: subterra.Navigator([5, 0]).step(None, world_from_body=np.eye(4), speed=1j), "speed"),
+        (lambda p: subterra.PerceptionConfig.preset(3), "name"),
+        (lambda p: subterra.PerceptionConfig.preset("\udc80"), "name"),
+        (lambda p: subterra.DepthPerception(subterra.PinholeCamera.d435(), preset=None), "preset"),
+        (lambda p: subterra.DepthPerception(subterra.PinholeCamera.d435(), mode=2), "mode"),
+        (lambda p: p.voxel_centres(frame=b"camera"), "frame"),
+        (lambda p: subterra.RiskAStar(cost_model=1), "cost_model"),
+        (lambda p: subterra.sim.World.scenario(None), "name"),
+        (lambda p: subterra.sim.Lidar(preset=["vlp16"]), "preset"),
+        (lambda p: subterra.TerrainMapper().update(np.ones((10, 3))).layer(0), "name"),
     ],
-    ids=["float-index", "huge-index", "str-state", "str-scale", "none-confidence", "str-stamp", "none-yaw", "negative-seed", "list-lookahead", "complex-speed"],
+    ids=["float-index", "huge-index", "str-state", "str-scale", "none-confidence", "str-stamp", "none-yaw", "negative-seed", "list-lookahead", "complex-speed",
+         "int-preset-name", "surrogate-name", "none-preset", "int-mode", "bytes-frame", "int-cost-model", "none-scenario", "list-lidar-preset", "int-layer"],
 )
 def test_a_value_of_the_wrong_type_is_an_input_error_naming_the_argument(call, name):
     # pyo3's own conversion raised a bare TypeError or OverflowError ("while processing 'x'"

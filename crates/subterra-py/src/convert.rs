@@ -40,25 +40,47 @@ pub fn real_array<'py>(py: Python<'py>, argument: &str, value: &Bound<'py, PyAny
     Ok(raw)
 }
 
-/// Exactly `n` finite real numbers from a sequence or array of any shape with `n` elements.
-pub fn small_vector(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, n: usize, what: &str) -> PyResult<Vec<f64>> {
+/// Exactly `n` real numbers (NaN and inf included) from a sequence or array of any shape with
+/// `n` elements.
+pub fn real_vector(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, n: usize, what: &str) -> PyResult<Vec<f64>> {
     let raw = real_array(py, argument, value, what)?;
     let size: usize = raw.getattr("size")?.extract()?;
     if size != n {
         let shape: Vec<usize> = raw.getattr("shape")?.extract()?;
         return Err(input_error(py, format!("argument `{argument}` must be {what}, got {size} numbers (shape {shape:?})")));
     }
-    let v: Vec<f64> = raw.call_method1("astype", ("float64",))?.call_method0("ravel")?.call_method0("tolist")?.extract()?;
+    raw.call_method1("astype", ("float64",))?.call_method0("ravel")?.call_method0("tolist")?.extract()
+}
+
+/// Exactly `n` finite real numbers from a sequence or array of any shape with `n` elements.
+pub fn small_vector(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, n: usize, what: &str) -> PyResult<Vec<f64>> {
+    let v = real_vector(py, argument, value, n, what)?;
     if v.iter().any(|x| !x.is_finite()) {
         return Err(input_error(py, format!("argument `{argument}` must be finite, got {v:?}")));
     }
     Ok(v)
 }
 
+/// A `str`, with an error naming `argument` (not pyo3's bare `TypeError`).
+pub fn text(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<String> {
+    let s = value.cast::<pyo3::types::PyString>().map_err(|_| input_error(py, format!("argument `{argument}` must be a str, got {}", type_name(value))))?;
+    s.to_str().map(str::to_owned).map_err(|_| input_error(py, format!("argument `{argument}` must be valid Unicode text (no lone surrogates), got {}", short_repr(value))))
+}
+
 /// A real number, with an error naming `argument` (not the bare conversion error).
 pub fn real(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<f64> {
+    let not_real = || input_error(py, format!("argument `{argument}` must be a real number, got {}", type_name(value)));
     if value.is_instance_of::<pyo3::types::PyBool>() || value.is_instance_of::<pyo3::types::PyComplex>() {
-        return Err(input_error(py, format!("argument `{argument}` must be a real number, got {}", type_name(value))));
+        return Err(not_real());
+    }
+    // A NumPy scalar or 0-d array: float() of a complex64 or a bool_ would drop its imaginary part
+    // or read True as 1.
+    if !value.is_exact_instance_of::<pyo3::types::PyFloat>() && !value.is_exact_instance_of::<pyo3::types::PyInt>() {
+        if let Ok(kind) = value.getattr("dtype").and_then(|d| d.getattr("kind")).and_then(|k| k.extract::<String>()) {
+            if !matches!(kind.as_str(), "f" | "i" | "u") {
+                return Err(not_real());
+            }
+        }
     }
     value.extract::<f64>().map_err(|_| input_error(py, format!("argument `{argument}` must be a real number, got {}", type_name(value))))
 }
@@ -212,7 +234,7 @@ fn dim(py: Python<'_>, n: usize) -> PyResult<u32> {
 pub mod arg {
     use pyo3::prelude::*;
 
-    use super::{integer, real};
+    use super::{integer, real, text};
 
     /// `None` (explicit) or a real number.
     fn opt_real(argument: &str, v: &Bound<'_, PyAny>) -> PyResult<Option<f64>> {
@@ -247,6 +269,27 @@ pub mod arg {
             }
         )*};
     }
+
+    macro_rules! texts {
+        ($($fn_name:ident => $name:ident),* $(,)?) => {$(
+            #[allow(dead_code)]
+            pub fn $fn_name(v: &Bound<'_, PyAny>) -> PyResult<String> {
+                text(v.py(), stringify!($name), v)
+            }
+        )*};
+    }
+
+    /// `None` (explicit) or a `str` named `mode`.
+    pub fn opt_mode(v: &Bound<'_, PyAny>) -> PyResult<Option<String>> {
+        if v.is_none() {
+            Ok(None)
+        } else {
+            text(v.py(), "mode", v).map(Some)
+        }
+    }
+
+    texts!(s_name => name, s_text => text, s_preset => preset, s_frame => frame, s_cost_model => cost_model, s_noise => noise,
+           s_dtype => dtype, s_vehicle => vehicle, s_cause => cause, s_depth_dtype => depth_dtype, s_layer => layer);
 
     reals!(stamp, remaining_m, lookahead_m, confidence, speed, x, y, alpha, min_range_m, max_range_m, yaw, radius_m, dt, compute_time_s, sensor_height);
     opt_reals!(opt_scale => scale, opt_resolution => resolution, opt_desired_speed => desired_speed, opt_stamp => stamp, opt_limit_s => limit_s);

@@ -109,20 +109,20 @@ struct PyPerceptionConfig {
 impl PyPerceptionConfig {
     /// A named preset (`flight`, `cable`).
     #[staticmethod]
-    fn preset(py: Python<'_>, name: &str) -> PyResult<Self> {
-        Ok(Self { inner: PerceptionConfig::preset(name).py_err(py)? })
+    fn preset(py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String) -> PyResult<Self> {
+        Ok(Self { inner: PerceptionConfig::preset(&name).py_err(py)? })
     }
 
     /// Parses and validates a TOML document laid out like `configs/flight.toml`.
     #[staticmethod]
-    fn from_toml(py: Python<'_>, text: &str) -> PyResult<Self> {
-        Ok(Self { inner: PerceptionConfig::from_toml_str(text).py_err(py)? })
+    fn from_toml(py: Python<'_>, #[pyo3(from_py_with = arg::s_text)] text: String) -> PyResult<Self> {
+        Ok(Self { inner: PerceptionConfig::from_toml_str(&text).py_err(py)? })
     }
 
     /// Parses and validates a JSON document with the same layout.
     #[staticmethod]
-    fn from_json(py: Python<'_>, text: &str) -> PyResult<Self> {
-        let mut de = serde_json::Deserializer::from_str(text);
+    fn from_json(py: Python<'_>, #[pyo3(from_py_with = arg::s_text)] text: String) -> PyResult<Self> {
+        let mut de = serde_json::Deserializer::from_str(&text);
         let inner: PerceptionConfig = serde_path_to_error::deserialize(&mut de).map_err(|e| {
             let path = e.path().to_string();
             let at = if path.is_empty() || path == "." { String::new() } else { format!("field `{path}`: ") };
@@ -142,7 +142,7 @@ impl PyPerceptionConfig {
             .call_method1("dumps", (d,))
             .map_err(|e| config_error(py, format!("config dict cannot be serialised: {e}")))?
             .extract()?;
-        Self::from_json(py, &text)
+        Self::from_json(py, text)
     }
 
     /// The config as a nested dict laid out like the TOML file.
@@ -306,19 +306,22 @@ struct PyDepthPerception {
 #[pymethods]
 impl PyDepthPerception {
     #[new]
-    #[pyo3(signature = (camera, preset = "flight", *, config = None, body_from_camera = None, seed = None, mode = None))]
+    #[pyo3(
+        signature = (camera, preset = "flight".to_owned(), *, config = None, body_from_camera = None, seed = None, mode = None),
+        text_signature = "(camera, preset='flight', *, config=None, body_from_camera=None, seed=None, mode=None)"
+    )]
     fn new(
         py: Python<'_>,
         camera: &PyPinholeCamera,
-        preset: &str,
+        #[pyo3(from_py_with = arg::s_preset)] preset: String,
         config: Option<&PyPerceptionConfig>,
         body_from_camera: Option<&Bound<'_, PyAny>>,
         seed: Option<&Bound<'_, PyAny>>,
-        mode: Option<&str>,
+        #[pyo3(from_py_with = arg::opt_mode)] mode: Option<String>,
     ) -> PyResult<Self> {
-        let mut config = resolve_config(py, preset, config)?;
+        let mut config = resolve_config(py, &preset, config)?;
         if let Some(mode) = mode {
-            config.filter.mode = match mode {
+            config.filter.mode = match mode.as_str() {
                 "particle" => FilterMode::Particle,
                 "histogram" => FilterMode::Histogram,
                 "raw" => FilterMode::Raw,
@@ -409,9 +412,9 @@ impl PyDepthPerception {
         Ok(Some(c.counts.clone().into_pyarray(py).reshape([n_h, n_w, n_d])?))
     }
     /// Centres of all voxels, shape `(S-1, 3)` [m], in the `frame` "camera" or "body".
-    #[pyo3(signature = (frame = "camera"))]
-    fn voxel_centres<'py>(&self, py: Python<'py>, frame: &str) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let body = match frame {
+    #[pyo3(signature = (frame = "camera".to_owned()), text_signature = "($self, frame='camera')")]
+    fn voxel_centres<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::s_frame)] frame: String) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let body = match frame.as_str() {
             "camera" => false,
             "body" => true,
             _ => return Err(input_error(py, format!("argument `frame` must be \"camera\" or \"body\", got {frame:?}"))),
@@ -621,9 +624,9 @@ struct PyApfController {
 #[pymethods]
 impl PyApfController {
     #[new]
-    #[pyo3(signature = (preset = "flight", *, config = None))]
-    fn new(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
-        let config = resolve_config(py, preset, config)?;
+    #[pyo3(signature = (preset = "flight".to_owned(), *, config = None), text_signature = "(preset='flight', *, config=None)")]
+    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::s_preset)] preset: String, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
+        let config = resolve_config(py, &preset, config)?;
         config.validate().py_err(py)?;
         Ok(Self { inner: ApfController::new(config.apf) })
     }
@@ -720,9 +723,9 @@ struct PyEscape {
 impl PyEscape {
     /// An escape with the `escape` settings of `preset` (or of `config`).
     #[new]
-    #[pyo3(signature = (preset = "flight", *, config = None))]
-    fn new(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
-        let config = resolve_config(py, preset, config)?;
+    #[pyo3(signature = (preset = "flight".to_owned(), *, config = None), text_signature = "(preset='flight', *, config=None)")]
+    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::s_preset)] preset: String, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
+        let config = resolve_config(py, &preset, config)?;
         Ok(Self { inner: Shared::new(Escape::new(config.escape, &config.apf).py_err(py)?) })
     }
 

@@ -11,7 +11,7 @@ use subterra::plan::{CostModel, PlanOutcome, RiskAStar, RiskAStarConfig, RiskGri
 use subterra::terrain::{CellIndex, RiskMap};
 
 use crate::shared::Shared;
-use crate::convert::{check_elements, small_vector, type_name, MAX_GRID_CELLS};
+use crate::convert::{arg, check_elements, small_vector, type_name, MAX_GRID_CELLS};
 use crate::errors::{config_error, input_error, IntoPyResult};
 use crate::terrain::PyRiskMap;
 
@@ -157,7 +157,9 @@ impl PyRiskAStar {
 #[pymethods]
 impl PyRiskAStar {
     #[new]
-    #[pyo3(signature = (*, lam = None, r_inst = None, r_total = None, carrot_m = None, unknown_risk = None, allow_corner_cutting = None, cost_model = "risk", additive_weight = None, lethal_risk = None))]
+    #[pyo3(signature = (*, lam = None, r_inst = None, r_total = None, carrot_m = None, unknown_risk = None, allow_corner_cutting = None, cost_model = "risk".to_owned(), additive_weight = None, lethal_risk = None),
+        text_signature = "(*, lam=None, r_inst=None, r_total=None, carrot_m=None, unknown_risk=None, allow_corner_cutting=None, cost_model='risk', additive_weight=None, lethal_risk=None)"
+    )]
     fn new(
         py: Python<'_>,
         lam: Option<&Bound<'_, PyAny>>,
@@ -166,12 +168,12 @@ impl PyRiskAStar {
         carrot_m: Option<&Bound<'_, PyAny>>,
         unknown_risk: Option<&Bound<'_, PyAny>>,
         allow_corner_cutting: Option<&Bound<'_, PyAny>>,
-        cost_model: &str,
+        #[pyo3(from_py_with = arg::s_cost_model)] cost_model: String,
         additive_weight: Option<&Bound<'_, PyAny>>,
         lethal_risk: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let d = RiskAStarConfig::default();
-        let cost_model = match cost_model {
+        let cost_model = match cost_model.as_str() {
             "risk" => CostModel::Risk,
             "additive" => CostModel::Additive,
             other => return Err(config_error(py, format!("argument `cost_model` must be \"risk\" or \"additive\", got {other:?}"))),

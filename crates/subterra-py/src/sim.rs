@@ -109,15 +109,15 @@ pub struct PyWorld {
 impl PyWorld {
     /// Parses a world file's text (TOML, see docs/world-format.md).
     #[staticmethod]
-    fn from_toml(py: Python<'_>, text: &str) -> PyResult<Self> {
-        Ok(Self { inner: World::from_toml_str(text).sim_err(py)? })
+    fn from_toml(py: Python<'_>, #[pyo3(from_py_with = arg::s_text)] text: String) -> PyResult<Self> {
+        Ok(Self { inner: World::from_toml_str(&text).sim_err(py)? })
     }
 
     /// A built-in scenario (`highbay`, `cable`, `tunnel`, `mine`, `subway`) generated with `seed`.
     #[staticmethod]
     #[pyo3(signature = (name, seed = 0))]
-    fn scenario(py: Python<'_>, name: &str, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<Self> {
-        let spec = scenarios::generate(name, seed).sim_err(py)?;
+    fn scenario(py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<Self> {
+        let spec = scenarios::generate(&name, seed).sim_err(py)?;
         Ok(Self { inner: py.detach(|| World::from_spec(spec)).sim_err(py)? })
     }
 
@@ -267,10 +267,14 @@ impl PyDepthCamera {
     /// the named noise preset seeded by `seed`, on `threads` threads (the image is the same
     /// for any count): `dtype="float32"` metres or `"uint16"` millimetres, 0 = no return.
     /// Releases the GIL.
-    #[pyo3(signature = (world, world_from_camera, noise = "none", seed = 0, threads = 1, *, dtype = "float32"))]
+    #[pyo3(
+        signature = (world, world_from_camera, noise = "none".to_owned(), seed = 0, threads = 1, *, dtype = "float32".to_owned()),
+        text_signature = "($self, world, world_from_camera, noise='none', seed=0, threads=1, *, dtype='float32')"
+    )]
     #[allow(clippy::too_many_arguments)]
-    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, noise: &str, #[pyo3(from_py_with = arg::seed_u64)] seed: u64, #[pyo3(from_py_with = arg::threads_usize)] threads: usize, dtype: &str) -> PyResult<Bound<'py, PyAny>> {
-        let dtype = depth_dtype(py, "dtype", dtype)?;
+    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::s_noise)] noise: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64, #[pyo3(from_py_with = arg::threads_usize)] threads: usize, #[pyo3(from_py_with = arg::s_dtype)] dtype: String) -> PyResult<Bound<'py, PyAny>> {
+        let dtype = depth_dtype(py, "dtype", &dtype)?;
+        let noise = noise.as_str();
         if threads == 0 || threads > 256 {
             return Err(input_error(py, format!("argument `threads` must be in 1..=256, got {threads}")));
         }
@@ -306,8 +310,9 @@ pub struct PyLidar {
 impl PyLidar {
     /// A preset: `vlp16` or `os1_64`.
     #[new]
-    #[pyo3(signature = (preset = "os1_64"))]
-    fn new(py: Python<'_>, preset: &str) -> PyResult<Self> {
+    #[pyo3(signature = (preset = "os1_64".to_owned()), text_signature = "(preset='os1_64')")]
+    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::s_preset)] preset: String) -> PyResult<Self> {
+        let preset = preset.as_str();
         let config = match preset {
             "vlp16" => LidarConfig::vlp16(),
             "os1_64" => LidarConfig::os1_64(),
@@ -323,10 +328,10 @@ impl PyLidar {
     }
 
     /// One scan from `world_from_sensor` (4x4): `(points (N, 3) float32 in the sensor frame, ring (N,) uint16)`.
-    #[pyo3(signature = (world, world_from_sensor, noise = "none", seed = 0))]
-    fn scan<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_sensor: &Bound<'py, PyAny>, noise: &str, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<u16>>)> {
+    #[pyo3(signature = (world, world_from_sensor, noise = "none".to_owned(), seed = 0), text_signature = "($self, world, world_from_sensor, noise='none', seed=0)")]
+    fn scan<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_sensor: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::s_noise)] noise: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<u16>>)> {
         let pose = isometry(py, "world_from_sensor", world_from_sensor)?;
-        let model = lidar_noise(py, noise)?;
+        let model = lidar_noise(py, &noise)?;
         let (lidar, w) = (&self.inner, &world.inner);
         let (flat, ring) = py
             .detach(|| {
@@ -372,16 +377,20 @@ impl PySimulation {
     /// `DepthCamera` or `Lidar` (see `add_depth_camera` / `add_lidar` for the defaults);
     /// `yaw` [rad]; every noise stream is seeded from `seed`.
     #[new]
-    #[pyo3(signature = (world, vehicle = "quadrotor", sensors = None, seed = 0, *, start = None, yaw = 0.0))]
+    #[pyo3(
+        signature = (world, vehicle = "quadrotor".to_owned(), sensors = None, seed = 0, *, start = None, yaw = 0.0),
+        text_signature = "(world, vehicle='quadrotor', sensors=None, seed=0, *, start=None, yaw=0.0)"
+    )]
     fn new(
         py: Python<'_>,
         world: &PyWorld,
-        vehicle: &str,
+        #[pyo3(from_py_with = arg::s_vehicle)] vehicle: String,
         sensors: Option<&Bound<'_, PyDict>>,
         #[pyo3(from_py_with = arg::seed_u64)] seed: u64,
         start: Option<&Bound<'_, PyAny>>,
         #[pyo3(from_py_with = arg::yaw)] yaw: f64,
     ) -> PyResult<Self> {
+        let vehicle = vehicle.as_str();
         let start = match start {
             Some(s) => vec3(py, "start", s)?,
             None => DVec3::ZERO,
@@ -424,9 +433,9 @@ impl PySimulation {
                     (mount.clone(), None, "none".to_owned())
                 };
                 if let Ok(cam) = sensor.cast::<PyDepthCamera>() {
-                    sim.add_depth_camera(py, &name, &cam.borrow(), pose.as_ref(), &noise)?;
+                    sim.add_depth_camera(py, name.clone(), &cam.borrow(), pose.as_ref(), noise)?;
                 } else if let Ok(lidar) = sensor.cast::<PyLidar>() {
-                    sim.add_lidar(py, &name, &lidar.borrow(), pose.as_ref(), &noise)?;
+                    sim.add_lidar(py, name.clone(), &lidar.borrow(), pose.as_ref(), noise)?;
                 } else {
                     return Err(input_error(py, format!("argument `sensors[{name:?}]` must be a DepthCamera or a Lidar, or a tuple (sensor, body_from_sensor, noise)")));
                 }
@@ -436,8 +445,9 @@ impl PySimulation {
     }
 
     /// Mounts a depth camera (default pose: looking forward from the body origin).
-    #[pyo3(signature = (name, camera, body_from_camera = None, noise = "none"))]
-    fn add_depth_camera(&self, py: Python<'_>, name: &str, camera: &PyDepthCamera, body_from_camera: Option<&Bound<'_, PyAny>>, noise: &str) -> PyResult<()> {
+    #[pyo3(signature = (name, camera, body_from_camera = None, noise = "none".to_owned()), text_signature = "($self, name, camera, body_from_camera=None, noise='none')")]
+    fn add_depth_camera(&self, py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String, camera: &PyDepthCamera, body_from_camera: Option<&Bound<'_, PyAny>>, #[pyo3(from_py_with = arg::s_noise)] noise: String) -> PyResult<()> {
+        let (name, noise) = (name.as_str(), noise.as_str());
         let pose = match body_from_camera {
             Some(m) => isometry(py, "body_from_camera", m)?,
             None => Isometry3::body_from_forward_optical(),
@@ -447,8 +457,9 @@ impl PySimulation {
     }
 
     /// Mounts a lidar (default pose: at the body origin, axes aligned).
-    #[pyo3(signature = (name, lidar, body_from_sensor = None, noise = "none"))]
-    fn add_lidar(&self, py: Python<'_>, name: &str, lidar: &PyLidar, body_from_sensor: Option<&Bound<'_, PyAny>>, noise: &str) -> PyResult<()> {
+    #[pyo3(signature = (name, lidar, body_from_sensor = None, noise = "none".to_owned()), text_signature = "($self, name, lidar, body_from_sensor=None, noise='none')")]
+    fn add_lidar(&self, py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String, lidar: &PyLidar, body_from_sensor: Option<&Bound<'_, PyAny>>, #[pyo3(from_py_with = arg::s_noise)] noise: String) -> PyResult<()> {
+        let (name, noise) = (name.as_str(), noise.as_str());
         let pose = match body_from_sensor {
             Some(m) => isometry(py, "body_from_sensor", m)?,
             None => Isometry3::IDENTITY,
@@ -474,8 +485,8 @@ impl PySimulation {
     }
 
     /// Ends the run with the caller's cause (e.g. "local_minimum").
-    fn abort(&self, cause: &str) {
-        self.inner.lock().abort(cause);
+    fn abort(&self, #[pyo3(from_py_with = arg::s_cause)] cause: String) {
+        self.inner.lock().abort(&cause);
     }
 
     /// Renders every sensor at the true pose: a dict with `time_s`, `depth` ({name: (H, W)
@@ -483,9 +494,9 @@ impl PySimulation {
     /// `depth_truth` ({name: (H, W) float32 [m], noise-free}), `depth_truth_min` ({name:
     /// closest noise-free depth [m] or None}), `scans` ({name: (N, 3) float32}),
     /// `world_from_body` and `odometry` (4x4), `velocity_world`, `world_from_sensor` ({name: 4x4}).
-    #[pyo3(signature = (*, depth_dtype = "float32"))]
-    fn observe<'py>(&self, py: Python<'py>, depth_dtype: &str) -> PyResult<Bound<'py, PyDict>> {
-        let dtype = self::depth_dtype(py, "depth_dtype", depth_dtype)?;
+    #[pyo3(signature = (*, depth_dtype = "float32".to_owned()), text_signature = "($self, *, depth_dtype='float32')")]
+    fn observe<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::s_depth_dtype)] depth_dtype: String) -> PyResult<Bound<'py, PyDict>> {
+        let dtype = self::depth_dtype(py, "depth_dtype", &depth_dtype)?;
         let mut this = self.inner.lock();
         let sim = &mut *this;
         let obs = py.detach(|| sim.observe());
@@ -528,12 +539,9 @@ impl PySimulation {
             let c = c.get();
             BodyVelocityCommand::new(c.inner.v_x_m_s, c.inner.v_y_m_s, c.inner.v_z_m_s, c.inner.yaw_rate_rad_s)
         } else {
-            let v: Vec<f64> = command.extract().map_err(|_| {
-                input_error(py, format!("argument `command` must be a Command or [v_x, v_y, v_z, yaw_rate], got {}", crate::convert::type_name(command)))
-            })?;
-            if v.len() != 4 {
-                return Err(input_error(py, format!("argument `command` must have 4 numbers [v_x, v_y, v_z, yaw_rate], got {}", v.len())));
-            }
+            // Through NumPy's dtype check: pyo3's float() of a complex element drops its imaginary
+            // part. A NaN goes on to the command's own check, which names the component.
+            let v = crate::convert::real_vector(py, "command", command, 4, "a Command or [v_x, v_y, v_z, yaw_rate]")?;
             BodyVelocityCommand::new(v[0], v[1], v[2], v[3])
         };
         let mut this = self.inner.lock();

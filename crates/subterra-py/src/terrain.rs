@@ -206,8 +206,8 @@ impl PyTerrainConfig {
 
     /// Parses and validates a TOML document laid out like `configs/terrain.toml` (all fields).
     #[staticmethod]
-    fn from_toml(py: Python<'_>, text: &str) -> PyResult<Self> {
-        Ok(Self { inner: TerrainConfig::from_toml_str(text).py_err(py)? })
+    fn from_toml(py: Python<'_>, #[pyo3(from_py_with = arg::s_text)] text: String) -> PyResult<Self> {
+        Ok(Self { inner: TerrainConfig::from_toml_str(&text).py_err(py)? })
     }
 
     /// Reads and validates a TOML file; errors end with the path.
@@ -356,8 +356,8 @@ impl PyRiskMap {
 #[pymethods]
 impl PyRiskMap {
     /// A copy of the layer `name` as a `float32` `(ny, nx)` array (see `layer_names`).
-    fn layer<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let data = self.inner.layer(name).py_err(py)?.to_vec();
+    fn layer<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::s_name)] name: String) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let data = self.inner.layer(&name).py_err(py)?.to_vec();
         self.grid(py, data)
     }
 
@@ -373,8 +373,8 @@ impl PyRiskMap {
     }
 
     /// The value of layer `name` at the world position `(x, y)` [m]; `None` outside the map.
-    fn value_at(&self, py: Python<'_>, name: &str, #[pyo3(from_py_with = arg::x)] x: f64, #[pyo3(from_py_with = arg::y)] y: f64) -> PyResult<Option<f32>> {
-        let layer = Layer::from_name(name).ok_or_else(|| {
+    fn value_at(&self, py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String, #[pyo3(from_py_with = arg::x)] x: f64, #[pyo3(from_py_with = arg::y)] y: f64) -> PyResult<Option<f32>> {
+        let layer = Layer::from_name(&name).ok_or_else(|| {
             input_error(py, format!("argument `name`: unknown layer `{name}`; known layers: {}", RiskMap::layer_names().join(", ")))
         })?;
         Ok(self.inner.value_at(layer, finite(py, "x", x)?, finite(py, "y", y)?))
@@ -409,9 +409,9 @@ impl PyRiskMap {
     /// green (0) to red (1) linearly, grey where the cell was not observed; a lethal cell
     /// (combined risk at or above `lethal_risk`) is red whatever the layer. Row 0 is the
     /// lowest y: show it with `origin="lower"`.
-    #[pyo3(signature = (layer = "risk"))]
-    fn to_image<'py>(&self, py: Python<'py>, layer: &str) -> PyResult<Bound<'py, PyArray3<u8>>> {
-        let values = self.inner.layer(layer).py_err(py)?;
+    #[pyo3(signature = (layer = "risk".to_owned()), text_signature = "($self, layer='risk')")]
+    fn to_image<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::s_layer)] layer: String) -> PyResult<Bound<'py, PyArray3<u8>>> {
+        let values = self.inner.layer(&layer).py_err(py)?;
         let observed = self.inner.get(Layer::Observed);
         let mut rgb = Vec::with_capacity(values.len() * 3);
         for (c, (&v, &seen)) in values.iter().zip(observed).enumerate() {
