@@ -24,6 +24,7 @@ sys.path.insert(0, str(FUZZ))
 import targets  # noqa: E402
 
 SEEDS = FUZZ / "seeds"
+REGRESSIONS = FUZZ / "regressions"  # inputs of past findings, one folder per target
 RANDOM_INPUTS = 24
 MUTANTS_PER_SEED = 6
 
@@ -74,6 +75,15 @@ def test_target_survives_seeds_and_mutants(name: str) -> None:
             target(data)
         except Exception as e:  # noqa: BLE001 - reported with the input that raised it
             pytest.fail(f"{name}: input {i} ({len(data)} bytes, {data[:48]!r}...) raised {type(e).__name__}: {e}")
+
+
+@pytest.mark.parametrize(
+    "path", sorted(REGRESSIONS.glob("*/*")), ids=lambda p: f"{p.parent.name}/{p.name}"
+)
+def test_past_findings_stay_fixed(path: Path) -> None:
+    """Every input a fuzz campaign found a bug with runs clean through its target."""
+    assert path.parent.name in targets.TARGETS, f"{path}: no target {path.parent.name!r}"
+    targets.load(path.parent.name)(path.read_bytes())
 
 
 def test_libfuzzer_run_writes_its_report(tmp_path: Path) -> None:

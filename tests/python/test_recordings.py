@@ -585,3 +585,20 @@ def test_ouster_mcap_copy_cut_in_half_fails_cleanly(shared_data: Path, tmp_path:
                 got.append(item)
     assert len(ros.decode_pointcloud2(got[0].message)) == 131072
     shutil.rmtree(tmp_path, ignore_errors=True)
+
+
+def test_a_message_of_another_schema_is_a_file_format_error() -> None:
+    """A recording whose embedded schema lost a field (a ``Transform`` without its
+    ``translation``; found by the ``recording_mcap`` fuzz target) or holds a text where a
+    number belongs is a FileFormatError naming the message type and the place."""
+    quat = SimpleNamespace(x=0.0, y=0.0, z=0.0, w=1.0)
+    tf = SimpleNamespace(header=_header(), child_frame_id="base_link", transform=SimpleNamespace(rotation=quat))
+    with pytest.raises(errors.FileFormatError, match=r"tf2_msgs/TFMessage: the message has no field 'translation'.*topic /tf"):
+        ros.decode_transforms(SimpleNamespace(transforms=[tf]), where="topic /tf")
+    tf.transform.translation = SimpleNamespace(x="one", y=0.0, z=0.0)
+    with pytest.raises(errors.FileFormatError, match=r"tf2_msgs/TFMessage: a field does not hold"):
+        ros.decode_transforms(SimpleNamespace(transforms=[tf]))
+    with pytest.raises(errors.FileFormatError, match=r"nav_msgs/Odometry: the message has no field 'pose'"):
+        ros.decode_odometry(SimpleNamespace(header=_header()))
+    with pytest.raises(errors.FileFormatError, match=r"sensor_msgs/PointCloud2"):
+        ros.decode_pointcloud2(SimpleNamespace(header=_header()))

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
+import functools
 import math
 import numbers
 from collections.abc import Iterable, Mapping, Sequence
@@ -48,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import FileFormatError, InputError
+from ..errors import FileFormatError, InputError, SubterraError
 from .depth import DEFAULT_UINT16_SCALE_M_PER_UNIT, DepthImage
 from .intrinsics import Intrinsics
 
@@ -145,6 +146,36 @@ def _get(msg: Any, *names: str, where: str = "", kind: str = "message") -> Any:
     raise InputError(f"{kind}: expected a field {names[0]!r}, got a {type(msg).__name__} without it{_where(where)}")
 
 
+def _decoder(kind: str):
+    """Decorates a ``decode_*`` function: a message whose fields do not match ``kind``
+    (a field missing, a value that is not a number: a recording whose embedded schema
+    was edited or belongs to another type) raises a :class:`FileFormatError` naming
+    ``kind``, the field and the ``where`` of the call, instead of an AttributeError
+    or a TypeError from deep inside the decoder."""
+
+    def wrap(fn):
+        @functools.wraps(fn)
+        def decode(msg: Any, *args: Any, where: str = "", **kwargs: Any):
+            try:
+                return fn(msg, *args, where=where, **kwargs)
+            except SubterraError:
+                raise
+            except AttributeError as exc:
+                field = getattr(exc, "name", None) or str(exc)
+                raise FileFormatError(
+                    f"{kind}: the message has no field {field!r} (a message of another type, or a "
+                    f"schema that does not match {kind}){_where(where)}"
+                ) from exc
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise FileFormatError(
+                    f"{kind}: a field does not hold the value {kind} defines ({exc}){_where(where)}"
+                ) from exc
+
+        return decode
+
+    return wrap
+
+
 def stamp_ns(msg_or_header_or_time: Any) -> int:
     """Nanoseconds of a ``Time`` (``sec``/``nanosec`` or ROS 1 ``secs``/``nsecs``), of a
     ``Header`` (its ``stamp``) or of a message with a header."""
@@ -226,6 +257,7 @@ def _pose_matrix(position: Any, orientation: Any, where: str) -> np.ndarray:
 # --------------------------------------------------------------------------- images
 
 
+@_decoder("sensor_msgs/Image")
 def decode_image(msg: Any, *, where: str = "") -> np.ndarray:
     """The pixels of a ``sensor_msgs/Image`` as an ``(H, W)`` (one channel) or ``(H, W, C)``
     array of the encoding's dtype in native byte order (a view of the message's bytes
@@ -272,6 +304,7 @@ def decode_image(msg: Any, *, where: str = "") -> np.ndarray:
     return image
 
 
+@_decoder("sensor_msgs/Image")
 def decode_depth_image(msg: Any, *, scale: float | None = None, where: str = "") -> DepthImage:
     """A depth ``sensor_msgs/Image`` as a :class:`~subterra.io.DepthImage`.
 
@@ -304,6 +337,7 @@ def decode_depth_image(msg: Any, *, scale: float | None = None, where: str = "")
     return DepthImage._trusted(data, scale, where)
 
 
+@_decoder("sensor_msgs/CameraInfo")
 def decode_camera_info(msg: Any, *, where: str = "") -> Intrinsics:
     """The pinhole intrinsics of a ``sensor_msgs/CameraInfo`` of the image it describes.
 
@@ -432,6 +466,7 @@ def _cloud_dtype(msg: Any, point_step: int, order: str, where: str) -> np.dtype:
         raise FileFormatError(f"point cloud: bad field layout: {exc}{_where(where)}") from exc
 
 
+@_decoder("sensor_msgs/PointCloud2")
 def decode_pointcloud2(
     msg: Any, *, drop_invalid: bool = True, fields: Iterable[str] | None = None, where: str = ""
 ) -> CloudMessage:
@@ -554,6 +589,7 @@ class OdometrySample:
     twist: np.ndarray
 
 
+@_decoder("nav_msgs/Odometry")
 def decode_odometry(msg: Any, *, where: str = "") -> OdometrySample:
     """A ``nav_msgs/Odometry`` as an :class:`OdometrySample`.
 
@@ -571,6 +607,7 @@ def decode_odometry(msg: Any, *, where: str = "") -> OdometrySample:
     return OdometrySample(stamp_ns(msg), _frame_id(msg), str(msg.child_frame_id), world_from_body, cov.reshape(6, 6), twist)
 
 
+@_decoder("tf2_msgs/TFMessage")
 def decode_transforms(msg: Any, *, where: str = "") -> list[tuple[str, str, int, np.ndarray]]:
     """``(parent, child, stamp_ns, parent_from_child)`` for each transform of a
     ``tf2_msgs/TFMessage`` (ROS 1 ``tf/tfMessage`` too).
