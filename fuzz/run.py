@@ -14,8 +14,8 @@ entries, findings per target) and adds the executions to ``fuzz/totals.json``, t
 count per target over every run on this checkout, as each target finishes. ``--until N``
 runs each target only until its total reaches N executions (``-runs``; ``--seconds`` stays
 the cap), and leaves out targets already there. The exit status is 1 when any target
-found something: copy the input from ``fuzz/crashes/`` into
-``tests/python/test_fuzz_regressions.py`` once it is fixed.
+found something: once it is fixed, copy the input from ``fuzz/crashes/TARGET/`` into
+``fuzz/regressions/TARGET/`` (``make test`` replays every file there through its target).
 
     python fuzz/run.py [--seconds 60] [--jobs 1] [--until N] [--only NAME ...] [--skip NAME ...] [--list]
 """
