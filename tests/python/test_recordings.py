@@ -385,6 +385,27 @@ def test_mcap_writer_round_trip_and_independent_decoder(tmp_path: Path) -> None:
     assert decoded["/cam/info"][0][1].k[0] == 385.0
 
 
+def test_recordings_with_the_same_schemas_share_one_compiled_typestore(tmp_path: Path) -> None:
+    """A second recording embedding the same schemas decodes with the store compiled for
+    the first (rosbags compiles per store); a schema of other text gets its own."""
+    from subterra.io import recordings
+
+    items, _, _ = _messages()
+    paths = [tmp_path / "a.mcap", tmp_path / "b.mcap"]
+    for path in paths:
+        with McapWriter(path) as writer:
+            for topic, stamp, msg in items:
+                writer.write(topic, msg, log_time_ns=stamp)
+    recordings._typestore.cache_clear()
+    for path in paths:
+        with open_recording(path) as rec:
+            decoded = list(rec.messages())
+        assert len(decoded) == len(items)
+    info = recordings._typestore.cache_info()
+    kinds = {type(msg).__name__ for _, _, msg in items}
+    assert info.misses == len(kinds) and info.hits == len(kinds), info
+
+
 def test_plain_mcap_with_ros1_encoding_from_an_independent_writer(tmp_path: Path) -> None:
     from mcap_ros1._vendor.genpy import dynamic
     from mcap_ros1.writer import Writer

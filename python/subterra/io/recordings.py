@@ -35,6 +35,7 @@ message lists the topics present. The file libraries' own exceptions never escap
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import sqlite3
 from collections import Counter
@@ -421,20 +422,9 @@ class _McapSource:
         decoder = self._decoders.get(schema.id)
         if decoder is not None:
             return decoder
-        typesys = _need("rosbags.typesys")
-        text = schema.data.decode("utf-8", errors="replace")
         name = normalise_type(schema.name)
         try:
-            if schema.encoding == "ros2idl":
-                types: dict[str, Any] = {}
-                parts = text.split(_IDL_SEPARATOR)[1:] if text.startswith(_IDL_SEPARATOR + "IDL: ") else [text]
-                for part in parts:
-                    idl = part.split("\n", 1)[1] if part.startswith("IDL: ") else part
-                    types.update(typesys.get_types_from_idl(idl))
-            else:
-                types = typesys.get_types_from_msg(text, name)
-            store = typesys.get_typestore(typesys.Stores.EMPTY)
-            store.register(types)
+            store = _typestore(schema.encoding, name, bytes(schema.data))
         except Exception as exc:  # noqa: BLE001
             raise _wrap(exc, f"cannot parse the {schema.encoding} schema of {schema.name} (topic {channel.topic})", self.path) from exc
         # memoryview: rosbags slices off the CDR header, which would copy a bytes object.
@@ -601,3 +591,25 @@ def write_bag(
     finally:
         writer.close()
     return p
+
+
+@functools.lru_cache(maxsize=64)
+def _typestore(encoding: str, name: str, data: bytes) -> Any:
+    """A rosbags typestore holding the types of one embedded schema (``ros2msg``,
+    ``ros1msg`` or ``ros2idl`` text). Kept per schema text for the process: recordings
+    of one robot embed the same schemas, and rosbags compiles a (de)serializer per store,
+    which costs more than reading a short file. A schema that does not parse raises (and
+    is not kept)."""
+    typesys = _need("rosbags.typesys")
+    text = data.decode("utf-8", errors="replace")
+    if encoding == "ros2idl":
+        types: dict[str, Any] = {}
+        parts = text.split(_IDL_SEPARATOR)[1:] if text.startswith(_IDL_SEPARATOR + "IDL: ") else [text]
+        for part in parts:
+            idl = part.split("\n", 1)[1] if part.startswith("IDL: ") else part
+            types.update(typesys.get_types_from_idl(idl))
+    else:
+        types = typesys.get_types_from_msg(text, name)
+    store = typesys.get_typestore(typesys.Stores.EMPTY)
+    store.register(types)
+    return store
