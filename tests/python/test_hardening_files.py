@@ -197,6 +197,20 @@ def test_ascii_ply_whose_vertex_count_reaches_into_the_faces_is_refused(tmp_path
     assert len(clouds.read_cloud(path)) == 2
 
 
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian"])
+@pytest.mark.parametrize("faces_first", [False, True], ids=["vertices", "faces-first"])
+def test_ply_element_counts_beyond_any_integer_are_truncation_errors(tmp_path: Path, fmt: str, faces_first: bool) -> None:
+    # Found by the cloud_ply fuzz target: an ascii count past 2^63 raised OverflowError
+    # from bytes.split instead of saying the file is shorter than its header.
+    faces = "element face 99999999999999999999999999999\nproperty list uchar int vertex_indices\n" if faces_first else ""
+    header = f"ply\nformat {fmt} 1.0\n{faces}element vertex 1{'0' * 40}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    path = tmp_path / "huge.ply"
+    path.write_bytes(header.encode() + b"1 2 3\n" * 3)
+    with pytest.raises(errors.FileFormatError, match=r"truncated|end inside") as info:
+        clouds.read_cloud(path)
+    assert str(info.value).endswith(str(path))
+
+
 @pytest.mark.parametrize("order", ["<", ">"], ids=["little", "big"])
 def test_binary_ply_whose_vertex_count_reaches_into_the_faces_is_refused(tmp_path: Path, order: str) -> None:
     encoding = "binary_little_endian" if order == "<" else "binary_big_endian"

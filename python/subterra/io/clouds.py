@@ -1055,12 +1055,15 @@ def _ply_ascii_vertices(
     skip = sum(element.count for element in before)
     n = vertex.count
     nprops = len(vertex.properties)
-    lines = raw[offset:].split(b"\n", skip + n)
+    have = raw.count(b"\n", offset) + 1
+    # One line per element instance: counts beyond the lines the file has are a lie (and
+    # may exceed what split() takes: the header's counts are arbitrary integers).
+    lines = raw[offset:].split(b"\n", skip + n) if skip + n <= have else []
     vertex_lines = lines[skip : skip + n]
     if len(vertex_lines) < n:
         raise FileFormatError(
             f"PLY ascii data: expected {skip} lines of earlier elements and {n} vertex "
-            f"lines, got {len(lines)} lines (truncated file): {path}"
+            f"lines, got {min(len(lines), have) if lines else have} lines (truncated file): {path}"
         )
     tokens = b" ".join(vertex_lines).split()
     if len(tokens) != n * nprops:

@@ -33,6 +33,9 @@ pub const MAX_GRID_CELLS: usize = 1 << 24;
 pub const MAX_SIDE: usize = 1 << 16;
 /// Largest cell side accepted [m]; beyond it the geometry is a mistake.
 pub const MAX_RESOLUTION_M: f64 = 1.0e4;
+/// Smallest cell side accepted [m] (1 mm): no range sensor resolves less, and a denormal
+/// side makes every distance a count of cells beyond any search or sampling budget.
+pub const MIN_RESOLUTION_M: f64 = 1.0e-3;
 
 /// A risk grid: per-cell risks in `[0, 1]` (NaN: unknown) over a world-axis-aligned geometry.
 #[derive(Debug, Clone, Copy)]
@@ -62,8 +65,11 @@ impl<'a> RiskGrid<'a> {
         if risk.len() != cells {
             return Err(Error::input("risk", format!("has {} values but the shape ({ny}, {nx}) needs {cells}", risk.len())));
         }
-        if !(resolution_m.is_finite() && resolution_m > 0.0 && resolution_m <= MAX_RESOLUTION_M) {
-            return Err(Error::input("resolution", format!("must be in (0, {MAX_RESOLUTION_M:e}] m, got {resolution_m}")));
+        if !(resolution_m.is_finite() && (MIN_RESOLUTION_M..=MAX_RESOLUTION_M).contains(&resolution_m)) {
+            return Err(Error::input(
+                "resolution",
+                format!("must be in [{MIN_RESOLUTION_M:e}, {MAX_RESOLUTION_M:e}] m, got {resolution_m}"),
+            ));
         }
         if !origin_m.is_finite() {
             return Err(Error::input("origin", format!("must be finite, got ({}, {})", origin_m.x, origin_m.y)));

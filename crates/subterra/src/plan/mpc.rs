@@ -625,8 +625,11 @@ fn speed_bounds(c: &MpcConfig, x: &[UnicycleState], k: usize, risk: Option<&Risk
                     continue;
                 }
                 let (pa, pb) = (x[a].position(), x[b].position());
-                // Both ends included; a guard against absurdly long steps.
-                let samples = ((pa.distance(pb) / spacing).ceil().min(1e4) as usize).max(1);
+                // Both ends included. A straight step crosses at most nx + ny cells: four
+                // samples per cell it can cross bound the work on a fine grid (a tiny
+                // resolution) without thinning the half-cell spacing on any real one.
+                let budget = (4 * (grid.nx + grid.ny) + 16) as f64;
+                let samples = ((pa.distance(pb) / spacing).ceil().min(budget) as usize).max(1);
                 for i in 0..=samples {
                     worst = worst.max(lookup(pa + (pb - pa) * (i as f64 / samples as f64)));
                 }
