@@ -130,6 +130,13 @@ def test_bad_arguments_name_the_argument(tmp_path):
     with pytest.raises(InputError, match="seeds"):
         seed_list(0)
     assert seed_list(3) == [0, 1, 2] and seed_list((5, 7)) == [5, 7]
+    # Counts and seeds beyond what a batch or a 64-bit seed holds (the sweep_file fuzz
+    # target found an OverflowError from range() with a 100-digit count).
+    with pytest.raises(InputError, match=r"asks for 10+ seeds; a batch takes at most 1,000,000"):
+        seed_list(10**30)
+    for bad in ([2**63], [True, 2], [1.0], "012"):
+        with pytest.raises(InputError, match="argument `seeds`"):
+            seed_list(bad)
 
 
 def test_progress_goes_to_stderr_as_plain_lines_off_a_terminal(capsys):

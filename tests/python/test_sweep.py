@@ -65,6 +65,11 @@ def test_bad_sweeps_fail_before_anything_runs():
         load_sweep(_fly(random={"rate_hz": [10.0]}))
     with pytest.raises(ConfigError, match="seeds"):
         load_sweep(_fly(seeds=0, grid={"rate_hz": [10.0]}))
+    for seeds, match in (({"first": 100, "count": 10**40}, r"seeds.count. asks for 10+ seeds"),
+                         ({"first": 2**63 - 2, "count": 3}, r"pass the largest seed 2\^63-1"),
+                         ({"first": -1, "count": 3}, r"seeds.first. must be an integer >= 0")):
+        with pytest.raises(ConfigError, match=match):
+            load_sweep(_fly(seeds=seeds, grid={"rate_hz": [10.0]}))
     with pytest.raises(ConfigError, match="controllers"):
         load_sweep(_fly(controllers=["magic"], grid={"rate_hz": [10.0]}))
     with pytest.raises(ConfigError, match="routes"):

@@ -18,13 +18,14 @@ import hashlib
 import importlib
 import json
 import math
+import operator
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from subterra.errors import InputError
 
-__all__ = ["Job", "resolve", "run_job", "seed_list", "check_workers"]
+__all__ = ["Job", "resolve", "run_job", "seed_list", "seed_range", "check_workers", "MAX_SEEDS", "MAX_SEED"]
 
 
 def _plain(value: Any, where: str) -> Any:
@@ -85,20 +86,56 @@ def run_job(job: Job) -> tuple[dict[str, Any], Any]:
     return row, record
 
 
+MAX_SEEDS = 1_000_000
+"""Most seeds one batch takes (a million runs is past any study; more is a typo)."""
+MAX_SEED = 2**63 - 1
+"""Largest seed (a signed 64-bit integer: NumPy, JSON readers and the core all hold it)."""
+
+
 def seed_list(seeds: int | Sequence[int], name: str = "seeds") -> list[int]:
-    """``seeds``: a count (``0..n-1``) or explicit non-negative seeds, without repeats."""
+    """``seeds``: a count (``0..n-1``) or explicit non-negative seeds, without repeats;
+    at most :data:`MAX_SEEDS` of them, each at most :data:`MAX_SEED`."""
     if isinstance(seeds, bool):
         raise InputError(f"argument `{name}` must be a count >= 1 or non-negative seeds, got {seeds!r}")
     if isinstance(seeds, int):
+        if seeds > MAX_SEEDS:
+            raise InputError(f"argument `{name}` asks for {seeds} seeds; a batch takes at most {MAX_SEEDS:,}")
         out = list(range(seeds))
     else:
         try:
-            out = [int(s) for s in seeds]
+            if len(seeds) > MAX_SEEDS:
+                raise InputError(f"argument `{name}` holds {len(seeds)} seeds; a batch takes at most {MAX_SEEDS:,}")
+            out = [operator.index(s) if not isinstance(s, bool) else _not_a_seed(s) for s in seeds]
         except (TypeError, ValueError) as exc:
-            raise InputError(f"argument `{name}` must be a count >= 1 or non-negative seeds, got {seeds!r}") from exc
-    if not out or any(s < 0 for s in out) or len(set(out)) != len(out):
-        raise InputError(f"argument `{name}` must be a count >= 1 or distinct non-negative seeds, got {seeds!r}")
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(f"argument `{name}` must be a count >= 1 or non-negative integer seeds, got {seeds!r}") from exc
+    if not out or any(s < 0 or s > MAX_SEED for s in out) or len(set(out)) != len(out):
+        raise InputError(
+            f"argument `{name}` must be a count >= 1 or distinct seeds in 0..2^63-1, got {_short(seeds)}"
+        )
     return out
+
+
+def seed_range(first: Any, count: Any, name: str = "seeds") -> list[int]:
+    """``count`` consecutive seeds from ``first``, checked as :func:`seed_list` checks."""
+    for label, value, low in (("first", first, 0), ("count", count, 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise InputError(f"argument `{name}.{label}` must be an integer >= {low}, got {value!r}")
+    if count > MAX_SEEDS:
+        raise InputError(f"argument `{name}.count` asks for {count} seeds; a batch takes at most {MAX_SEEDS:,}")
+    if first + count - 1 > MAX_SEED:
+        raise InputError(f"argument `{name}`: seeds {first}..{first + count - 1} pass the largest seed 2^63-1")
+    return list(range(first, first + count))
+
+
+def _not_a_seed(value: Any) -> int:
+    raise TypeError(f"{value!r} is not a seed")
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else f"{text[:60]}... ({len(text)} characters)"
 
 
 def check_workers(workers: int | None) -> int | None:

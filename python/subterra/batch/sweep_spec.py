@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from subterra._files import read_regular_text
-from subterra.batch.jobs import seed_list
+from subterra.batch.jobs import seed_list, seed_range
 from subterra.errors import ConfigError, InputError, SubterraError
 
 if sys.version_info >= (3, 11):
@@ -119,10 +119,10 @@ def _seeds(value: Any) -> list[int]:
         unknown = set(value) - {"first", "count"}
         if unknown or "count" not in value:
             raise ConfigError(f"sweep field `seeds` as a table takes `first` and `count`, got {dict(value)!r}")
-        first, count = value.get("first", 0), value["count"]
-        if not (isinstance(first, int) and isinstance(count, int) and first >= 0 and count >= 1):
-            raise ConfigError(f"sweep field `seeds`: `first` >= 0 and `count` >= 1 must be integers, got {dict(value)!r}")
-        return list(range(first, first + count))
+        try:
+            return seed_range(value.get("first", 0), value["count"], "seeds")
+        except InputError as exc:
+            raise ConfigError(f"sweep field {exc}".replace("argument ", "")) from exc
     try:
         return seed_list(value, "seeds")
     except InputError as exc:
