@@ -383,7 +383,10 @@ def _checked_depth_array(
             f"{what}: expected dtype uint16 (raw units) or float32 (metres; float64 is "
             f"converted), got {dtype}{suffix}"
         )
-    return np.ascontiguousarray(array, dtype=target)
+    # float64 beyond float32's range becomes inf, which the core reads as "no return",
+    # like every other depth past its range: no overflow warning for it.
+    with np.errstate(over="ignore"):
+        return np.ascontiguousarray(array, dtype=target)
 
 
 def _natural_key(name: str) -> tuple:
