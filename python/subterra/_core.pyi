@@ -148,6 +148,35 @@ class ObstacleMemory:
     def weights(self) -> npt.NDArray[np.float64]: ...
     def __len__(self) -> int: ...
 
+class QmdpAction:
+    """What one ``Qmdp.act`` gives."""
+
+    @property
+    def velocity_body(self) -> npt.NDArray[np.float64]:
+        """The chosen evasive velocity, body frame [m/s]; it takes the repulsive force's place."""
+    @property
+    def index(self) -> int:
+        """Its row in ``Qmdp.actions()``."""
+    @property
+    def value(self) -> float:
+        """Its expected reward under the belief."""
+
+class Qmdp:
+    """QMDP action selection over ``perception``'s belief (the APF-PF authors' follow-up):
+    evasive velocities scored by their expected reward, ``act(output)`` per frame; ``config``
+    is a dict over ``Qmdp.default_config()`` (the authors' settings)."""
+
+    def __init__(self, perception: DepthPerception, config: dict[str, Any] | None = None) -> None: ...
+    @staticmethod
+    def default_config() -> dict[str, Any]: ...
+    @property
+    def config(self) -> dict[str, Any]: ...
+    def act(self, output: PerceptionOutput) -> QmdpAction: ...
+    def actions(self) -> npt.NDArray[np.float64]:
+        """The action set, shape ``(A, 3)`` [m/s, body frame]."""
+    def rewards(self) -> npt.NDArray[np.float64]:
+        """The reward table ``R(s, a)``, shape ``(S, A)``, the free state last."""
+
 class EscapeOutput:
     @property
     def goal_body(self) -> npt.NDArray[np.float64]:

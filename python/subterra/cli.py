@@ -159,8 +159,9 @@ def _parser() -> argparse.ArgumentParser:
     fly = sub.add_parser("fly", help="one closed-loop flight in the simulator (depth camera -> controller -> quadrotor)")
     _flight_options(fly)
     fly.add_argument("--route", default="A-B", help="route, e.g. A-B (highbay: A-B, B-C, C-D, D-C, D-B)")
-    fly.add_argument("--controller", default="apf-pf", choices=["apf-pf", "apf-pf-histogram", "raw-apf"],
-                     help="apf-pf (particle filter, the paper), apf-pf-histogram (exact filter) or raw-apf (the baseline)")
+    fly.add_argument("--controller", default="apf-pf", choices=["apf-pf", "apf-pf-histogram", "apf-pf-qmdp", "raw-apf"],
+                     help="apf-pf (particle filter, the paper), apf-pf-histogram (exact filter), apf-pf-qmdp (QMDP "
+                          "action selection over the particle belief, the authors' follow-up) or raw-apf (the baseline)")
     fly.add_argument("--noise", default="d435", help="depth noise model: " + ", ".join(DEPTH_NOISE_PRESETS) + " (default d435)")
     fly.add_argument("--seed", type=seed_int, default=0, help="world layout, noise and filter seed (default 0)")
     fly.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time (default: 4x the straight-line time)")

@@ -7,6 +7,7 @@ mod errors;
 mod plan_astar;
 mod plan_nav;
 mod plan_mpc;
+mod qmdp;
 mod shared;
 mod sim;
 mod terrain;
@@ -874,5 +875,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     plan_astar::register(m)?;
     plan_nav::register(m)?;
     plan_mpc::register(m)?;
+    qmdp::register(m)?;
     Ok(())
 }

@@ -11,6 +11,7 @@
 pub mod carrot;
 pub mod escape;
 pub mod memory;
+pub mod qmdp;
 
 use std::f64::consts::PI;
 

@@ -6,13 +6,14 @@ frame in, the command out (count -> filter -> belief -> repulsion -> command).
 
 from __future__ import annotations
 
+import math
 import platform
 import time
 from typing import Any
 
 import numpy as np
 
-from subterra._core import ApfController, DepthPerception, PerceptionConfig, PinholeCamera, __version__
+from subterra._core import ApfController, DepthPerception, PerceptionConfig, PinholeCamera, Qmdp, __version__
 from subterra.bench.reference import apf_pf as reference
 from subterra.perceive import timing_summary
 from subterra.scenarios.synthetic import approaching_box_frames
@@ -70,6 +71,22 @@ def bench_perception(
         for k in stages:
             stages[k].append(out.timings[k])
 
+    # The QMDP controller's step on the same beliefs (the controller `apf-pf-qmdp`).
+    qmdp_wall: list[float] = []
+    qmdp_build_s = math.nan
+    if mode != "raw":
+        t0 = time.perf_counter()
+        qmdp = Qmdp(perception)
+        qmdp_build_s = time.perf_counter() - t0
+        replay = DepthPerception(camera, preset, config=config, seed=seed)
+        for n in range(warmup + frames):
+            out = replay.update(depth[n])
+            t0 = time.perf_counter()
+            action = qmdp.act(out)
+            controller.command(GOAL_BODY, repulsive_body=action.velocity_body)
+            if n >= warmup:
+                qmdp_wall.append(time.perf_counter() - t0)
+
     ref_wall: list[float] = []
     if reference_frames:
         pipeline = reference.ReferencePipeline(_camera_dict(camera), cfg_dict, seed=seed)
@@ -105,6 +122,11 @@ def bench_perception(
             "frame_wall": rust,
             "frame_inside_rust": timing_summary(inner),
             "stage_median_ms": {k.removesuffix("_s"): timing_summary(v)["median_ms"] for k, v in stages.items()},
+        },
+        "qmdp": None if not qmdp_wall else {
+            "build_ms": qmdp_build_s * 1e3,
+            "actions": len(qmdp.actions()),
+            "step_wall": timing_summary(qmdp_wall),
         },
         "numpy_reference": None if ref is None else {"frames": len(ref_wall), "frame_wall": ref},
         "speedup_vs_numpy_median": None if ref is None else ref["median_ms"] / rust["median_ms"],

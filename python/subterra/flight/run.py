@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from subterra._core import ApfController, DepthPerception, Escape, ObstacleMemory, PathFollower, PerceptionConfig, PinholeCamera
+from subterra._core import ApfController, DepthPerception, Escape, ObstacleMemory, PathFollower, PerceptionConfig, PinholeCamera, Qmdp
 from subterra.errors import ConfigError, InputError
 from subterra.sim import DEPTH_NOISE_PRESETS, DepthCamera, Simulation, World
 
@@ -36,7 +36,9 @@ __all__ = ["CONTROLLERS", "FlightResult", "fly", "resolve_path", "resolve_route"
 #: Controllers a flight can run, and the perception filter mode each uses. ``raw-apf`` is
 #: the baseline the APF-PF paper argues against: the same voxel binning and potentials,
 #: but the belief is each frame's raw histogram of in-range points (no filter, no memory).
-CONTROLLERS: dict[str, str] = {"apf-pf": "particle", "apf-pf-histogram": "histogram", "raw-apf": "raw"}
+#: ``apf-pf-qmdp`` keeps the particle filter and replaces the belief-weighted force by the
+#: QMDP action (:class:`subterra.Qmdp`, the authors' follow-up; docs/flight.md).
+CONTROLLERS: dict[str, str] = {"apf-pf": "particle", "apf-pf-histogram": "histogram", "apf-pf-qmdp": "particle", "raw-apf": "raw"}
 
 #: Per-frame arrays of a flight (see :class:`FlightResult`), in CSV column order.
 FRAME_FIELDS = (
@@ -265,7 +267,8 @@ def fly(
     """Flies ``route`` of ``scenario`` (or of ``world``) once and returns the record.
 
     ``controller``: ``"apf-pf"`` (particle filter, the paper), ``"apf-pf-histogram"`` (the
-    exact filter) or ``"raw-apf"`` (the baseline: no filter). ``noise``: a depth noise preset
+    exact filter), ``"apf-pf-qmdp"`` (the particle filter's belief scores a discrete set of
+    evasive velocities, QMDP) or ``"raw-apf"`` (the baseline: no filter). ``noise``: a depth noise preset
     of :data:`subterra.sim.DEPTH_NOISE_PRESETS`. ``seed`` seeds the world's layout (built-in
     scenarios), the sensor noise and the particle filter. The run ends at the goal region,
     on a collision, after ``time_limit_s`` (default: 4x the straight-line time at the
@@ -319,6 +322,7 @@ def fly(
     # The obstacle memory (`flight-memory`; off in the paper's presets) works on the odometry.
     memory = ObstacleMemory(perception) if cfg["memory"]["enabled"] else None
     escape = Escape(preset, config=config) if cfg["escape"]["enabled"] else None
+    qmdp = Qmdp(perception) if controller == "apf-pf-qmdp" else None
     follower = None if waypoints is None else PathFollower(waypoints, lookahead_m=float(lookahead_m))
     v_max = float(cfg["apf"]["v_x_max_m_s"])
     if time_limit_s is None:
@@ -359,12 +363,14 @@ def fly(
                 carrot = follower.update(odom[:3, 3])
                 target, remaining = carrot.carrot_world, carrot.remaining_m
             out = perception.update(obs["depth"]["front"])
+            # The belief's push: its weighted force, or the QMDP action in the force's place.
+            belief_push = out.repulsive_body if qmdp is None else qmdp.act(out).velocity_body
             if memory is None:
                 remembered = None
-                rep = out.repulsive_body
+                rep = belief_push
             else:
                 remembered = memory.update(out, stamp=obs["time_s"], world_from_body=odom)
-                rep = out.repulsive_body + remembered.repulsive_body
+                rep = belief_push + remembered.repulsive_body
             if escape is None:
                 escaping = False
                 goal_body = odom[:3, :3].T @ (target - odom[:3, 3])
