@@ -600,6 +600,41 @@ def obstacle_memory_update(data: bytes) -> None:
         memory.reset()
 
 
+def qmdp_act(data: bytes) -> None:
+    """``Qmdp`` with a fuzzed config over a perception of the small camera, ``act`` on
+    fuzzed frames' outputs (and now and then an output of another perception)."""
+    import subterra
+    from subterra.errors import SubterraError
+
+    fdp = atheris.FuzzedDataProvider(data)
+    if "qmdp" not in _CACHE:
+        _CACHE["qmdp"] = subterra.Qmdp.default_config()
+    config = None if fdp.ConsumeIntInRange(0, 2) else mutate_tree(fdp, _CACHE["qmdp"], 3)
+    try:
+        p = subterra.DepthPerception(camera(), config=perception_config(fdp, edits=False), seed=0)
+        q = subterra.Qmdp(p, config)
+    except SubterraError:
+        return
+    other = p
+    if fdp.ConsumeIntInRange(0, 7) == 0:
+        try:
+            other = subterra.DepthPerception(camera(), config=perception_config(fdp), seed=1)
+        except SubterraError:
+            pass
+    for _ in range(fdp.ConsumeIntInRange(1, 3)):
+        try:
+            a = q.act(other.update(depth_frame(fdp)))
+            a.velocity_body
+            a.index
+            a.value
+        except SubterraError:
+            pass
+    q.actions()
+    q.config
+    if fdp.ConsumeIntInRange(0, 15) == 0:
+        q.rewards()
+
+
 def _output(fdp: atheris.FuzzedDataProvider, preset: str = "flight") -> Any:
     import subterra
 
@@ -1049,6 +1084,7 @@ TARGETS: dict[str, Callable[[bytes], None]] = {
     "ros_tf": ros_tf,
     "depth_perception_update": depth_perception_update,
     "obstacle_memory_update": obstacle_memory_update,
+    "qmdp_act": qmdp_act,
     "apf_command": apf_command,
     "escape_step": escape_step,
     "path_follower": path_follower,
