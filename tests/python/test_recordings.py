@@ -406,6 +406,20 @@ def test_recordings_with_the_same_schemas_share_one_compiled_typestore(tmp_path:
     assert info.misses == len(kinds) and info.hits == len(kinds), info
 
 
+def test_a_summary_that_does_not_list_a_channel_of_the_data_is_corrupt(tmp_path: Path) -> None:
+    """A recording whose summary names a channel ``/tf_statyc`` while its (uncompressed)
+    data has ``/tf_static``: found by the recording_mcap fuzz target, where the message's
+    topic was missing from ``topics`` (a KeyError in the caller's lookup)."""
+    found = Path(__file__).resolve().parents[2] / "fuzz" / "regressions" / "recording_mcap" / "channel-missing-from-summary"
+    path = tmp_path / "renamed.mcap"
+    shutil.copyfile(found, path)
+    with open_recording(path) as rec:
+        assert "/tf_statyc" in rec.topics and "/tf_static" not in rec.topics
+        with pytest.raises(errors.FileFormatError, match=r"corrupt: message \d+ is on topic '/tf_static'.*summary does not list") as info:
+            list(rec.messages())
+    assert str(info.value).endswith(str(path))
+
+
 def test_plain_mcap_with_ros1_encoding_from_an_independent_writer(tmp_path: Path) -> None:
     from mcap_ros1._vendor.genpy import dynamic
     from mcap_ros1.writer import Writer

@@ -454,6 +454,13 @@ class _McapSource:
             except Exception as exc:  # noqa: BLE001 - mcap raises several kinds
                 raise _wrap(exc, f"MCAP file is truncated or corrupt after {n} messages", self.path) from exc
             schema, channel, message = item
+            if channel.topic not in self.topics:
+                # The data declares a channel that the summary (read when the file was
+                # opened) does not list: the two disagree, so neither can be trusted.
+                raise FileFormatError(
+                    f"MCAP file is corrupt: message {n} is on topic {channel.topic!r} (channel {channel.id}), which "
+                    f"its summary does not list (topics: {', '.join(sorted(self.topics)) or 'none'}): {self.path}"
+                )
             if schema is None:
                 raise FileFormatError(f"topic {channel.topic!r} has no schema, cannot decode it: {self.path}")
             if schema.encoding not in _MCAP_ENCODINGS.get(channel.message_encoding, ()):
