@@ -80,9 +80,11 @@ class PerceptionOutput:
     @property
     def max_count(self) -> int: ...
     @property
-    def repulsive_body(self) -> npt.NDArray[np.float64]: ...
+    def repulsive_body(self) -> npt.NDArray[np.float64]:
+        """The belief's repulsion ``Σ_s b(s)·F_rep(s)``, body frame [N]."""
     @property
-    def timings(self) -> dict[str, float]: ...
+    def timings(self) -> dict[str, float]:
+        """Seconds per stage: ``count_s``, ``predict_s``, ``update_s``, ``belief_s``, ``total_s``."""
 
 class DepthPerception:
     """APF-PF perception of one depth camera."""
@@ -147,6 +149,87 @@ class ObstacleMemory:
     def points_world(self) -> npt.NDArray[np.float64]: ...
     def weights(self) -> npt.NDArray[np.float64]: ...
     def __len__(self) -> int: ...
+
+class PilotOutput:
+    """What one ``Pilot.step`` gives."""
+
+    @property
+    def command(self) -> Command: ...
+    @property
+    def perceptions(self) -> list[PerceptionOutput]:
+        """Each camera's perception output, in camera order."""
+    @property
+    def target_world(self) -> npt.NDArray[np.float64]:
+        """The point the attraction pulled toward before the escape (goal or carrot), world [m]."""
+    @property
+    def remaining_m(self) -> float:
+        """Distance still to go, straight or along the path [m]."""
+    @property
+    def belief_push_body(self) -> npt.NDArray[np.float64]:
+        """The belief's push, body frame: the summed repulsion [N], or the QMDP velocity [m/s]."""
+    @property
+    def memory_repulsive_body(self) -> npt.NDArray[np.float64]:
+        """The obstacle memories' repulsion, body frame [N] (zero without a memory)."""
+    @property
+    def memory_cells(self) -> int: ...
+    @property
+    def escape(self) -> EscapeOutput | None: ...
+    @property
+    def escape_active(self) -> bool: ...
+    @property
+    def goal_body(self) -> npt.NDArray[np.float64]:
+        """The goal the command pulled toward, body frame [m]."""
+    @property
+    def repulsive_body(self) -> npt.NDArray[np.float64]:
+        """The repulsion the command used, body frame [N]."""
+    @property
+    def timings(self) -> dict[str, float]:
+        """Seconds: ``perception_s``, ``control_s``, ``total_s``."""
+
+class Pilot:
+    """The drone's loop in one object: each camera's APF-PF filter, the obstacle memory and
+    the escape when the preset turns them on, and the controller. ``step`` per control step."""
+
+    def __init__(
+        self,
+        cameras: PinholeCamera | tuple[PinholeCamera, npt.ArrayLike] | list[PinholeCamera | tuple[PinholeCamera, npt.ArrayLike]],
+        preset: str = "flight-escape",
+        *,
+        config: PerceptionConfig | None = None,
+        controller: Literal["apf-pf", "apf-pf-histogram", "apf-pf-qmdp", "raw-apf"] = "apf-pf",
+        seed: int = 0,
+        qmdp: dict[str, Any] | None = None,
+    ) -> None: ...
+    @staticmethod
+    def controllers() -> list[str]: ...
+    def set_goal(self, goal_world: npt.ArrayLike) -> None: ...
+    def set_path(self, path: npt.ArrayLike, *, lookahead_m: float = 1.5) -> None: ...
+    def step(
+        self,
+        frames: npt.NDArray[np.uint16] | npt.NDArray[np.float32] | list[npt.NDArray[np.uint16] | npt.NDArray[np.float32]],
+        *,
+        stamp: float,
+        world_from_body: npt.ArrayLike,
+        scale: float | None = None,
+    ) -> PilotOutput: ...
+    def reset(self) -> None: ...
+    @property
+    def config(self) -> PerceptionConfig: ...
+    @property
+    def controller(self) -> str: ...
+    @property
+    def camera_count(self) -> int: ...
+    def camera(self, n: int = 0) -> PinholeCamera: ...
+    @property
+    def has_memory(self) -> bool: ...
+    def free_state(self, n: int = 0) -> int: ...
+    def perception_info(self, n: int = 0) -> dict[str, Any]: ...
+    def voxel_centres(self, frame: str = "camera", n: int = 0) -> npt.NDArray[np.float64]: ...
+    def memory_points_world(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def path_length_m(self) -> float | None: ...
+    @property
+    def steps(self) -> int: ...
 
 class QmdpAction:
     """What one ``Qmdp.act`` gives."""

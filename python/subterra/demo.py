@@ -55,8 +55,8 @@ def _real_data(data_dir: Path, report: Path) -> tuple[str, list[str]] | None:
     camera = read_intrinsics(room / "cam_params_realsense.json").to_camera()
     files = list_depth_files(room / "depth")
     frames = ((p.name, read_depth(p).data, 0.001) for p in files)
-    perception, records = run_perception(frames, camera, progress=True, total=len(files))
-    summary = summarise(perception, records, source=str(room), preset="flight")
+    pilot, records = run_perception(frames, camera, progress=True, total=len(files))
+    summary = summarise(pilot, records, source=str(room), preset="flight")
     (report / "realsense-room.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     plot_depth_trace(records, report / "realsense-room.png", title=f"APF-PF (flight): {len(files)} real RealSense D435 frames")
     t = summary["timing"]

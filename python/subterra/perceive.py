@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from subterra._core import ApfController, DepthPerception, PerceptionConfig, PinholeCamera
+from subterra._core import PerceptionConfig, PinholeCamera, Pilot
 from subterra.errors import InputError
 
 __all__ = ["run_perception", "perceive_folder", "timing_summary"]
@@ -36,17 +36,25 @@ def run_perception(
     config: PerceptionConfig | None = None,
     seed: int = 0,
     goal_body: Sequence[float] = (5.0, 0.0, 0.0),
+    frame_period_s: float = 1.0 / 15.0,
     progress: bool = True,
     total: int | None = None,
-) -> tuple[DepthPerception, list[dict[str, Any]]]:
-    """Runs the filter over ``(name, depth, scale)`` frames; one record per frame.
+) -> tuple[Pilot, list[dict[str, Any]]]:
+    """Runs the drone's pilot (:class:`subterra.Pilot`) over ``(name, depth, scale)``
+    frames; one record per frame.
 
-    Each record holds the most probable voxel (depth, probability, index), ``P(free)``, the
-    closest raw depth, the repulsive force, the command toward ``goal_body`` and the
-    per-stage timings in seconds.
+    The frames are taken as seen by a camera standing still at the body origin, looking
+    forward, ``frame_period_s`` apart, with the goal at ``goal_body``: the preset's obstacle
+    memory and escape (``flight-memory``, ``flight-escape``) run as in a flight. Each record
+    holds the most probable voxel (depth, probability, index), ``P(free)``, the closest raw
+    depth, the belief's repulsive force, the memory's (``memory_cells`` it held), the command
+    toward the goal and the per-stage timings in seconds.
     """
-    perception = DepthPerception(camera, preset, config=config, seed=seed)
-    controller = ApfController(preset, config=config)
+    if not (isinstance(frame_period_s, (int, float)) and np.isfinite(frame_period_s) and frame_period_s > 0):
+        raise InputError(f"argument `frame_period_s` must be finite and > 0, got {frame_period_s!r}")
+    pilot = Pilot(camera, preset, config=config, controller="apf-pf", seed=seed)
+    pilot.set_goal(goal_body)
+    at_rest = np.eye(4)
     records: list[dict[str, Any]] = []
     iterator: Iterable[tuple[str, np.ndarray, float | None]] = frames
     if progress:
@@ -54,8 +62,8 @@ def run_perception(
 
         iterator = tqdm(frames, total=total, desc="perceive", unit="frame", leave=False, disable=None)
     for n, (name, depth, scale) in enumerate(iterator):
-        out = perception.update(depth, scale)
-        cmd = controller.command(goal_body, perception=[out])
+        step = pilot.step(depth, stamp=n * frame_period_s, world_from_body=at_rest, scale=scale)
+        out, cmd = step.perceptions[0], step.command
         mp = out.most_probable
         records.append(
             {
@@ -69,11 +77,13 @@ def run_perception(
                 "valid_pixels": out.valid_pixels,
                 "in_range_pixels": out.in_range_pixels,
                 "repulsive_body": out.repulsive_body.tolist(),
+                "memory_repulsive_body": step.memory_repulsive_body.tolist(),
+                "memory_cells": step.memory_cells,
                 "command": {"v_x": cmd.v_x, "v_y": cmd.v_y, "v_z": cmd.v_z, "yaw_rate": cmd.yaw_rate},
-                "timings_s": out.timings,
+                "timings_s": {**out.timings, "pilot_s": step.timings["total_s"]},
             }
         )
-    return perception, records
+    return pilot, records
 
 
 def perceive_folder(
@@ -105,13 +115,13 @@ def perceive_folder(
                 )
             yield path.name, image.data, (image.scale_m_per_unit if image.data.dtype == np.uint16 else None)
 
-    perception, records = run_perception(
+    pilot, records = run_perception(
         frames(), camera, preset=preset, config=config, seed=seed, goal_body=goal_body,
         progress=progress, total=len(files),
     )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    summary = summarise(perception, records, source=str(directory), preset=preset)
+    summary = summarise(pilot, records, source=str(directory), preset=preset)
     (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     from subterra.viz.plots import plot_depth_trace
 
@@ -119,24 +129,27 @@ def perceive_folder(
     return summary
 
 
-def summarise(perception: DepthPerception, records: list[dict[str, Any]], *, source: str, preset: str) -> dict[str, Any]:
-    """The JSON summary of a run."""
+def summarise(pilot: Pilot, records: list[dict[str, Any]], *, source: str, preset: str) -> dict[str, Any]:
+    """The JSON summary of a run of ``pilot`` (its first camera)."""
     totals = [r["timings_s"]["total_s"] for r in records]
     stages = {
         stage: timing_summary([r["timings_s"][stage] for r in records])["median_ms"]
-        for stage in ("count_s", "predict_s", "update_s", "apf_s")
+        for stage in ("count_s", "predict_s", "update_s", "belief_s", "pilot_s")
+        if all(stage in r["timings_s"] for r in records)
     }
-    cam = perception.camera
+    cam = pilot.camera()
+    info = pilot.perception_info()
     return {
         "source": source,
         "preset": preset,
         "frames": len(records),
         "camera": {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width, "height": cam.height},
-        "grid_shape": list(perception.grid_shape),
-        "states": perception.state_count,
+        "grid_shape": list(info["grid_shape"]),
+        "states": info["state_count"],
+        "memory": pilot.has_memory,
         "transition": {
-            "build_ms": perception.transition_build_s * 1e3,
-            "memory_bytes": perception.transition_memory_bytes,
+            "build_ms": info["transition_build_s"] * 1e3,
+            "memory_bytes": info["transition_memory_bytes"],
         },
         "timing": {**timing_summary(totals), "stage_median_ms": {k.removesuffix("_s"): v for k, v in stages.items()}},
         "p_free_mean": float(np.mean([r["p_free"] for r in records])) if records else None,

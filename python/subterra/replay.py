@@ -60,6 +60,10 @@ __all__ = [
 PIPELINES = ("depth", "terrain")
 #: Default goal: this far straight ahead of the body [m] (at the first pose with odometry).
 DEFAULT_GOAL_AHEAD_M = 5.0
+#: ``body_from_camera`` of a camera looking along the body's x axis from its origin (optical
+#: z = body x, optical x = body -y, optical y = body -z): the mounting when the recording's
+#: TF does not give one.
+_FORWARD_OPTICAL = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 #: Map layers written as images to the output MCAP unless ``--layers`` says otherwise.
 DEFAULT_LAYERS = (
     "ground_height", "collision", "step", "negative", "tilt", "roughness", "unknown", "mission", "risk", "risk_variance",
@@ -303,7 +307,7 @@ def _pipeline(pipeline: str | None, depth_topic: str | None, info_topic: str | N
 
 def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, config, scale, seed,
                   world_frame, body_frame, max_messages, rerun, plots, progress) -> dict[str, Any]:
-    from subterra import ApfController, DepthPerception
+    from subterra import Pilot
     from subterra.io.ros import decode_camera_info, decode_depth_image
     from subterra.perceive import summarise
     from subterra.viz.foxglove import FoxgloveWriter
@@ -330,8 +334,11 @@ def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, c
     decode_s: list[float] = []
     pipeline_s: list[float] = []
     write_s: list[float] = []
-    perception = controller = None
+    pilot = None
     goal_world = goal_body_fixed = None
+    last_pose = None
+    last_stamp_s = -np.inf
+    frames_out_of_order = 0
     body_from_camera = None
     mount_source = "default: forward-looking camera (optical z = body x)"
     frames_without_pose = 0
@@ -350,41 +357,53 @@ def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, c
                     f"but --info-topic {info_topic!r} says {camera.width}x{camera.height}: {rec.path}"
                 )
             t1 = time.perf_counter()
-            if perception is None:  # the first image: its frame gives the mounting
+            if pilot is None:  # the first image: its frame gives the mounting
                 first_log = log_ns
                 frame = str(msg.header.frame_id).lstrip("/")
                 body_from_camera = _mount(ctx, body, frame)
                 if body_from_camera is not None:
                     mount_source = f"tf_static: {body} <- {frame}"
-                perception = DepthPerception(camera, preset, config=config, seed=seed, body_from_camera=body_from_camera)
-                controller = ApfController(preset, config=config)
-                body_from_camera = np.asarray(perception.body_from_camera)
+                else:
+                    body_from_camera = _FORWARD_OPTICAL
+                pilot = Pilot([(camera, body_from_camera)], preset, config=config, controller="apf-pf", seed=seed)
+                centres_body = pilot.voxel_centres("body")
+                free_state = pilot.free_state()
                 if frame and frame != body:
                     writer.static_transform(log_ns, stamp, body, frame, body_from_camera)
                 if odom:
                     first = ctx.track.first
                     goal_world = goal if goal is not None else (first @ np.array([DEFAULT_GOAL_AHEAD_M, 0, 0, 1.0]))[:3]
+                    last_pose = first
                 else:
-                    goal_body_fixed = goal if goal is not None else np.array([DEFAULT_GOAL_AHEAD_M, 0.0, 0.0])
+                    # No odometry: a camera standing still at the origin, the goal fixed in its body frame.
+                    goal_world = goal_body_fixed = goal if goal is not None else np.array([DEFAULT_GOAL_AHEAD_M, 0.0, 0.0])
+                    last_pose = np.eye(4)
+                pilot.set_goal(goal_world)
             pose = _pose(ctx, world, body, stamp, odom) if odom else None
-            if odom and pose is not None:
-                goal_body = (np.linalg.inv(pose) @ np.append(goal_world, 1.0))[:3]
-            elif odom:
-                frames_without_pose += 1
-                goal_body = np.array([DEFAULT_GOAL_AHEAD_M, 0.0, 0.0])
-            else:
-                goal_body = goal_body_fixed
+            if odom and pose is None:
+                frames_without_pose += 1  # flown on at the last pose known
+            elif pose is not None:
+                last_pose = pose
+            # The memory and the escape need time to run forward: a stamp older than the last
+            # is taken at the last one (and counted).
+            stamp_s = stamp / 1e9
+            if stamp_s < last_stamp_s:
+                frames_out_of_order += 1
+                stamp_s = last_stamp_s
+            last_stamp_s = stamp_s
             try:
                 t2 = time.perf_counter()
-                result = perception.update(depth.data, depth.scale_m_per_unit if depth.data.dtype == np.uint16 else None)
-                cmd = controller.command(goal_body, perception=[result])
+                step = pilot.step(depth.data, stamp=stamp_s, world_from_body=last_pose,
+                                  scale=depth.scale_m_per_unit if depth.data.dtype == np.uint16 else None)
+                result, cmd = step.perceptions[0], step.command
                 t3 = time.perf_counter()
             except SubterraError as exc:
                 raise _with_context(exc, where) from exc
+            goal_body = step.goal_body
             states = np.asarray(result.belief_states, dtype=np.int64)
             probs = np.asarray(result.belief_probabilities, dtype=np.float64)
-            grid = states != perception.free_state
-            centres = perception.voxel_centres("body")[states[grid]] if grid.any() else np.zeros((0, 3))
+            grid = states != free_state
+            centres = centres_body[states[grid]] if grid.any() else np.zeros((0, 3))
             writer.command(log_ns, stamp, cmd.v_x, cmd.v_y, cmd.v_z, cmd.yaw_rate)
             writer.belief(log_ns, stamp, centres, probs[grid], p_free=result.p_free)
             if pose is not None:
@@ -403,9 +422,11 @@ def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, c
                 "closest_depth_m": result.closest_depth_m,
                 "valid_pixels": result.valid_pixels, "in_range_pixels": result.in_range_pixels,
                 "repulsive_body": result.repulsive_body.tolist(),
+                "memory_repulsive_body": step.memory_repulsive_body.tolist(),
+                "memory_cells": step.memory_cells,
                 "goal_body": [float(v) for v in goal_body],
                 "command": {"v_x": cmd.v_x, "v_y": cmd.v_y, "v_z": cmd.v_z, "yaw_rate": cmd.yaw_rate, "reached": cmd.reached},
-                "timings_s": result.timings,
+                "timings_s": {**result.timings, "pilot_s": step.timings["total_s"]},
             })
             read_s.append(dt_read)
             decode_s.append(t1 - t0)
@@ -434,11 +455,12 @@ def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, c
         "goal": {"frame": world if odom else body, "xyz_m": None if (goal_world if odom else goal_body_fixed) is None
                  else [float(v) for v in (goal_world if odom else goal_body_fixed)]},
         "frames_without_pose": frames_without_pose,
+        "frames_out_of_order": frames_out_of_order,
         "output_mcap": str(writer.path), "output_counts": writer.counts,
         "replay_timing": _timing(read_s, decode_s, pipeline_s, write_s),
     }
-    if perception is not None:
-        summary = {**summary, **summarise(perception, records, source=str(rec.path), preset=preset)}
+    if pilot is not None:
+        summary = {**summary, **summarise(pilot, records, source=str(rec.path), preset=preset)}
     else:
         summary["records"] = records
     figures = []

@@ -85,7 +85,8 @@ def test_bench_perception_reports_rust_and_reference(tmp_path):
     assert report["speedup_vs_numpy_median"] == pytest.approx(
         report["numpy_reference"]["frame_wall"]["median_ms"] / report["rust"]["frame_wall"]["median_ms"])
     assert report["transition"]["states"] == 1431
-    assert set(report["rust"]["stage_median_ms"]) == {"count", "predict", "update", "apf"}
+    assert set(report["rust"]["stage_median_ms"]) == {"count", "predict", "update", "belief"}
+    assert report["qmdp"]["pilot_frame_wall"]["median_ms"] > 0
 
 
 def test_demo_writes_an_index_and_a_table(tmp_path, capsys):

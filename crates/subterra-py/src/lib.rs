@@ -4,6 +4,7 @@
 
 mod convert;
 mod errors;
+mod pilot;
 mod plan_astar;
 mod plan_nav;
 mod plan_mpc;
@@ -19,6 +20,7 @@ use subterra::config::{FilterMode, PerceptionConfig, PRESET_NAMES};
 use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, VoxelIndex};
 use subterra::apf::carrot::{CarrotOutput, PathFollower};
 use subterra::apf::escape::{Escape, EscapeMode, EscapeOutput};
+use subterra::apf::forces::BeliefForces;
 use subterra::apf::memory::{MemoryOutput, ObstacleMemory};
 use subterra::{ApfController, Command, Isometry3, PinholeCamera};
 
@@ -221,6 +223,8 @@ impl PyMostProbableVoxel {
 #[pyclass(name = "PerceptionOutput", module = "subterra._core", frozen)]
 struct PyPerceptionOutput {
     inner: PerceptionOutput,
+    /// The belief's repulsion, `Σ_s b(s)·F_rep(s)` (`apf::forces`), body frame [N].
+    repulsive_body: glam::DVec3,
 }
 
 #[pymethods]
@@ -268,9 +272,9 @@ impl PyPerceptionOutput {
     /// Belief-weighted repulsive force in the body frame [N].
     #[getter]
     fn repulsive_body<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        array3(py, self.inner.repulsive_body)
+        array3(py, self.repulsive_body)
     }
-    /// Seconds per stage: count, predict, update, apf, total.
+    /// Seconds per stage: count, predict, update, belief, total.
     #[getter]
     fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let t = self.inner.timings;
@@ -278,7 +282,7 @@ impl PyPerceptionOutput {
         d.set_item("count_s", t.count_s)?;
         d.set_item("predict_s", t.predict_s)?;
         d.set_item("update_s", t.update_s)?;
-        d.set_item("apf_s", t.apf_s)?;
+        d.set_item("belief_s", t.belief_s)?;
         d.set_item("total_s", t.total_s)?;
         Ok(d)
     }
@@ -302,6 +306,8 @@ fn resolve_config(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConf
 struct PyDepthPerception {
     inner: Shared<DepthPerception>,
     camera: PinholeCamera,
+    /// Its belief's forces (fixed at construction).
+    forces: BeliefForces,
 }
 
 #[pymethods]
@@ -341,7 +347,8 @@ impl PyDepthPerception {
         };
         let cam = camera.inner;
         let inner = py.detach(move || DepthPerception::new(cam, body_from_camera, config, seed)).py_err(py)?;
-        Ok(Self { inner: Shared::new(inner), camera: cam })
+        let forces = BeliefForces::new(&inner);
+        Ok(Self { inner: Shared::new(inner), camera: cam, forces })
     }
 
     /// Processes one `(H, W)` depth frame (`uint16` with `scale` metres per unit, default
@@ -352,7 +359,8 @@ impl PyDepthPerception {
         let mut this = self.inner.lock();
         let inner = &mut *this;
         let result = with_depth(py, depth, scale, expected, |pixels, w, h| py.detach(|| inner.update(pixels.image(), w, h)))?;
-        Ok(PyPerceptionOutput { inner: result.py_err(py)? })
+        let output = result.py_err(py)?;
+        Ok(PyPerceptionOutput { inner: output, repulsive_body: self.forces.repulsive(inner.belief()) })
     }
 
     /// The camera.
@@ -415,27 +423,11 @@ impl PyDepthPerception {
     /// Centres of all voxels, shape `(S-1, 3)` [m], in the `frame` "camera" or "body".
     #[pyo3(signature = (frame = "camera".to_owned()), text_signature = "($self, frame='camera')")]
     fn voxel_centres<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::s_frame)] frame: String) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let body = match frame.as_str() {
-            "camera" => false,
-            "body" => true,
-            _ => return Err(input_error(py, format!("argument `frame` must be \"camera\" or \"body\", got {frame:?}"))),
-        };
-        let this = self.inner.lock();
-        let g = this.grid();
-        let mut flat = Vec::with_capacity(g.voxel_count() * 3);
-        for s in 0..g.voxel_count() as u32 {
-            let Some(v) = g.voxel_of(StateId(s)) else { continue };
-            let mut p = g.voxel_centre_camera(v);
-            if body {
-                p = this.body_from_camera().transform_point(p);
-            }
-            flat.extend([p.x, p.y, p.z]);
-        }
-        Ok(flat.into_pyarray(py).reshape([g.voxel_count(), 3])?)
+        voxel_centres_array(py, &self.inner.lock(), &frame)
     }
     /// Per-state repulsive force in the body frame, shape `(S, 3)` [N].
     fn forces_body<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let f: Vec<f64> = self.inner.lock().forces_body().iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        let f: Vec<f64> = self.forces.forces_body().iter().flat_map(|v| [v.x, v.y, v.z]).collect();
         let n = f.len() / 3;
         Ok(f.into_pyarray(py).reshape([n, 3])?)
     }
@@ -466,6 +458,26 @@ impl PyDepthPerception {
         let (w, h, d) = this.grid().shape();
         format!("DepthPerception(grid=({w}, {h}, {d}), states={}, frames={})", w * h * d + 1, this.frames())
     }
+}
+
+/// Centres of `perception`'s voxels, shape `(S-1, 3)` [m], in the `frame` "camera" or "body".
+fn voxel_centres_array<'py>(py: Python<'py>, perception: &DepthPerception, frame: &str) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let body = match frame {
+        "camera" => false,
+        "body" => true,
+        _ => return Err(input_error(py, format!("argument `frame` must be \"camera\" or \"body\", got {frame:?}"))),
+    };
+    let g = perception.grid();
+    let mut flat = Vec::with_capacity(g.voxel_count() * 3);
+    for s in 0..g.voxel_count() as u32 {
+        let Some(v) = g.voxel_of(StateId(s)) else { continue };
+        let mut p = g.voxel_centre_camera(v);
+        if body {
+            p = perception.body_from_camera().transform_point(p);
+        }
+        flat.extend([p.x, p.y, p.z]);
+    }
+    Ok(flat.into_pyarray(py).reshape([g.voxel_count(), 3])?)
 }
 
 impl PyDepthPerception {
@@ -650,14 +662,14 @@ impl PyApfController {
         };
         if let Some(p) = perception {
             if let Ok(one) = p.cast::<PyPerceptionOutput>() {
-                repulsion += one.get().inner.repulsive_body;
+                repulsion += one.get().repulsive_body;
             } else if let Ok(items) = p.try_iter() {
                 for (n, item) in items.enumerate() {
                     let item = item?;
                     let out = item.cast::<PyPerceptionOutput>().map_err(|_| {
                         input_error(py, format!("argument `perception[{n}]` must be a PerceptionOutput, got {}", convert::type_name(&item)))
                     })?;
-                    repulsion += out.get().inner.repulsive_body;
+                    repulsion += out.get().repulsive_body;
                 }
             } else {
                 return Err(input_error(py, format!("argument `perception` must be a PerceptionOutput or a sequence of them, got {}", convert::type_name(p))));
@@ -876,5 +888,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     plan_nav::register(m)?;
     plan_mpc::register(m)?;
     qmdp::register(m)?;
+    pilot::register(m)?;
     Ok(())
 }

@@ -11,7 +11,7 @@ use crate::shared::Shared;
 use crate::terrain::{from_json_value, merged};
 use crate::{array3, PyDepthPerception, PyPerceptionOutput};
 
-fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<QmdpConfig> {
+pub(crate) fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<QmdpConfig> {
     let Some(d) = config else { return Ok(QmdpConfig::default()) };
     if d.cast::<PyDict>().is_err() {
         return Err(config_error(py, format!("argument `config` must be None or a dict of qmdp settings, got {}", type_name(d))));

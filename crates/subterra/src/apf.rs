@@ -6,11 +6,17 @@
 //! [`Command`]. [`memory`] keeps where the belief put obstacles, so that they still repel
 //! out of view, [`escape`] gets the robot out of the field's local minima by following
 //! the remembered obstacles' boundary, and [`carrot`] leads it along a path of waypoints
-//! (all three subterra).
+//! (all three subterra). [`forces`] weighs each camera's belief into a repulsion, and
+//! [`pilot`] wires it all into the drone's loop, once.
+//!
+//! `apf` reads `depth` (a perception's grid, mounting and belief); `depth` knows nothing of
+//! potentials.
 
 pub mod carrot;
 pub mod escape;
+pub mod forces;
 pub mod memory;
+pub mod pilot;
 pub mod qmdp;
 
 use std::f64::consts::PI;

@@ -40,7 +40,6 @@ proptest! {
             let in_range = pixels.iter().filter(|&&r| (100..1200).contains(&r)).count() as u64;
             prop_assert_eq!(out.in_range_pixels, in_range);
             prop_assert_eq!(p.last_counts().unwrap().counts.iter().map(|&c| c as u64).sum::<u64>(), in_range);
-            prop_assert!(out.repulsive_body.is_finite());
             prop_assert!((0.0..=1.0).contains(&out.p_free));
         }
     }

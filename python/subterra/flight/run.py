@@ -27,18 +27,19 @@ from typing import Any
 
 import numpy as np
 
-from subterra._core import ApfController, DepthPerception, Escape, ObstacleMemory, PathFollower, PerceptionConfig, PinholeCamera, Qmdp
+from subterra._core import PerceptionConfig, Pilot
 from subterra.errors import ConfigError, InputError
 from subterra.sim import DEPTH_NOISE_PRESETS, DepthCamera, Simulation, World
 
 __all__ = ["CONTROLLERS", "FlightResult", "fly", "resolve_path", "resolve_route"]
 
-#: Controllers a flight can run, and the perception filter mode each uses. ``raw-apf`` is
-#: the baseline the APF-PF paper argues against: the same voxel binning and potentials,
-#: but the belief is each frame's raw histogram of in-range points (no filter, no memory).
-#: ``apf-pf-qmdp`` keeps the particle filter and replaces the belief-weighted force by the
-#: QMDP action (:class:`subterra.Qmdp`, the authors' follow-up; docs/flight.md).
-CONTROLLERS: dict[str, str] = {"apf-pf": "particle", "apf-pf-histogram": "histogram", "apf-pf-qmdp": "particle", "raw-apf": "raw"}
+#: Controllers a flight can run (:meth:`subterra.Pilot.controllers`): ``apf-pf`` (the
+#: particle filter, the paper), ``apf-pf-histogram`` (the exact filter), ``apf-pf-qmdp``
+#: (the particle filter's belief scores a discrete set of evasive velocities in the force's
+#: place, the authors' follow-up; docs/flight.md) and ``raw-apf``, the baseline the APF-PF
+#: paper argues against: the same voxel binning and potentials, but the belief is each
+#: frame's raw histogram of in-range points (no filter).
+CONTROLLERS: tuple[str, ...] = tuple(Pilot.controllers())
 
 #: Per-frame arrays of a flight (see :class:`FlightResult`), in CSV column order.
 FRAME_FIELDS = (
@@ -316,23 +317,23 @@ def fly(
     camera = DepthCamera.d435()
     sim = Simulation(world, "quadrotor", {"front": (camera, None, noise)}, seed=seed, start=start, yaw=yaw0)
     sim.set_goal(region=b)
-    perception = DepthPerception(camera.camera, preset, config=config, seed=seed, mode=CONTROLLERS[controller])
-    cfg = perception.config.to_dict()
-    apf = ApfController(preset, config=config)
-    # The obstacle memory (`flight-memory`; off in the paper's presets) works on the odometry.
-    memory = ObstacleMemory(perception) if cfg["memory"]["enabled"] else None
-    escape = Escape(preset, config=config) if cfg["escape"]["enabled"] else None
-    qmdp = Qmdp(perception) if controller == "apf-pf-qmdp" else None
-    follower = None if waypoints is None else PathFollower(waypoints, lookahead_m=float(lookahead_m))
+    # One pilot: the filter, the obstacle memory and the escape when the preset turns them
+    # on (`flight-memory`, `flight-escape`), and the controller.
+    pilot = Pilot(camera.camera, preset, config=config, controller=controller, seed=seed)
+    cfg = pilot.config.to_dict()
+    if waypoints is None:
+        pilot.set_goal(goal)
+    else:
+        pilot.set_path(waypoints, lookahead_m=float(lookahead_m))
     v_max = float(cfg["apf"]["v_x_max_m_s"])
     if time_limit_s is None:
-        way_m = float(np.linalg.norm(goal - start)) if follower is None else follower.length_m
+        way_m = float(np.linalg.norm(goal - start)) if waypoints is None else float(pilot.path_length_m)
         time_limit_s = max(60.0, 4.0 * way_m / max(v_max, 1e-3))
     sim.set_time_limit(time_limit_s)
     grid = cfg["grid"]
     horizon_m = float(grid["depth_max_m"])
-    centres_body = perception.voxel_centres("body") if rerun_path is not None else None
-    free_state = perception.free_state
+    centres_body = pilot.voxel_centres("body") if rerun_path is not None else None
+    free_state = pilot.free_state()
 
     recorder = None
     if rerun_path is not None:
@@ -357,28 +358,9 @@ def fly(
             truth_body = obs["world_from_body"]
             odom = obs["odometry"]
             tick = time.perf_counter()
-            if follower is None:
-                target, remaining = goal, float(np.linalg.norm(goal - odom[:3, 3]))
-            else:
-                carrot = follower.update(odom[:3, 3])
-                target, remaining = carrot.carrot_world, carrot.remaining_m
-            out = perception.update(obs["depth"]["front"])
-            # The belief's push: its weighted force, or the QMDP action in the force's place.
-            belief_push = out.repulsive_body if qmdp is None else qmdp.act(out).velocity_body
-            if memory is None:
-                remembered = None
-                rep = belief_push
-            else:
-                remembered = memory.update(out, stamp=obs["time_s"], world_from_body=odom)
-                rep = belief_push + remembered.repulsive_body
-            if escape is None:
-                escaping = False
-                goal_body = odom[:3, :3].T @ (target - odom[:3, 3])
-            else:
-                e = escape.step(stamp=obs["time_s"], world_from_body=odom, goal_world=target, remaining_m=remaining,
-                                memory=memory, repulsive_body=rep)
-                escaping, goal_body, rep = e.active, e.goal_body, e.repulsive_body
-            cmd = apf.command(goal_body, repulsive_body=rep)
+            step_out = pilot.step(obs["depth"]["front"], stamp=obs["time_s"], world_from_body=odom)
+            out = step_out.perceptions[0]
+            cmd = step_out.command
             compute_s = time.perf_counter() - tick
             step = sim.step(cmd, dt, compute_time_s=compute_s)
 
@@ -397,12 +379,13 @@ def fly(
             rows["closest_depth_m"].append(out.closest_depth_m if out.closest_depth_m is not None else math.nan)
             rows["truth_closest_m"].append(truth_min if truth_min is not None else math.nan)
             rows["obstacle_in_view"].append(truth_min is not None and truth_min < horizon_m)
+            rep = step_out.repulsive_body
             rows["repulsive_body"].append(rep)
             rows["repulsive_norm"].append(float(np.linalg.norm(rep)))
-            rows["memory_repulsive_norm"].append(0.0 if remembered is None else float(np.linalg.norm(remembered.repulsive_body)))
-            rows["memory_cells"].append(0 if remembered is None else remembered.cells)
-            rows["escape_active"].append(escaping)
-            rows["carrot"].append(np.asarray(target, dtype=np.float64))
+            rows["memory_repulsive_norm"].append(float(np.linalg.norm(step_out.memory_repulsive_body)))
+            rows["memory_cells"].append(step_out.memory_cells)
+            rows["escape_active"].append(step_out.escape_active)
+            rows["carrot"].append(step_out.target_world)
             rows["command"].append(cmd.as_array())
             rows["compute_ms"].append(compute_s * 1e3)
             rows["clearance_m"].append(step["clearance_m"])

@@ -265,7 +265,6 @@ mod tests {
             valid_pixels: 0,
             in_range_pixels: 0,
             max_count: 0,
-            repulsive_body: DVec3::ZERO,
             timings: StageTimings::default(),
             fingerprint: p.fingerprint(),
         }

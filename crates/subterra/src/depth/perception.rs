@@ -1,5 +1,6 @@
 //! The APF-PF perception pipeline of one camera: depth image -> voxel counts -> Bayes
-//! filter -> belief -> belief-weighted repulsive force in the body frame.
+//! filter -> belief. The belief's forces are `apf`'s (`apf::forces`): this module knows
+//! nothing of potentials.
 
 use std::time::Instant;
 
@@ -11,7 +12,6 @@ use super::filter::{HistogramFilter, ParticleFilter};
 use super::grid::{DepthImage, DepthVoxelGrid, StateId, VoxelCounts, VoxelIndex};
 use super::observation::ObservationModel;
 use super::transition::TransitionModel;
-use crate::apf::repulsive_force;
 use crate::camera::PinholeCamera;
 use crate::config::{FilterMode, PerceptionConfig};
 use crate::error::Result;
@@ -41,8 +41,8 @@ pub struct StageTimings {
     pub predict_s: f64,
     /// Observation log-likelihoods, weighting and resampling or Bayes update.
     pub update_s: f64,
-    /// Belief extraction and repulsive force.
-    pub apf_s: f64,
+    /// Belief extraction (the sparse view and the most probable voxel).
+    pub belief_s: f64,
     /// The whole update.
     pub total_s: f64,
 }
@@ -67,8 +67,6 @@ pub struct PerceptionOutput {
     pub in_range_pixels: u64,
     /// Largest per-voxel count.
     pub max_count: u32,
-    /// `Σ_s b(s)·F_rep(s)` in the body frame [N].
-    pub repulsive_body: DVec3,
     /// Stage timings.
     pub timings: StageTimings,
     /// [`DepthPerception::fingerprint`] of the perception that made this output: its
@@ -98,8 +96,6 @@ pub struct DepthPerception {
     transition: Option<TransitionModel>,
     observation: ObservationModel,
     filter: Filter,
-    /// Per state: repulsive force of an obstacle at the voxel's point (`apf.voxel_position`), body frame.
-    forces_body: Vec<DVec3>,
     log_likelihood: Vec<f64>,
     belief: Vec<f64>,
     last_counts: Option<VoxelCounts>,
@@ -149,12 +145,6 @@ impl DepthPerception {
             (FilterMode::Histogram, _) => Filter::Histogram(HistogramFilter::new(states)),
             _ => Filter::Raw,
         };
-        let mut forces_body = Vec::with_capacity(states);
-        for s in 0..grid.voxel_count() as u32 {
-            let point = grid.voxel_of(StateId(s)).map(|v| grid.voxel_point_camera(v, config.apf.voxel_position)).unwrap_or(DVec3::ZERO);
-            forces_body.push(repulsive_force(&config.apf, body_from_camera.transform_point(point)));
-        }
-        forces_body.push(DVec3::ZERO); // s_free repels nothing
         let fingerprint = fingerprint_of(&camera, &body_from_camera, &config);
         let mut perception = Self {
             config,
@@ -163,7 +153,6 @@ impl DepthPerception {
             transition,
             observation,
             filter,
-            forces_body,
             log_likelihood: vec![0.0; states],
             belief: vec![0.0; states],
             last_counts: None,
@@ -221,11 +210,6 @@ impl DepthPerception {
         self.last_counts.as_ref()
     }
 
-    /// Per-state repulsive forces in the body frame.
-    pub fn forces_body(&self) -> &[DVec3] {
-        &self.forces_body
-    }
-
     fn refresh_belief(&mut self) {
         match &self.filter {
             Filter::Particle(f) => f.belief(&mut self.belief),
@@ -277,18 +261,14 @@ impl DepthPerception {
         let free = self.grid.free_state().0 as usize;
         let mut belief_states = Vec::new();
         let mut belief_probabilities = Vec::new();
-        let mut repulsive_body = DVec3::ZERO;
         let mut best: Option<(usize, f64)> = None;
         for (s, &b) in self.belief.iter().enumerate() {
             if b > threshold {
                 belief_states.push(StateId(s as u32));
                 belief_probabilities.push(b);
             }
-            if b > 0.0 {
-                repulsive_body += b * self.forces_body[s];
-                if s != free && best.is_none_or(|(_, p)| b > p) {
-                    best = Some((s, b));
-                }
+            if b > 0.0 && s != free && best.is_none_or(|(_, p)| b > p) {
+                best = Some((s, b));
             }
         }
         let most_probable = best.and_then(|(s, probability)| {
@@ -313,12 +293,11 @@ impl DepthPerception {
             valid_pixels,
             in_range_pixels,
             max_count,
-            repulsive_body,
             timings: StageTimings {
                 count_s: (counted - started).as_secs_f64(),
                 predict_s: (predicted - counted).as_secs_f64(),
                 update_s: (updated - predicted).as_secs_f64(),
-                apf_s: (done - updated).as_secs_f64(),
+                belief_s: (done - updated).as_secs_f64(),
                 total_s: (done - started).as_secs_f64(),
             },
             fingerprint: self.fingerprint,
@@ -361,20 +340,16 @@ mod tests {
         let total: f64 = out.belief_probabilities.iter().sum();
         assert!((total - 1.0).abs() < 1e-12);
         let counts = p.last_counts().unwrap();
-        let mut expected = DVec3::ZERO;
         for (s, &n) in counts.counts.iter().enumerate() {
-            let b = f64::from(n) / 400.0;
-            assert_eq!(p.belief()[s], b, "state {s}");
-            expected += b * p.forces_body()[s];
+            assert_eq!(p.belief()[s], f64::from(n) / 400.0, "state {s}");
         }
-        assert!((out.repulsive_body - expected).length() < 1e-12);
         let best = out.most_probable.unwrap();
         assert!((best.centre_camera.z - 0.95).abs() <= 0.05 + 1e-9, "the 300-pixel patch wins: {best:?}");
         // Memoryless: an empty frame next is free at once (a filter would remember).
         let empty = vec![0u16; w * h];
         let out = p.update(DepthImage::U16 { pixels: &empty, scale_m_per_unit: 0.001 }, 640, 480).unwrap();
         assert_eq!(out.p_free, 1.0);
-        assert!(out.most_probable.is_none() && out.repulsive_body == DVec3::ZERO);
+        assert!(out.most_probable.is_none());
     }
 
     /// `frames` of 640x480 D435 images: a wall patch at 0.6 m over blocks 5-7 x 4-5 (whole
@@ -435,28 +410,5 @@ mod tests {
         config.filter.resampling = crate::config::Resampling::Multinomial;
         let trace = p_free_trace(config, 0, &wall_empty_wall());
         assert!(trace[20..60].iter().all(|&f| f > 0.99), "{:?}", &trace[20..60]);
-    }
-
-    #[test]
-    fn forces_come_from_the_configured_voxel_point() {
-        // Voxel (6, 4, 9): block pixels 300..349 x 200..249, bin [1.0, 1.1) m.
-        let camera = PinholeCamera::d435();
-        let v = VoxelIndex { i: 6, j: 4, k: 9 };
-        let body_from_camera = Isometry3::body_from_forward_optical();
-        for (config, pixel, depth) in [(PerceptionConfig::acc2021(), (300.0, 200.0), 1.0), (PerceptionConfig::flight(), (324.5, 224.5), 1.05)] {
-            let mut config = config;
-            config.filter.particles = 10;
-            let p = DepthPerception::new(camera, body_from_camera, config, 0).unwrap();
-            let s = p.grid().state_of(v).0 as usize;
-            let point = body_from_camera.transform_point(camera.back_project(pixel.0, pixel.1, depth));
-            let expected = repulsive_force(&config.apf, point);
-            assert!((p.forces_body()[s] - expected).length() < 1e-12, "{:?}: {} vs {expected}", config.apf.voxel_position, p.forces_body()[s]);
-        }
-        // The near corner is the conservative distance: ~30-40% more repulsion 1 m ahead.
-        let near = DepthPerception::new(camera, body_from_camera, PerceptionConfig { filter: crate::config::FilterConfig { particles: 10, ..PerceptionConfig::acc2021().filter }, ..PerceptionConfig::acc2021() }, 0).unwrap();
-        let centre = DepthPerception::new(camera, body_from_camera, PerceptionConfig { filter: crate::config::FilterConfig { particles: 10, ..PerceptionConfig::flight().filter }, ..PerceptionConfig::flight() }, 0).unwrap();
-        let s = near.grid().state_of(v).0 as usize;
-        let ratio = near.forces_body()[s].length() / centre.forces_body()[s].length();
-        assert!(ratio > 1.25 && ratio < 1.45, "{ratio}");
     }
 }
