@@ -14,6 +14,8 @@ from subterra.scenarios import approaching_box_frames
 from subterra.viz.plots import plot_depth_trace
 
 FIGURES = Path(__file__).resolve().parent / "figures"
+#: The tunnel flight whose escapes docs/flight.md shows.
+ESCAPE_SEED = 50
 
 
 def terrain_figures() -> None:
@@ -166,7 +168,7 @@ def main() -> None:
 
     from subterra.sim.render import render_scenario
 
-    for name in ("highbay", "mine"):
+    for name in ("highbay", "warehouse", "mine"):
         render_scenario(name, FIGURES, seed=0)
 
     # Closed-loop flights (docs/flight.md): highbay B-C, seed 3, both controllers.
@@ -183,6 +185,10 @@ def main() -> None:
     pair = [fly("highbay", "A-B", preset=p, noise="d435-phantom", seed=10) for p in ("flight", "flight-memory")]
     plot_flight_path(pair, FIGURES / "flight-memory-paths.png",
                      title="highbay A-B, seed 10, D435 + phantom speckle: APF-PF, flight vs flight-memory")
+    # The escape from local minima (docs/flight.md): tunnel seed 53, the default preset.
+    escape = fly("tunnel", "start-goal", noise="d435-phantom", seed=ESCAPE_SEED)
+    plot_flight_path([escape], FIGURES / "flight-escape.png",
+                     title=f"tunnel, seed {ESCAPE_SEED}, D435 + phantom speckle: APF-PF (flight-escape) following boundaries")
     summary = cable_test(FIGURES / "cable-test-run", frames=150, seed=0, progress=False)
     (FIGURES / "cable-test-run" / "cable-test.png").replace(FIGURES / "cable-test.png")
     for leftover in (FIGURES / "cable-test-run").iterdir():

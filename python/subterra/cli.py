@@ -101,7 +101,7 @@ _goal = finite_floats(3, "x,y,z in metres")
 
 
 def _flight_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", default="highbay", help="built-in scenario with routes: highbay (default) or tunnel")
+    p.add_argument("--scenario", default="highbay", help="built-in scenario with routes: highbay (default), tunnel or warehouse")
     p.add_argument("--preset", default="flight-escape",
                    help="perception preset: flight-escape (default: flight-memory with the escape from local minima), "
                         "acc2021 (the paper exactly, with the authors' conventions), flight (the paper's values with "
@@ -121,6 +121,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _parser() -> argparse.ArgumentParser:
     from subterra.batch.cli import add_engine_options
+    from subterra._core import Pilot
     from subterra.sim import DEPTH_NOISE_PRESETS
 
     p = _Parser(prog="subterra", description="Perception and planning for robots underground.")
@@ -130,7 +131,9 @@ def _parser() -> argparse.ArgumentParser:
     per = sub.add_parser("perceive", help="run APF-PF over a folder of depth images")
     per.add_argument("directory", help="folder of 16-bit PNG / PGM depth images or .npy/.npz arrays")
     per.add_argument("--intrinsics", required=True, help="camera intrinsics: plain JSON, Open3D JSON or ROS CameraInfo YAML")
-    per.add_argument("--preset", default="flight", help="perception preset (default: flight)")
+    per.add_argument("--preset", default="flight",
+                     help="perception preset (default: flight); flight-memory and flight-escape run the obstacle "
+                          "memory and the escape too, the camera taken as standing still")
     per.add_argument("--config", help="TOML config file, instead of --preset")
     per.add_argument("--scale", type=float_in(0.0, 1.0, unit="m"), help="metres per unit of uint16 images (default 0.001; TUM: 0.0002)")
     per.add_argument("--seed", type=seed_int, default=0)
@@ -159,7 +162,7 @@ def _parser() -> argparse.ArgumentParser:
     fly = sub.add_parser("fly", help="one closed-loop flight in the simulator (depth camera -> controller -> quadrotor)")
     _flight_options(fly)
     fly.add_argument("--route", default="A-B", help="route, e.g. A-B (highbay: A-B, B-C, C-D, D-C, D-B)")
-    fly.add_argument("--controller", default="apf-pf", choices=["apf-pf", "apf-pf-histogram", "apf-pf-qmdp", "raw-apf"],
+    fly.add_argument("--controller", default="apf-pf", choices=list(Pilot.controllers()),
                      help="apf-pf (particle filter, the paper), apf-pf-histogram (exact filter), apf-pf-qmdp (QMDP "
                           "action selection over the particle belief, the authors' follow-up) or raw-apf (the baseline)")
     fly.add_argument("--noise", default="d435", help="depth noise model: " + ", ".join(DEPTH_NOISE_PRESETS) + " (default d435)")

@@ -97,7 +97,7 @@ def test_demo_writes_an_index_and_a_table(tmp_path, capsys):
     assert linked, index
     for rel in linked:
         assert (out / rel).is_file(), f"index links a missing file: {rel}"
-    for expected in ("flight-paths.png", "fly-apf-pf/depth-trace.png", "fly-apf-pf-memory/depth-trace.png", "fly-raw-apf/compute-time.png",
+    for expected in ("flight-paths.png", "fly-apf-pf/depth-trace.png", "fly-apf-pf-acc2021/depth-trace.png", "fly-raw-apf/compute-time.png",
                      "cable-test/cable-test.png", "batch/results.md", "highbay-depth.png", "mine-map.png",
                      "drive-risk-aware/map.png", "drive-additive/speed-risk.png"):
         assert expected in linked, expected

@@ -218,3 +218,13 @@ def test_bad_arguments_name_the_argument():
         flight.fly_batch(seeds=0)
     with pytest.raises(InputError, match="controllers"):
         flight.fly_batch(seeds=1, controllers=("apf-pf", "nope"))
+
+
+def test_the_warehouse_is_a_second_world_to_fly():
+    """The shelf-and-pole world: five routes between six regions, flown like the hall."""
+    world = sim.World.scenario("warehouse", 0)
+    assert [f"{a}-{b}" for _, a, b in world.routes] == ["A-B", "C-D", "E-F", "B-A", "D-C"]
+    r = flight.fly(world=world, route="A-B", noise="d435-phantom", seed=0, rate_hz=10.0, time_limit_s=12.0)
+    assert r.metrics["collisions"] == 0
+    start, goal = r.path[0], r.goal
+    assert np.linalg.norm(goal[:2] - r.path[-1][:2]) < np.linalg.norm(goal[:2] - start[:2]) - 4.0, "flew down the aisle"

@@ -302,7 +302,7 @@ impl PyPilot {
     #[pyo3(signature = (n = 0))]
     fn free_state(&self, py: Python<'_>, n: usize) -> PyResult<u32> {
         let this = self.inner.lock();
-        let p = this.perceptions().nth(n).ok_or_else(|| input_error(py, format!("argument `n` must be below {}, got {n}", self.cameras.len())))?;
+        let p = self.perception(py, &this, n)?;
         Ok(p.grid().free_state().0)
     }
 
@@ -311,7 +311,7 @@ impl PyPilot {
     #[pyo3(signature = (n = 0))]
     fn perception_info<'py>(&self, py: Python<'py>, n: usize) -> PyResult<Bound<'py, PyDict>> {
         let this = self.inner.lock();
-        let p = this.perceptions().nth(n).ok_or_else(|| input_error(py, format!("argument `n` must be below {}, got {n}", self.cameras.len())))?;
+        let p = self.perception(py, &this, n)?;
         let d = PyDict::new(py);
         d.set_item("grid_shape", p.grid().shape())?;
         d.set_item("state_count", p.grid().state_count())?;
@@ -326,7 +326,7 @@ impl PyPilot {
     #[pyo3(signature = (frame = "camera".to_owned(), n = 0), text_signature = "($self, frame='camera', n=0)")]
     fn voxel_centres<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::s_frame)] frame: String, n: usize) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let this = self.inner.lock();
-        let p = this.perceptions().nth(n).ok_or_else(|| input_error(py, format!("argument `n` must be below {}, got {n}", self.cameras.len())))?;
+        let p = self.perception(py, &this, n)?;
         voxel_centres_array(py, p, &frame)
     }
 
@@ -351,6 +351,13 @@ impl PyPilot {
 
     fn __repr__(&self) -> String {
         format!("Pilot(cameras={}, controller={:?}, steps={})", self.cameras.len(), self.controller, self.inner.lock().steps())
+    }
+}
+
+impl PyPilot {
+    /// Camera `n`'s perception, or an error naming `n`.
+    fn perception<'a>(&self, py: Python<'_>, pilot: &'a Pilot, n: usize) -> PyResult<&'a subterra::depth::DepthPerception> {
+        pilot.perceptions().nth(n).ok_or_else(|| input_error(py, format!("argument `n` must be below {}, got {n}", self.cameras.len())))
     }
 }
 

@@ -1,6 +1,7 @@
 //! Seeded generators of the built-in worlds: [`highbay`], [`cable`], [`tunnel`], [`mine`],
-//! [`subway`], and the ground trade-off worlds [`slopes`], [`rough`], [`ledge`] and the
-//! [`cave`] (in `scenarios/tradeoff.rs`); [`generate`] picks one by name.
+//! [`subway`], the ground trade-off worlds [`slopes`], [`rough`], [`ledge`] and the
+//! [`cave`] (in `scenarios/tradeoff.rs`), and the flight world [`warehouse`] of shelf racks
+//! and dense thin poles (`scenarios/warehouse.rs`); [`generate`] picks one by name.
 //!
 //! In: a scenario name and a seed. Out: a [`WorldSpec`] (plain data; `World::from_spec`
 //! turns it into geometry). Every random draw comes from one
@@ -24,11 +25,13 @@ use crate::spec::{
 };
 
 mod tradeoff;
+mod warehouse;
 
 pub use tradeoff::{cave, ledge, rough, slopes, CAVE_SIZE_M, GROUND_REGION_RADIUS_M, TRADEOFF_SIZE_M};
+pub use warehouse::{warehouse, WAREHOUSE_FOREST_GAP_M, WAREHOUSE_LENGTH_M, WAREHOUSE_PASSAGE_M, WAREHOUSE_REGION_RADIUS_M, WAREHOUSE_WIDTH_M};
 
 /// Names of the built-in scenarios, in the order the docs list them.
-pub const SCENARIOS: [&str; 9] = ["highbay", "cable", "tunnel", "mine", "subway", "slopes", "rough", "ledge", "cave"];
+pub const SCENARIOS: [&str; 10] = ["highbay", "cable", "tunnel", "mine", "subway", "slopes", "rough", "ledge", "cave", "warehouse"];
 
 /// The world of the built-in scenario `name` for `seed`.
 ///
@@ -39,6 +42,7 @@ pub fn generate(name: &str, seed: u64) -> SimResult<WorldSpec> {
         "highbay" => Ok(highbay(seed)),
         "cable" => Ok(cable(seed)),
         "tunnel" => Ok(tunnel(seed)),
+        "warehouse" => Ok(warehouse(seed)),
         "mine" => Ok(mine(seed)),
         "subway" => Ok(subway(seed)),
         "slopes" => Ok(slopes(seed)),

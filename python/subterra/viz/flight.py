@@ -92,7 +92,8 @@ def plot_flight_path(results: Any, path: str | os.PathLike[str], *, title: str |
     yaw, vertical planes as lines, the height field in grey (holes black), mission items,
     and the named regions. Each path is coloured by its controller; the start of each
     flight is a green dot, the end a square, a collision a red x and a local minimum a
-    magenta diamond at the last position; the goal region is a dashed circle. Equal
+    magenta diamond at the last position; where the escape followed an obstacle's boundary
+    a broad orange band lies under the path; the goal region is a dashed circle. Equal
     aspect, metres.
 
     Returns the path of the written file. Raises :class:`InputError` on an empty list,
@@ -503,6 +504,12 @@ def _draw_flights(ax, flights: list[Any], paths: list[np.ndarray], colours: dict
         colour, label = colours[_controller_key(f)]
         ok, total = reached[_controller_key(f)]
         ax.plot(p[:, 0], p[:, 1], color=colour, lw=1.6, alpha=0.9, zorder=5, label=f"{label}: {ok}/{total} without failure")
+        escaping = _optional_frame(f, "escape_active", len(p) - 1)
+        if escaping is not None and escaping.astype(bool).any():
+            # Where the escape followed an obstacle's boundary: a broad band under the path.
+            along = np.where(escaping.astype(bool)[:, None], p[:-1, :2], np.nan)
+            ax.plot(along[:, 0], along[:, 1], color="tab:orange", lw=5, alpha=0.55, solid_capstyle="round", zorder=4.5,
+                    label="escape: following a boundary")
         ax.plot(*p[0, :2], "o", color="tab:green", mec="k", mew=0.5, ms=7, zorder=6, label="start")
         ax.plot(*p[-1, :2], "s", color=colour, mec="k", mew=0.5, ms=6, zorder=6, label="end (colour: controller)")
         goal = getattr(f, "goal", None)
