@@ -286,10 +286,10 @@ impl Pilot {
         let mut repulsive_body = if self.config.memory.enabled { belief_push_body + memory_repulsive_body } else { belief_push_body };
         // 5. Escape.
         let mut goal_body = world_from_body.rotation.transpose() * (target_world - position);
+        let points = if self.escape.is_some() { self.memory_points_world() } else { Vec::new() };
         let escape = match self.escape.as_mut() {
             None => None,
             Some(e) => {
-                let points: Vec<DVec3> = self.cameras.iter().filter_map(|c| c.memory.as_ref()).flat_map(|m| m.obstacles().map(|o| o.point_world)).collect();
                 let out = e.step(stamp_s, world_from_body, target_world, remaining_m, &points, repulsive_body)?;
                 goal_body = out.goal_body;
                 repulsive_body = out.repulsive_body;
