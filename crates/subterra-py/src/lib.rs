@@ -538,12 +538,22 @@ impl PyObstacleMemory {
 
     /// Records `output` (a `PerceptionOutput` of that perception) taken at `stamp` [s] with
     /// the odometry pose `world_from_body` (4x4), forgets, and returns the memory's force.
-    #[pyo3(signature = (output, *, stamp, world_from_body))]
-    fn update(&self, py: Python<'_>, output: &PyPerceptionOutput, #[pyo3(from_py_with = arg::stamp)] stamp: f64, world_from_body: &Bound<'_, PyAny>) -> PyResult<PyMemoryOutput> {
+    /// `perception`, the one that gave `output`, lends its frame's voxel counts to the
+    /// near-field guard (`memory.guard_sigmas`); without it there is no guard.
+    #[pyo3(signature = (output, *, stamp, world_from_body, perception = None))]
+    fn update(
+        &self,
+        py: Python<'_>,
+        output: &PyPerceptionOutput,
+        #[pyo3(from_py_with = arg::stamp)] stamp: f64,
+        world_from_body: &Bound<'_, PyAny>,
+        perception: Option<&PyDepthPerception>,
+    ) -> PyResult<PyMemoryOutput> {
         let pose = isometry(py, "world_from_body", world_from_body)?;
+        let counts = perception.and_then(|p| p.inner.lock().last_counts().cloned());
         let mut this = self.inner.lock();
         let (inner, out) = (&mut *this, &output.inner);
-        Ok(PyMemoryOutput { inner: py.detach(|| inner.update(out, stamp, &pose)).py_err(py)? })
+        Ok(PyMemoryOutput { inner: py.detach(|| inner.update(out, counts.as_ref(), stamp, &pose)).py_err(py)? })
     }
 
     /// Forgets everything.

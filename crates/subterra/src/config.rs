@@ -207,11 +207,17 @@ pub struct MemoryConfig {
     pub rho_0_m: f64,
     /// At most this many cells are kept; the oldest go first.
     pub max_cells: u32,
+    /// Near-field guard (0 = off): a voxel whose point lies within `rho_0_m` and whose count
+    /// is at least `guard_sigmas · σ_n` is remembered with weight 1 whatever the belief
+    /// holds. Under the free hypothesis the largest count is `N(0, σ_n)`, so such a count is
+    /// not noise at `guard_sigmas` standard deviations; the belief over one obstacle can
+    /// still sit on a wall behind a thin cable (docs/flight.md).
+    pub guard_sigmas: f64,
 }
 
 impl Default for MemoryConfig {
     fn default() -> Self {
-        Self { enabled: false, cell_m: 0.1, min_belief: 0.01, in_view_timeout_s: 1.0, timeout_s: 10.0, rho_0_m: 0.6, max_cells: 4096 }
+        Self { enabled: false, cell_m: 0.1, min_belief: 0.01, in_view_timeout_s: 1.0, timeout_s: 10.0, rho_0_m: 0.6, max_cells: 4096, guard_sigmas: 0.0 }
     }
 }
 
@@ -233,6 +239,9 @@ impl MemoryConfig {
         require_positive("memory.rho_0_m", self.rho_0_m)?;
         if self.max_cells == 0 || self.max_cells > MAX_MEMORY_CELLS {
             return Err(Error::config("memory.max_cells", format!("must be in 1..={MAX_MEMORY_CELLS}"), self.max_cells));
+        }
+        if !(self.guard_sigmas == 0.0 || (self.guard_sigmas >= 1.0 && self.guard_sigmas <= 100.0)) {
+            return Err(Error::config("memory.guard_sigmas", "must be 0 (off) or in [1, 100]", self.guard_sigmas));
         }
         Ok(())
     }
@@ -409,11 +418,13 @@ impl PerceptionConfig {
     }
 
     /// Preset `flight-escape` (subterra, the default of `subterra fly`): `flight-memory`
-    /// with the escape from local minima on ([`crate::apf::escape`]). With the waypoint
+    /// with the escape from local minima on ([`crate::apf::escape`]) and the memory's
+    /// near-field guard at 3 σ_n ([`MemoryConfig::guard_sigmas`]). With the waypoint
     /// carrot of `subterra fly` it is the configuration measured best (docs/flight.md).
     pub fn flight_escape() -> Self {
         let mut config = Self::flight_memory();
         config.escape.enabled = true;
+        config.memory.guard_sigmas = 3.0;
         config
     }
 

@@ -16,6 +16,15 @@
 //!    optical axis): there the filter sees the place, and its belief is the better word
 //!    (occlusion is not modelled, and a belief that moved to another obstacle in view also
 //!    lets a cell go after that second). Past `max_cells` the oldest cells go first.
+//!
+//! Between 1 and 2, with `guard_sigmas > 0` and the frame's counts given, the **near-field
+//! guard**: every voxel whose point lies within `rho_0_m` and whose count is at least
+//! `guard_sigmas · σ_n` is recorded as in step 1 with weight 1, whatever the belief holds.
+//! The free hypothesis explains the largest count as `N(0, σ_n)` (the observation model),
+//! so at 3 σ_n such a count is an object, not speckle; the belief over *one* obstacle,
+//! though, can stay on a full wall voxel 1 m behind a 14 mm cable while the cable closes to
+//! contact (tunnel seeds 25 and 35, docs/flight.md). The guard acts only where the memory's
+//! own short cut-off acts, so it adds no long-range push.
 //! 3. **Repel.** `F = Σ_c w_c·F_rep(p_c) / max(1, Σ_{c: |p_c| < ρ_m} w_c)`: the potential
 //!    of [`repulsive_force`] with the memory's own cut-off `ρ_m = rho_0_m` (the belief's
 //!    `η` and `min_distance_m`), over the cells' points `p_c` in the body frame, weighted
@@ -43,7 +52,7 @@ use glam::DVec3;
 use super::repulsive_force;
 use crate::camera::PinholeCamera;
 use crate::config::{ApfConfig, GridConfig, MemoryConfig};
-use crate::depth::{DepthPerception, PerceptionOutput, StateId};
+use crate::depth::{DepthPerception, PerceptionOutput, StateId, VoxelCounts};
 use crate::error::{Error, Result};
 use crate::frames::Isometry3;
 
@@ -82,6 +91,8 @@ pub struct ObstacleMemory {
     /// Voxel points (`apf.voxel_position`) in the body frame, by state id (the free state has none).
     centres_body: Vec<DVec3>,
     free: StateId,
+    /// The guard's count threshold `guard_sigmas · σ_n` (infinite when off).
+    guard_points: f64,
     cells: BTreeMap<(i64, i64, i64), RememberedObstacle>,
     last_stamp_s: Option<f64>,
     frames: u64,
@@ -112,6 +123,7 @@ impl ObstacleMemory {
             camera_from_body: body_from_camera.inverse(),
             centres_body,
             free: grid.free_state(),
+            guard_points: if config.memory.guard_sigmas > 0.0 { config.memory.guard_sigmas * config.observation.sigma_n_points } else { f64::INFINITY },
             cells: BTreeMap::new(),
             last_stamp_s: None,
             frames: 0,
@@ -146,8 +158,10 @@ impl ObstacleMemory {
     }
 
     /// Steps 1-3 for one frame of `output` (from the perception this memory was built for)
-    /// taken at `stamp_s` [s] with the odometry pose `world_from_body`.
-    pub fn update(&mut self, output: &PerceptionOutput, stamp_s: f64, world_from_body: &Isometry3) -> Result<MemoryOutput> {
+    /// taken at `stamp_s` [s] with the odometry pose `world_from_body`; `counts`, the same
+    /// frame's voxel counts ([`DepthPerception::last_counts`]), feed the near-field guard
+    /// (module docs; without them, or with `guard_sigmas = 0`, there is no guard).
+    pub fn update(&mut self, output: &PerceptionOutput, counts: Option<&VoxelCounts>, stamp_s: f64, world_from_body: &Isometry3) -> Result<MemoryOutput> {
         if !stamp_s.is_finite() {
             return Err(Error::input("stamp", format!("must be finite, got {stamp_s}")));
         }
@@ -168,6 +182,11 @@ impl ObstacleMemory {
         if output.belief_states.len() != output.belief_probabilities.len() {
             return Err(Error::input("output", "belief states and probabilities differ in length"));
         }
+        if let Some(counts) = counts {
+            if counts.counts.len() != self.centres_body.len() {
+                return Err(Error::input("counts", format!("must hold one count per voxel of this memory's grid ({}), got {}", self.centres_body.len(), counts.counts.len())));
+            }
+        }
         self.last_stamp_s = Some(stamp_s);
         self.frames += 1;
         let c = self.config;
@@ -180,12 +199,16 @@ impl ObstacleMemory {
             let Some(&centre) = self.centres_body.get(state.0 as usize) else {
                 return Err(Error::input("output", format!("state {} is not a voxel of this memory's grid", state.0)));
             };
-            let point_world = world_from_body.transform_point(centre);
-            let key = cell_key(point_world, c.cell_m);
-            let frame = self.frames;
-            let cell = self.cells.entry(key).or_insert(RememberedObstacle { point_world, weight: belief, seen_s: stamp_s, frame });
-            let weight = if cell.frame == frame { cell.weight.max(belief) } else { belief };
-            *cell = RememberedObstacle { point_world, weight, seen_s: stamp_s, frame };
+            self.record(world_from_body.transform_point(centre), belief, stamp_s);
+        }
+        // The near-field guard.
+        if let Some(counts) = counts.filter(|_| self.guard_points.is_finite()) {
+            for (s, &n) in counts.counts.iter().enumerate() {
+                let centre = self.centres_body[s];
+                if f64::from(n) >= self.guard_points && centre.length() < c.rho_0_m {
+                    self.record(world_from_body.transform_point(centre), 1.0, stamp_s);
+                }
+            }
         }
 
         // 2. Forget.
@@ -220,6 +243,17 @@ impl ObstacleMemory {
             }
         }
         Ok(MemoryOutput { repulsive_body: sum / weight_near.max(1.0), cells: self.cells.len(), nearest_m: nearest })
+    }
+}
+
+impl ObstacleMemory {
+    /// Step 1 for one point: its cell keeps the newest point and this frame's largest weight.
+    fn record(&mut self, point_world: DVec3, weight: f64, stamp_s: f64) {
+        let key = cell_key(point_world, self.config.cell_m);
+        let frame = self.frames;
+        let cell = self.cells.entry(key).or_insert(RememberedObstacle { point_world, weight, seen_s: stamp_s, frame });
+        let weight = if cell.frame == frame { cell.weight.max(weight) } else { weight };
+        *cell = RememberedObstacle { point_world, weight, seen_s: stamp_s, frame };
     }
 }
 
@@ -290,9 +324,9 @@ mod tests {
         let other = DepthPerception::new(camera, Isometry3::body_from_forward_optical(), other_config, 0).unwrap();
         let mut memory = ObstacleMemory::new(&p).unwrap();
         let foreign = output(&other, (0, 0, 0), 0.9);
-        let err = memory.update(&foreign, 0.0, &pose(0.0, 0.0, 0.0)).unwrap_err().to_string();
+        let err = memory.update(&foreign, None, 0.0, &pose(0.0, 0.0, 0.0)).unwrap_err().to_string();
         assert!(err.contains("output") && err.contains("different perception"), "{err}");
-        assert!(memory.update(&output(&p, (0, 0, 0), 0.9), 0.0, &pose(0.0, 0.0, 0.0)).is_ok());
+        assert!(memory.update(&output(&p, (0, 0, 0), 0.9), None, 0.0, &pose(0.0, 0.0, 0.0)).is_ok());
     }
 
     #[test]
@@ -303,7 +337,7 @@ mod tests {
         let (n_w, n_h, _) = p.grid().shape();
         let v = ((n_w / 2) as u32, (n_h / 2) as u32, 3);
         let centre = m.centres_body[p.grid().state_of(crate::depth::VoxelIndex { i: v.0, j: v.1, k: v.2 }).0 as usize];
-        let out = m.update(&output(&p, v, 0.8), 0.0, &pose(0.0, 0.0, 0.0)).unwrap();
+        let out = m.update(&output(&p, v, 0.8), None, 0.0, &pose(0.0, 0.0, 0.0)).unwrap();
         assert_eq!(out.cells, 1);
         // Weight 0.8 < 1: not normalised. The belief's η, the memory's ρ = 0.6 m.
         let field = ApfConfig { rho_0_m: 0.6, ..p.config().apf };
@@ -311,13 +345,13 @@ mod tests {
         assert!((out.repulsive_body - expected).length() < 1e-12, "{} vs {expected}", out.repulsive_body);
         // Turned 90° left: the point is now on the right, out of view, still remembered
         // 5 s later, and pushes left (+y in the body frame).
-        let out = m.update(&free(&p), 5.0, &pose(0.0, 0.0, std::f64::consts::FRAC_PI_2)).unwrap();
+        let out = m.update(&free(&p), None, 5.0, &pose(0.0, 0.0, std::f64::consts::FRAC_PI_2)).unwrap();
         assert_eq!(out.cells, 1);
         // The same force, turned with the body: body_from_world takes (x, y) to (y, -x).
         let turned = DVec3::new(expected.y, -expected.x, expected.z);
         assert!(out.repulsive_body.y > 0.0 && (out.repulsive_body - turned).length() < 1e-9, "{} vs {turned}", out.repulsive_body);
         // Past timeout_s it is gone.
-        let out = m.update(&free(&p), 10.5, &pose(0.0, 0.0, std::f64::consts::FRAC_PI_2)).unwrap();
+        let out = m.update(&free(&p), None, 10.5, &pose(0.0, 0.0, std::f64::consts::FRAC_PI_2)).unwrap();
         assert_eq!((out.cells, out.repulsive_body), (0, DVec3::ZERO));
     }
 
@@ -326,14 +360,14 @@ mod tests {
         let p = perception();
         let mut m = ObstacleMemory::new(&p).unwrap();
         let v = (6, 4, 3);
-        m.update(&output(&p, v, 0.9), 0.0, &pose(0.0, 0.0, 0.0)).unwrap();
+        m.update(&output(&p, v, 0.9), None, 0.0, &pose(0.0, 0.0, 0.0)).unwrap();
         let t = m.config().in_view_timeout_s;
         // Still in view, belief free: kept up to the view timeout, then forgotten.
-        assert_eq!(m.update(&free(&p), t, &pose(0.0, 0.0, 0.0)).unwrap().cells, 1);
-        assert_eq!(m.update(&free(&p), t + 0.01, &pose(0.0, 0.0, 0.0)).unwrap().cells, 0);
+        assert_eq!(m.update(&free(&p), None, t, &pose(0.0, 0.0, 0.0)).unwrap().cells, 1);
+        assert_eq!(m.update(&free(&p), None, t + 0.01, &pose(0.0, 0.0, 0.0)).unwrap().cells, 0);
         // Believed again every frame: never forgotten in view.
         for n in 0..40 {
-            let out = m.update(&output(&p, v, 0.9), 2.0 + 0.1 * f64::from(n), &pose(0.0, 0.0, 0.0)).unwrap();
+            let out = m.update(&output(&p, v, 0.9), None, 2.0 + 0.1 * f64::from(n), &pose(0.0, 0.0, 0.0)).unwrap();
             assert_eq!(out.cells, 1, "frame {n}");
         }
     }
@@ -350,7 +384,7 @@ mod tests {
         let s3 = p.grid().state_of(crate::depth::VoxelIndex { i, j, k: 3 });
         o.belief_states.insert(1, s3);
         o.belief_probabilities.insert(1, 0.9);
-        let out = m.update(&o, 0.0, &pose(0.0, 0.0, 0.0)).unwrap();
+        let out = m.update(&o, None, 0.0, &pose(0.0, 0.0, 0.0)).unwrap();
         let field = ApfConfig { rho_0_m: 0.6, ..p.config().apf };
         let s2 = o.belief_states[0];
         let expected = (0.9 * repulsive_force(&field, m.centres_body[s2.0 as usize]) + 0.9 * repulsive_force(&field, m.centres_body[s3.0 as usize])) / 1.8;
@@ -362,13 +396,67 @@ mod tests {
     fn bad_stamps_and_poses_are_refused() {
         let p = perception();
         let mut m = ObstacleMemory::new(&p).unwrap();
-        m.update(&free(&p), 1.0, &pose(0.0, 0.0, 0.0)).unwrap();
-        let back = m.update(&free(&p), 0.5, &pose(0.0, 0.0, 0.0)).unwrap_err().to_string();
+        m.update(&free(&p), None, 1.0, &pose(0.0, 0.0, 0.0)).unwrap();
+        let back = m.update(&free(&p), None, 0.5, &pose(0.0, 0.0, 0.0)).unwrap_err().to_string();
         assert!(back.contains("stamp") && back.contains("back in time"), "{back}");
-        assert!(m.update(&free(&p), f64::NAN, &pose(0.0, 0.0, 0.0)).unwrap_err().to_string().contains("stamp"));
-        assert!(m.update(&free(&p), 2.0, &pose(f64::NAN, 0.0, 0.0)).unwrap_err().to_string().contains("world_from_body"));
+        assert!(m.update(&free(&p), None, f64::NAN, &pose(0.0, 0.0, 0.0)).unwrap_err().to_string().contains("stamp"));
+        assert!(m.update(&free(&p), None, 2.0, &pose(f64::NAN, 0.0, 0.0)).unwrap_err().to_string().contains("world_from_body"));
         m.reset();
-        assert!(m.update(&free(&p), 0.0, &pose(0.0, 0.0, 0.0)).is_ok(), "reset forgets the clock");
+        assert!(m.update(&free(&p), None, 0.0, &pose(0.0, 0.0, 0.0)).is_ok(), "reset forgets the clock");
+    }
+
+    /// Counts with `n` points in voxel `(i, j, k)` and nothing else.
+    fn counts(p: &DepthPerception, voxel: (u32, u32, u32), n: u32) -> VoxelCounts {
+        let g = p.grid();
+        let mut counts = vec![0; g.voxel_count()];
+        counts[g.state_of(crate::depth::VoxelIndex { i: voxel.0, j: voxel.1, k: voxel.2 }).0 as usize] = n;
+        VoxelCounts { counts, max_count: n, in_range: u64::from(n), valid: u64::from(n), closest_depth_m: None }
+    }
+
+    fn guarded() -> DepthPerception {
+        let mut config = PerceptionConfig::flight_escape();
+        config.filter.particles = 100;
+        assert_eq!(config.memory.guard_sigmas, 3.0);
+        DepthPerception::new(PinholeCamera::d435(), Isometry3::body_from_forward_optical(), config, 0).unwrap()
+    }
+
+    #[test]
+    fn the_guard_remembers_a_near_voxel_the_belief_left_on_free() {
+        let p = guarded();
+        let sigma_n = p.config().observation.sigma_n_points;
+        let (n_w, n_h, _) = p.grid().shape();
+        let (i, j) = ((n_w / 2) as u32, (n_h / 2) as u32);
+        // Bin 3: 0.4-0.5 m ahead, inside ρ_m = 0.6 m. The belief says free.
+        let mut m = ObstacleMemory::new(&p).unwrap();
+        let at = (3.0 * sigma_n) as u32;
+        let out = m.update(&free(&p), Some(&counts(&p, (i, j, 3), at)), 0.0, &pose(0.0, 0.0, 0.0)).unwrap();
+        assert_eq!(out.cells, 1, "3 σ_n points within ρ_m are an obstacle");
+        assert_eq!(m.obstacles().next().unwrap().weight, 1.0);
+        let field = ApfConfig { rho_0_m: 0.6, ..p.config().apf };
+        let centre = m.centres_body[p.grid().state_of(crate::depth::VoxelIndex { i, j, k: 3 }).0 as usize];
+        assert!((out.repulsive_body - repulsive_force(&field, centre)).length() < 1e-12);
+        assert!(out.repulsive_body.x < 0.0, "it pushes back");
+        // One point fewer is what the free hypothesis allows: nothing.
+        let mut m = ObstacleMemory::new(&p).unwrap();
+        assert_eq!(m.update(&free(&p), Some(&counts(&p, (i, j, 3), at - 1)), 0.0, &pose(0.0, 0.0, 0.0)).unwrap().cells, 0);
+        // Beyond ρ_m (bin 8, ~0.95 m), however full: the belief's business, not the guard's.
+        assert_eq!(m.update(&free(&p), Some(&counts(&p, (i, j, 8), 2500)), 0.1, &pose(0.0, 0.0, 0.0)).unwrap().cells, 0);
+        // Without counts, or with the guard off, nothing either.
+        assert_eq!(m.update(&free(&p), None, 0.2, &pose(0.0, 0.0, 0.0)).unwrap().cells, 0);
+        let off = perception();
+        assert_eq!(off.config().memory.guard_sigmas, 0.0);
+        let mut m = ObstacleMemory::new(&off).unwrap();
+        assert_eq!(m.update(&free(&off), Some(&counts(&off, (i, j, 3), 2500)), 0.0, &pose(0.0, 0.0, 0.0)).unwrap().cells, 0);
+    }
+
+    #[test]
+    fn counts_of_another_grid_are_refused() {
+        let p = guarded();
+        let mut m = ObstacleMemory::new(&p).unwrap();
+        let mut c = counts(&p, (0, 0, 0), 0);
+        c.counts.pop();
+        let err = m.update(&free(&p), Some(&c), 0.0, &pose(0.0, 0.0, 0.0)).unwrap_err().to_string();
+        assert!(err.contains("counts"), "{err}");
     }
 
     #[test]
@@ -380,7 +468,7 @@ mod tests {
         let mut m = ObstacleMemory::new(&p).unwrap();
         // Three frames, each seeing a voxel in another cell, turning so the old ones leave the view.
         for (n, yaw) in [0.0, 2.0, 4.0].into_iter().enumerate() {
-            m.update(&output(&p, (6, 4, 5), 0.5), n as f64, &pose(0.0, 0.0, yaw)).unwrap();
+            m.update(&output(&p, (6, 4, 5), 0.5), None, n as f64, &pose(0.0, 0.0, yaw)).unwrap();
         }
         assert_eq!(m.len(), 2);
         assert!(m.obstacles().all(|c| c.seen_s >= 1.0), "the oldest (t = 0) went first");

@@ -12,7 +12,8 @@
 //!    with the QMDP controller the chosen evasive velocity in its place ([`Qmdp`]); summed
 //!    over the cameras in their order.
 //! 4. **Memory.** With `memory.enabled`, each camera's [`ObstacleMemory`] records its belief
-//!    at the pose and adds its repulsion.
+//!    (and, with `memory.guard_sigmas`, the frame's near-field counts) at the pose and adds
+//!    its repulsion.
 //! 5. **Escape.** With `escape.enabled`, [`Escape`] watches the progress and, in a local
 //!    minimum, follows the remembered obstacles' boundary: it may replace the goal and cap
 //!    the repulsion.
@@ -278,7 +279,7 @@ impl Pilot {
         let mut memory_cells = 0;
         for (chain, out) in self.cameras.iter_mut().zip(&perceptions) {
             if let Some(m) = chain.memory.as_mut() {
-                let remembered = m.update(out, stamp_s, world_from_body)?;
+                let remembered = m.update(out, chain.perception.last_counts(), stamp_s, world_from_body)?;
                 memory_repulsive_body += remembered.repulsive_body;
                 memory_cells += remembered.cells;
             }
@@ -370,7 +371,7 @@ mod tests {
             let got = pilot.step(&[image], stamp, &at).unwrap();
             let out = perception.update(image, 640, 480).unwrap();
             let push = forces.repulsive(perception.belief());
-            let remembered = memory.update(&out, stamp, &at).unwrap();
+            let remembered = memory.update(&out, perception.last_counts(), stamp, &at).unwrap();
             let points: Vec<DVec3> = memory.obstacles().map(|o| o.point_world).collect();
             let goal = DVec3::new(8.0, 0.5, 1.0);
             let e = escape.step(stamp, &at, goal, (goal - at.translation).length(), &points, push + remembered.repulsive_body).unwrap();
