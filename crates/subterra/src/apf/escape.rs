@@ -26,8 +26,12 @@
 //!    vertically, or a repulsive force — following starts: the hit distance is the
 //!    remaining distance, the standoff is the horizontal distance to the nearest point
 //!    clamped to `[min_standoff_m, max_standoff_m]`, and the side is the one whose tangent
-//!    points more toward the goal (the boundary on the robot's left, i.e. counter-clockwise
-//!    round it, on a tie, as in front of a pole straight ahead).
+//!    points more along the sum of the unit vectors toward the goal and along the robot's
+//!    heading (the boundary on the robot's left, i.e. counter-clockwise round it, on a tie,
+//!    as in front of a pole straight ahead). Facing the goal, that is the side toward the
+//!    goal; turned away by the field, as a robot usually is after `stall_s` in front of an
+//!    obstacle, it is the way round the robot faces: a forward-only robot that turns about
+//!    first spends seconds while the field pushes it around (tunnel seed 1, a cable).
 //! 3. **Release** (following on): when the remaining distance is `release_m` below the
 //!    hit distance; the progress reference restarts from there. The side flips when it
 //!    leads away — the remaining distance `max_detour_m` above where this side began (a
@@ -228,7 +232,9 @@ impl Escape {
                         let to_goal = horizontal(goal_world - position);
                         let n = self.normal(position, nearest, repulsive_world, to_goal);
                         let tangent_left = DVec3::Z.cross(n);
-                        let side = if tangent_left.dot(to_goal) < -TINY_M { EscapeMode::FollowRight } else { EscapeMode::FollowLeft };
+                        let heading = horizontal(world_from_body.rotation * DVec3::X).normalize_or_zero();
+                        let toward = to_goal.normalize_or_zero() + heading;
+                        let side = if tangent_left.dot(toward) < -TINY_M { EscapeMode::FollowRight } else { EscapeMode::FollowLeft };
                         self.mode = side;
                         self.hit_remaining_m = remaining_m;
                         let d = nearest.map_or(c.max_standoff_m, |(_, d)| d);
@@ -466,6 +472,37 @@ mod tests {
             assert_eq!(out.mode, EscapeMode::Goal);
             assert_eq!(out.goal_body, DVec3::new(-3.0, 0.0, 0.0));
         }
+    }
+
+    #[test]
+    fn of_two_ways_round_equally_toward_the_goal_it_takes_the_one_it_faces() {
+        let mut config = EscapeConfig::default();
+        config.enabled = true;
+        let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
+        // The robot faces +y (turned away by the field), an obstacle point 0.5 m on its
+        // right-hand side at +x, the goal beyond it along +x: both tangents (±y) are square
+        // to the goal; the one along the heading (+y: clockwise, boundary on the right) wins.
+        let pose = Isometry3 { rotation: DMat3::from_rotation_z(std::f64::consts::FRAC_PI_2), translation: DVec3::new(0.0, 0.0, 1.0) };
+        let point = [DVec3::new(0.5, 0.0, 1.0)];
+        let goal = DVec3::new(5.0, 0.0, 1.0);
+        let mut out = e.step(0.0, &pose, goal, 5.0, &point, DVec3::ZERO).unwrap();
+        let mut t = 0.0;
+        while out.mode == EscapeMode::Goal && t < 2.0 * config.stall_s {
+            t += 0.1;
+            out = e.step(t, &pose, goal, 5.0, &point, DVec3::ZERO).unwrap();
+        }
+        assert_eq!(out.mode, EscapeMode::FollowRight);
+        assert!(out.goal_body.x > 0.9, "the target lies ahead, not behind: {}", out.goal_body);
+        // Facing the goal instead, the tie goes to the left (counter-clockwise), as before.
+        let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
+        let facing = Isometry3 { rotation: DMat3::IDENTITY, translation: DVec3::new(0.0, 0.0, 1.0) };
+        let mut t = 0.0;
+        let mut out = e.step(t, &facing, goal, 5.0, &point, DVec3::ZERO).unwrap();
+        while out.mode == EscapeMode::Goal && t < 2.0 * config.stall_s {
+            t += 0.1;
+            out = e.step(t, &facing, goal, 5.0, &point, DVec3::ZERO).unwrap();
+        }
+        assert_eq!(out.mode, EscapeMode::FollowLeft);
     }
 
     #[test]
