@@ -19,11 +19,12 @@ PARITY = REPO / "tests" / "data" / "pilot_parity.txt"
 
 def canonical_frame(n: int) -> np.ndarray:
     """Frame ``n`` of ``crates/subterra/tests/pilot_parity.rs``: a box closing in from 1.5 m at
-    25 mm a frame, and on every third frame a thin pole at 0.9 m to the right."""
+    35 mm a frame, and on every third frame a thin pole 0.4 m ahead on the right (the memory's
+    near-field guard takes it, the belief does not)."""
     depth = np.zeros((480, 640), np.uint16)
-    depth[160:320, 220:420] = 1500 - 25 * n
+    depth[160:320, 220:420] = 1500 - 35 * n
     if n % 3 == 0:
-        depth[:, 500:506] = 900
+        depth[:, 500:506] = 400
     return depth
 
 
@@ -72,7 +73,7 @@ def test_the_pilot_is_its_parts_composed_by_hand() -> None:
         depth, at, stamp = canonical_frame(n), pose(0.03 * n), n / 15.0
         got = pilot.step(depth, stamp=stamp, world_from_body=at)
         out = perception.update(depth)
-        remembered = memory.update(out, stamp=stamp, world_from_body=at)
+        remembered = memory.update(out, stamp=stamp, world_from_body=at, perception=perception)
         rep = out.repulsive_body + remembered.repulsive_body
         e = escape.step(stamp=stamp, world_from_body=at, goal_world=goal, remaining_m=float(np.linalg.norm(goal - at[:3, 3])),
                         memory=memory, repulsive_body=rep)
