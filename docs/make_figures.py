@@ -1,5 +1,5 @@
-"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py [terrain|replay|plan|drive]`
-(with `terrain`, `replay`, `plan` or `drive`, only those figures)."""
+"""Regenerates the figures of docs/ from the code: `.venv/bin/python docs/make_figures.py [terrain|replay|plan|drive|flight]`
+(with `terrain`, `replay`, `plan`, `drive` or `flight`, only those figures)."""
 
 from __future__ import annotations
 
@@ -152,9 +152,30 @@ def drive_figures() -> None:
             plot_drive_map(drive(scenario, planner=planner, seed=0), FIGURES / f"drive-{scenario}-{planner}.png")
 
 
+def flight_figures() -> None:
+    # Closed-loop flights (docs/flight.md): highbay B-C, seed 3, both controllers.
+    from subterra.flight import fly
+    from subterra.viz.flight import plot_compute_time, plot_flight_path, plot_flight_trace
+
+    flights = [fly("highbay", "B-C", controller=c, noise="d435-phantom", seed=3) for c in ("apf-pf", "raw-apf")]
+    plot_flight_path(flights, FIGURES / "flight-paths.png", title="highbay B-C, seed 3, D435 + phantom speckle: APF-PF vs raw APF")
+    plot_flight_trace(flights[0], FIGURES / "flight-trace-apf-pf.png")
+    plot_flight_trace(flights[1], FIGURES / "flight-trace-raw-apf.png")
+    plot_compute_time(flights[0], FIGURES / "flight-compute-apf-pf.png")
+    # The obstacle memory (docs/flight.md): highbay A-B, seed 10, the paper's preset grazes a 22 mm pole.
+    pair = [fly("highbay", "A-B", preset=p, noise="d435-phantom", seed=10) for p in ("flight", "flight-memory")]
+    plot_flight_path(pair, FIGURES / "flight-memory-paths.png",
+                     title="highbay A-B, seed 10, D435 + phantom speckle: APF-PF, flight vs flight-memory")
+    # The escape from local minima (docs/flight.md): the tunnel, the default preset.
+    escape = fly("tunnel", "start-goal", noise="d435-phantom", seed=ESCAPE_SEED)
+    plot_flight_path([escape], FIGURES / "flight-escape.png",
+                     title=f"tunnel, seed {ESCAPE_SEED}, D435 + phantom speckle: APF-PF (flight-escape) following boundaries")
+
+
 def main() -> None:
     FIGURES.mkdir(exist_ok=True)
-    only = {"terrain": terrain_figures, "replay": replay_figures, "plan": plan_figures, "drive": drive_figures}
+    only = {"terrain": terrain_figures, "replay": replay_figures, "plan": plan_figures, "drive": drive_figures,
+            "flight": flight_figures}
     if sys.argv[1:2] and sys.argv[1] in only:
         only[sys.argv[1]]()
         return
@@ -171,24 +192,8 @@ def main() -> None:
     for name in ("highbay", "warehouse", "mine"):
         render_scenario(name, FIGURES, seed=0)
 
-    # Closed-loop flights (docs/flight.md): highbay B-C, seed 3, both controllers.
-    from subterra.flight import fly
     from subterra.flight.cable import cable_test
-    from subterra.viz.flight import plot_compute_time, plot_flight_path, plot_flight_trace
 
-    flights = [fly("highbay", "B-C", controller=c, noise="d435-phantom", seed=3) for c in ("apf-pf", "raw-apf")]
-    plot_flight_path(flights, FIGURES / "flight-paths.png", title="highbay B-C, seed 3, D435 + phantom speckle: APF-PF vs raw APF")
-    plot_flight_trace(flights[0], FIGURES / "flight-trace-apf-pf.png")
-    plot_flight_trace(flights[1], FIGURES / "flight-trace-raw-apf.png")
-    plot_compute_time(flights[0], FIGURES / "flight-compute-apf-pf.png")
-    # The obstacle memory (docs/flight.md): highbay A-B, seed 10, the paper's preset grazes a 22 mm pole.
-    pair = [fly("highbay", "A-B", preset=p, noise="d435-phantom", seed=10) for p in ("flight", "flight-memory")]
-    plot_flight_path(pair, FIGURES / "flight-memory-paths.png",
-                     title="highbay A-B, seed 10, D435 + phantom speckle: APF-PF, flight vs flight-memory")
-    # The escape from local minima (docs/flight.md): tunnel seed 53, the default preset.
-    escape = fly("tunnel", "start-goal", noise="d435-phantom", seed=ESCAPE_SEED)
-    plot_flight_path([escape], FIGURES / "flight-escape.png",
-                     title=f"tunnel, seed {ESCAPE_SEED}, D435 + phantom speckle: APF-PF (flight-escape) following boundaries")
     summary = cable_test(FIGURES / "cable-test-run", frames=150, seed=0, progress=False)
     (FIGURES / "cable-test-run" / "cable-test.png").replace(FIGURES / "cable-test.png")
     for leftover in (FIGURES / "cable-test-run").iterdir():

@@ -146,6 +146,10 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--reference-frames", type=nonnegative_int, default=30)
     bench.add_argument("--repeats", type=positive_int, default=20, help="terrain: timed map updates; plan: timed plans per case (default 20)")
     bench.add_argument("--mode", choices=["particle", "histogram"], default="particle")
+    bench.add_argument("--preset", default="flight",
+                       help="perception: the preset the pilot flies (default flight, the paper's values: the "
+                            "NumPy reference implements the same filter; flight-memory and flight-escape add the "
+                            "memory and the escape, which the reference does not have)")
     bench.add_argument("--messages", type=positive_int, default=20, help="replay: clouds and images per recording (default 20)")
     bench.add_argument("--seed", type=seed_int, default=0)
     bench.add_argument("--flights", type=positive_int, default=20, help="batch: flights per engine (default 20)")
@@ -255,7 +259,7 @@ def _bench(args: argparse.Namespace) -> int:
     else:
         from subterra.bench.perception import bench_perception
 
-        report = bench_perception(frames=args.frames, reference_frames=args.reference_frames, mode=args.mode, seed=args.seed)
+        report = bench_perception(frames=args.frames, reference_frames=args.reference_frames, preset=args.preset, mode=args.mode, seed=args.seed)
     text = json.dumps(report, indent=2)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -87,6 +87,18 @@ def test_bench_perception_reports_rust_and_reference(tmp_path):
     assert report["transition"]["states"] == 1431
     assert set(report["rust"]["stage_median_ms"]) == {"count", "predict", "update", "belief"}
     assert report["qmdp"]["pilot_frame_wall"]["median_ms"] > 0
+    assert report["preset"] == "flight" and report["numpy_reference"]["same_work"] is True
+
+
+def test_bench_perception_times_another_preset_and_says_what_the_reference_lacks(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "perception", "--preset", "flight-escape", "--frames", "5", "--reference-frames", "2",
+                 "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["preset"] == "flight-escape" and report["numpy_reference"]["same_work"] is False
+    assert "memory" in report["numpy_reference"]["what"]
+    assert main(["bench", "perception", "--preset", "hover", "--frames", "2"]) != 0
+    assert "hover" in capsys.readouterr().err
 
 
 def test_demo_writes_an_index_and_a_table(tmp_path, capsys):

@@ -176,19 +176,42 @@ def test_the_guard_ignores_speckle_and_needs_the_perception_that_counted():
     assert memory.update(out, stamp=0.0, world_from_body=_pose(), perception=perception).cells == 0
     other = subterra.DepthPerception(subterra.PinholeCamera(200.0, 200.0, 99.5, 99.5, 200, 200), config=config, seed=0)
     other.update(np.full((200, 200), 450, dtype=np.uint16))
-    with pytest.raises(InputError, match="counts"):
+    with pytest.raises(InputError, match="perception"):
         memory.update(out, stamp=0.1, world_from_body=_pose(), perception=other)
 
 
-def test_the_guard_turns_a_cable_collision_into_a_safe_pass():
-    # Regression: tunnel seed 35 (development range) with D435 + speckle noise. Without the
-    # guard the robot meets a 14 mm cable hanging to flight height 36 s in (the belief stays
-    # on the wall behind it); with it the cable is remembered and kept off.
-    fly = pytest.importorskip("subterra.flight").fly
+@pytest.mark.parametrize("bad", [0.5, -1.0, float("nan"), 101.0])
+def test_a_guard_under_one_sigma_or_absurd_is_refused_by_name(bad):
     d = subterra.PerceptionConfig.preset("flight-escape").to_dict()
-    d["memory"]["guard_sigmas"] = 0.0
-    off = fly("tunnel", "start-goal", config=subterra.PerceptionConfig.from_dict(d), noise="d435-phantom", seed=35,
-              time_limit_s=40.0)
-    assert off.metrics["failure"] == "collision", off.metrics
+    d["memory"]["guard_sigmas"] = bad
+    with pytest.raises(ConfigError, match="memory.guard_sigmas"):
+        subterra.PerceptionConfig.from_dict(d)
+
+
+def test_guarded_cells_are_averaged_not_summed():
+    # A wall 0.45 m ahead fills every near voxel past the guard's threshold: the memory's
+    # push is the mean over them (each guarded cell weighs 1), the size of one voxel's, not
+    # a sum that grows with the wall's area.
+    config = subterra.PerceptionConfig.preset("flight-escape")
+    perception = subterra.DepthPerception(subterra.PinholeCamera.d435(), config=config, seed=0, mode="histogram")
+    memory = subterra.ObstacleMemory(perception)
+    out = perception.update(np.full((480, 640), 450, dtype=np.uint16))
+    m = memory.update(out, stamp=0.0, world_from_body=_pose(), perception=perception)
+    assert m.cells > 10
+    single = subterra.ObstacleMemory(perception)
+    image = np.zeros((480, 640), dtype=np.uint16)
+    image[230:250, 310:330] = 450  # one voxel's worth, straight ahead (400 points)
+    one = single.update(perception.update(image), stamp=0.0, world_from_body=_pose(), perception=perception)
+    assert one.cells >= 1
+    assert np.linalg.norm(m.repulsive_body) <= 1.5 * np.linalg.norm(one.repulsive_body)
+
+
+def test_tunnel_seed_35_passes_the_cable_that_it_once_hit():
+    # Regression, closed loop: tunnel seed 35 (development range) with D435 + speckle noise.
+    # Before the guard and the goal-facing escape side, the robot met a 14 mm cable hanging
+    # to flight height 36 s in (the belief stayed on the wall behind it). The guard's own
+    # effect is shown frame by frame above: after the escape change this flight also passes
+    # without it, so only the whole stack's outcome is asserted here.
+    fly = pytest.importorskip("subterra.flight").fly
     on = fly("tunnel", "start-goal", preset="flight-escape", noise="d435-phantom", seed=35, time_limit_s=40.0)
     assert on.metrics["collisions"] == 0 and on.metrics["min_clearance_m"] > 0.1, on.metrics

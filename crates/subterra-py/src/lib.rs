@@ -550,7 +550,19 @@ impl PyObstacleMemory {
         perception: Option<&PyDepthPerception>,
     ) -> PyResult<PyMemoryOutput> {
         let pose = isometry(py, "world_from_body", world_from_body)?;
-        let counts = perception.and_then(|p| p.inner.lock().last_counts().cloned());
+        let counts = match perception {
+            Some(p) => {
+                let p = p.inner.lock();
+                if p.fingerprint() != output.inner.fingerprint {
+                    return Err(input_error(
+                        py,
+                        "argument `perception` is not the perception that gave `output` (its camera, mounting or grid differ): pass the one whose update() returned it",
+                    ));
+                }
+                p.last_counts().cloned()
+            }
+            None => None,
+        };
         let mut this = self.inner.lock();
         let (inner, out) = (&mut *this, &output.inner);
         Ok(PyMemoryOutput { inner: py.detach(|| inner.update(out, counts.as_ref(), stamp, &pose)).py_err(py)? })

@@ -211,7 +211,9 @@ pub struct MemoryConfig {
     /// is at least `guard_sigmas · σ_n` is remembered with weight 1 whatever the belief
     /// holds. Under the free hypothesis the largest count is `N(0, σ_n)`, so such a count is
     /// not noise at `guard_sigmas` standard deviations; the belief over one obstacle can
-    /// still sit on a wall behind a thin cable (docs/flight.md).
+    /// still sit on a wall behind a thin cable (docs/flight.md). The threshold scales with
+    /// the preset's σ_n: 180 points in `flight-escape` (σ_n = 60), but 3 points with the
+    /// `cable` preset's σ_n = 1, where it would fire on speckle.
     pub guard_sigmas: f64,
 }
 
@@ -618,6 +620,17 @@ mod tests {
         c.validate().unwrap();
         let err = c.validate_for_image(640, 480).unwrap_err().to_string();
         assert!(err.contains("grid.depth_bin_m") && err.contains("GB"), "{err}");
+        // The guard is off (0) or 1-100 σ_n: under 1 σ_n it would fire on noise.
+        for bad in [0.5, -1.0, f64::NAN, 101.0, f64::INFINITY] {
+            let mut c = PerceptionConfig::flight_escape();
+            c.memory.guard_sigmas = bad;
+            assert!(c.validate().unwrap_err().to_string().contains("memory.guard_sigmas"), "{bad}");
+        }
+        for good in [0.0, 1.0, 100.0] {
+            let mut c = PerceptionConfig::flight_escape();
+            c.memory.guard_sigmas = good;
+            c.validate().unwrap();
+        }
     }
 
     #[test]

@@ -61,6 +61,8 @@ const TARGET_DISTANCE_M: f64 = 1.0;
 
 /// Horizontal lengths below this are treated as zero [m].
 const TINY_M: f64 = 1e-9;
+/// A dot product of unit vectors this close to 0 is a tie.
+const TIE: f64 = 1e-9;
 
 /// What the escape is doing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -234,7 +236,7 @@ impl Escape {
                         let tangent_left = DVec3::Z.cross(n);
                         let heading = horizontal(world_from_body.rotation * DVec3::X).normalize_or_zero();
                         let toward = to_goal.normalize_or_zero() + heading;
-                        let side = if tangent_left.dot(toward) < -TINY_M { EscapeMode::FollowRight } else { EscapeMode::FollowLeft };
+                        let side = if tangent_left.dot(toward) < -TIE { EscapeMode::FollowRight } else { EscapeMode::FollowLeft };
                         self.mode = side;
                         self.hit_remaining_m = remaining_m;
                         let d = nearest.map_or(c.max_standoff_m, |(_, d)| d);

@@ -10,25 +10,26 @@
 //!    puts its point (the one its repulsion comes from, `apf.voxel_position`), in the
 //!    world frame, into the cell of side `cell_m` that holds it; the cell keeps the newest
 //!    point, the largest belief of this frame, and the time.
-//! 2. **Forget.** A cell is forgotten `timeout_s` after the belief last put an obstacle in
+//! 2. **Guard** (with `guard_sigmas > 0` and the frame's counts given). Every voxel whose
+//!    point lies within `rho_0_m` and whose count is at least `guard_sigmas · σ_n` is
+//!    recorded as in step 1 with weight 1, whatever the belief holds. The free hypothesis
+//!    explains the largest count as `N(0, σ_n)` (the observation model), so at 3 σ_n such a
+//!    count is an object, not speckle; the belief over *one* obstacle, though, can stay on
+//!    a full wall voxel 1 m behind a 14 mm cable while the cable closes to contact (tunnel
+//!    seeds 25 and 35, docs/flight.md). The guard acts only where the memory's own short
+//!    cut-off acts, so it adds no long-range push.
+//! 3. **Forget.** A cell is forgotten `timeout_s` after an obstacle was last recorded in
 //!    it, or `in_view_timeout_s` after, when its point lies in the camera's view now
 //!    (inside the image and between `grid.depth_min_m` and `grid.depth_max_m` along the
 //!    optical axis): there the filter sees the place, and its belief is the better word
 //!    (occlusion is not modelled, and a belief that moved to another obstacle in view also
 //!    lets a cell go after that second). Past `max_cells` the oldest cells go first.
-//!
-//! Between 1 and 2, with `guard_sigmas > 0` and the frame's counts given, the **near-field
-//! guard**: every voxel whose point lies within `rho_0_m` and whose count is at least
-//! `guard_sigmas · σ_n` is recorded as in step 1 with weight 1, whatever the belief holds.
-//! The free hypothesis explains the largest count as `N(0, σ_n)` (the observation model),
-//! so at 3 σ_n such a count is an object, not speckle; the belief over *one* obstacle,
-//! though, can stay on a full wall voxel 1 m behind a 14 mm cable while the cable closes to
-//! contact (tunnel seeds 25 and 35, docs/flight.md). The guard acts only where the memory's
-//! own short cut-off acts, so it adds no long-range push.
-//! 3. **Repel.** `F = Σ_c w_c·F_rep(p_c) / max(1, Σ_{c: |p_c| < ρ_m} w_c)`: the potential
+//! 4. **Repel.** `F = Σ_c w_c·F_rep(p_c) / max(1, Σ_{c: |p_c| < ρ_m} w_c)`: the potential
 //!    of [`repulsive_force`] with the memory's own cut-off `ρ_m = rho_0_m` (the belief's
 //!    `η` and `min_distance_m`), over the cells' points `p_c` in the body frame, weighted
-//!    by their beliefs and normalised like a belief once the weights within `ρ_m` sum past 1.
+//!    by their beliefs and normalised like a belief once the weights within `ρ_m` sum past 1
+//!    (a guarded cell counts 1 there: the force is the mean over what is near, as the
+//!    belief's is an expectation, not a sum that grows with a wall's area).
 //!    Cells the belief holds now count too: an obstacle in view within `ρ_m` is pushed
 //!    against by the belief and by the memory, up to twice as hard.
 //!
@@ -63,7 +64,7 @@ pub struct RememberedObstacle {
     pub point_world: DVec3,
     /// Its weight: the largest belief recorded in the cell on its newest frame.
     pub weight: f64,
-    /// When the belief last put an obstacle in the cell [s].
+    /// When an obstacle was last recorded in the cell (by the belief or the guard) [s].
     pub seen_s: f64,
     /// The frame that did (the update counter).
     frame: u64,
@@ -157,7 +158,7 @@ impl ObstacleMemory {
         self.last_stamp_s = None;
     }
 
-    /// Steps 1-3 for one frame of `output` (from the perception this memory was built for)
+    /// Steps 1-4 for one frame of `output` (from the perception this memory was built for)
     /// taken at `stamp_s` [s] with the odometry pose `world_from_body`; `counts`, the same
     /// frame's voxel counts ([`DepthPerception::last_counts`]), feed the near-field guard
     /// (module docs; without them, or with `guard_sigmas = 0`, there is no guard).
@@ -201,7 +202,7 @@ impl ObstacleMemory {
             };
             self.record(world_from_body.transform_point(centre), belief, stamp_s);
         }
-        // The near-field guard.
+        // 2. The near-field guard.
         if let Some(counts) = counts.filter(|_| self.guard_points.is_finite()) {
             for (s, &n) in counts.counts.iter().enumerate() {
                 let centre = self.centres_body[s];
@@ -211,7 +212,7 @@ impl ObstacleMemory {
             }
         }
 
-        // 2. Forget.
+        // 3. Forget.
         let body_from_world = world_from_body.inverse();
         let camera_from_world = self.camera_from_body.compose(&body_from_world);
         let (camera, grid) = (self.camera, self.grid);
@@ -228,7 +229,7 @@ impl ObstacleMemory {
             }
         }
 
-        // 3. Repel.
+        // 4. Repel.
         let field = ApfConfig { rho_0_m: c.rho_0_m, ..self.apf };
         let mut sum = DVec3::ZERO;
         let mut weight_near = 0.0;
