@@ -338,7 +338,7 @@ def test_changed_config_and_robot_reach_both(scans, config):
     cfg = {
         **config,
         "coarse": {"resolution_m": 0.2, "size_x_m": 30.0, "size_y_m": 24.0},
-        "layers": {"plane_window_m": 1.0, "plane_min_cells": 5, "wheel_patch_m": 0.5, "tilt_headings": 7, "head_margin_m": 0.3},
+        "layers": {"plane_window_m": 1.0, "plane_min_cells": 5, "wheel_patch_m": 0.5, "tilt_headings": 7, "head_margin_m": 0.3, "clearance_margin_m": 0.05},
         "risk": {**config["risk"], "step_m": {"safe": 0.02, "lethal": 0.1}, "unknown": 0.3},
         "uncertainty": {**config["uncertainty"], "range_sigma_m": 0.05},
     }

@@ -34,7 +34,7 @@
 //!   of that plane from horizontal, `atan |∇z|`. The layer is the worst over both rocking
 //!   poses and the `layers.tilt_headings` headings `ψ = j·180°/J`. Where some corner patch
 //!   has no ground at every heading, the plane-fit slope stands in; else NaN.
-//! - risks: `collision` = ramp(number of points with `clearance < h <= height + head_margin`),
+//! - risks: `collision` = ramp(number of points with `clearance - clearance_margin < h <= height + head_margin`),
 //!   `step` = ramp(`step_height`), `negative` = ramp(`negative_depth`), `tilt` =
 //!   ramp(`tilt_angle`) with the robot's tilt ramp, `roughness` = ramp(`plane_residual`),
 //!   `unknown` = `risk.unknown` where not observed, `mission` = 1 within an item's radius of
@@ -250,7 +250,7 @@ impl MapBuilder {
         let res = g.resolution_m;
         let (nx, ny) = (g.nx as i64, g.ny as i64);
         let thr = self.ground_threshold;
-        let lo = self.robot.ground_clearance_m as f32;
+        let lo = (self.robot.ground_clearance_m - self.layers.clearance_margin_m) as f32;
         let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
         let dz = sensor_above_body_m as f32;
         // Each point writes its cell to `touched[hits]` and counts it only if the cell was
@@ -354,7 +354,7 @@ impl MapBuilder {
         let (nx, ny) = (g.nx as f32, g.ny as f32);
         let nxu = g.nx;
         let thr = self.ground_threshold;
-        let lo = self.robot.ground_clearance_m as f32;
+        let lo = (self.robot.ground_clearance_m - self.layers.clearance_margin_m) as f32;
         let hi = (self.robot.height_m + self.layers.head_margin_m) as f32;
         let mut binned = 0;
         for src in sources {

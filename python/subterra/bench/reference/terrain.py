@@ -726,7 +726,7 @@ def bin_cells(scan: LevelScan, heights: np.ndarray, geometry: Geometry, config: 
     thr = config["ground"]["max_dist_to_line_m"]
     with np.errstate(invalid="ignore"):
         ground = np.abs(h) <= np.float32(thr)
-        lo = np.float32(robot["ground_clearance_m"])
+        lo = np.float32(robot["ground_clearance_m"] - config["layers"]["clearance_margin_m"])
         hi = np.float32(robot["height_m"] + config["layers"]["head_margin_m"])
         collision = ~ground & (h > lo) & (h <= hi)
     n = nx * ny
