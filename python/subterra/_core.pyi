@@ -144,7 +144,7 @@ class ObstacleMemory:
     out of view (settings: the perception config's ``memory`` section; on in ``flight-memory``)."""
 
     def __init__(self, perception: DepthPerception) -> None: ...
-    def update(self, output: PerceptionOutput, *, stamp: float, world_from_body: npt.ArrayLike) -> MemoryOutput: ...
+    def update(self, output: PerceptionOutput, *, stamp: float, world_from_body: npt.ArrayLike, perception: DepthPerception | None = None) -> MemoryOutput: ...
     def reset(self) -> None: ...
     def points_world(self) -> npt.NDArray[np.float64]: ...
     def weights(self) -> npt.NDArray[np.float64]: ...
@@ -506,6 +506,18 @@ class RiskAStar:
         origin: Sequence[float] | None = None,
     ) -> PlanResult:
         """Like :meth:`plan` with the start and goal as cells ``(ix, iy)`` (``risk[iy, ix]``)."""
+    def plan_toward(
+        self,
+        risk: RiskMap | npt.ArrayLike,
+        start: Sequence[float] | npt.ArrayLike,
+        target: Sequence[float] | npt.ArrayLike,
+        *,
+        resolution: float | None = None,
+        origin: Sequence[float] | None = None,
+    ) -> PlanResult:
+        """Like :meth:`plan`, toward a ``target`` that may lie beyond the grid: the path leaves
+        by the border cell whose cost plus λ per metre of straight line on to the target is
+        least; ``goal_cell`` is that cell."""
     @property
     def lam(self) -> float: ...
     @property

@@ -119,6 +119,38 @@ def test_cost_equals_scipy_dijkstra_on_the_exact_rules(seed, allow_corner_cuttin
     assert "found" in outcomes
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_plan_toward_leaves_by_the_cheapest_border_cell(seed):
+    # Against the SciPy reference: the least over every border cell of the cost to reach it
+    # plus λ per metre of straight line on to a target beyond the grid.
+    rng = np.random.default_rng(300 + seed)
+    ny, nx, res, origin = 12, 15, 0.4, (-2.0, 1.0)
+    risk = mixed_grid(rng, ny, nx)
+    params = {"lam": 0.1, "r_inst": 0.8, "unknown_risk": 0.15}
+    planner = subterra.RiskAStar(**params, r_total=1.0)
+    s = next((x, y) for x, y in zip(rng.integers(0, nx, 50), rng.integers(0, ny, 50)) if np.isfinite(risk[y, x]) and risk[y, x] < 0.8)
+    start = np.asarray(origin) + (np.asarray(s) + 0.5) * res
+    target = start + 12.0 * np.array([math.cos(seed * 2.1), math.sin(seed * 2.1)])
+    result = planner.plan_toward(risk, start, target, resolution=res, origin=origin)
+    border = [(x, y) for y in range(ny) for x in range(nx) if x in (0, nx - 1) or y in (0, ny - 1)]
+    centre = lambda c: np.asarray(origin) + (np.asarray(c) + 0.5) * res  # noqa: E731
+    best = min(graph_plan(risk, (int(s[0]), int(s[1])), b, resolution=res, allow_corner_cutting=False, **params)["cost"]
+               + params["lam"] * float(np.linalg.norm(centre(b) - target)) for b in border)
+    if math.isinf(best):
+        assert result.status == "no_path"
+        return
+    assert result.status == "found"
+    b = result.goal_cell
+    assert b[0] in (0, nx - 1) or b[1] in (0, ny - 1)
+    assert result.cost + params["lam"] * float(np.linalg.norm(centre(b) - target)) == pytest.approx(best, rel=1e-9)
+    np.testing.assert_array_equal(result.path_cells[-1], b)
+    # A target on the grid: the plain plan.
+    inside = planner.plan_toward(risk, start, start, resolution=res, origin=origin)
+    assert inside.status == "found" and inside.length_m == 0.0
+    with pytest.raises(InputError, match="target"):
+        planner.plan_toward(risk, start, (math.nan, 0.0), resolution=res, origin=origin)
+
+
 def test_corner_cutting_rule_by_hand():
     # Row 1: . .   From (0, 0) to (1, 1) past the lethal (1, 0): round by (0, 1) unless
     # Row 0: S X   corner cutting is allowed.

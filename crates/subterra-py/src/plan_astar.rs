@@ -129,6 +129,7 @@ fn with_grid<T>(
 enum Endpoints {
     World(DVec2, DVec2),
     Cells(CellIndex, CellIndex),
+    Toward(DVec2, DVec2),
 }
 
 /// Risk-aware A* on an 8-connected grid (STEP, Fan et al. 2021); holds its search buffers between plans.
@@ -147,6 +148,7 @@ impl PyRiskAStar {
                 match ends {
                     Endpoints::World(s, g) => planner.plan(&grid, s, g),
                     Endpoints::Cells(s, g) => planner.plan_cells(&grid, s, g),
+                    Endpoints::Toward(s, t) => planner.plan_toward(&grid, s, t, None),
                 }
             })
         })?;
@@ -214,6 +216,25 @@ impl PyRiskAStar {
         origin: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PyPlanResult> {
         let ends = Endpoints::World(point2(py, "start", start)?, point2(py, "goal", goal)?);
+        self.run(py, risk, ends, resolution, origin)
+    }
+
+    /// Like `plan`, toward a `target` (x, y) [m] that may lie beyond the grid: the path leaves
+    /// by the border cell whose cost to reach plus λ per metre of straight line on to the
+    /// target is least (one search; docs/planning.md, "Toward a target off the grid"). The
+    /// result's `goal_cell` is that border cell; a target on the grid is planned to as by
+    /// `plan`.
+    #[pyo3(signature = (risk, start, target, *, resolution = None, origin = None))]
+    fn plan_toward(
+        &self,
+        py: Python<'_>,
+        risk: &Bound<'_, PyAny>,
+        start: &Bound<'_, PyAny>,
+        target: &Bound<'_, PyAny>,
+        resolution: Option<&Bound<'_, PyAny>>,
+        origin: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<PyPlanResult> {
+        let ends = Endpoints::Toward(point2(py, "start", start)?, point2(py, "target", target)?);
         self.run(py, risk, ends, resolution, origin)
     }
 

@@ -53,6 +53,20 @@
 //! predecessors the first one found is kept. Moves are tried in the order E, N, W, S, NE, NW,
 //! SW, SE (unrolled away from the grid's border).
 //!
+//! # Toward a target off the grid
+//!
+//! A robot-centred map holds only part of a long route. [`RiskAStar::plan_toward`] plans to
+//! a target beyond the grid's border: the path may leave the grid from any border cell `b`,
+//! and the leg from `b` on is priced `λ·|b - target|` (the least cost per metre times the
+//! straight line: what the heuristic assumes of ground nobody has mapped). One search does
+//! it: `h` becomes `λ·euclid(n, target)` (admissible and consistent: every route from `n` on
+//! is at least that long and costs at least `λ` a metre), and expanding a border cell `b`
+//! offers a virtual goal node the cost `g(b) + h(b)`; the search ends when that node is
+//! popped. The path is the one to the `b` that offered its final cost: the least over every
+//! border cell of the cost to reach it plus the straight leg on (a test checks this against
+//! a search to each border cell). A detour whose way out lies elsewhere on the border is
+//! found, where a single stand-in on the segment toward the target would not be.
+//!
 //! # Outcome
 //!
 //! In this order: the start cell untraversable -> [`PlanStatus::StartBlocked`]; the goal cell
@@ -210,6 +224,33 @@ impl RiskAStarConfig {
                 if r >= self.r_inst || r >= self.lethal_risk { f64::INFINITY } else { 1.0 + self.additive_weight * r.max(0.0) }
             }
         }
+    }
+
+    /// Prices the polyline `points_world` on `grid` as the search prices its moves: each
+    /// segment `a -> b` costs `d·(c(a) + c(b))/2` and adds `d·(ρ(a) + ρ(b))/2` to the risk
+    /// integral, with `c` and `ρ` of the cells holding its ends (no entry prices). `None`
+    /// when a point lies off the grid or in an untraversable cell, or when the accumulated
+    /// risk exceeds `r_total` (with the `risk` model). For a path of 8-neighbour cell centres
+    /// this is the path's `cost` and `risk_integral`; the navigator uses it to price the path
+    /// it follows and a new one alike (plan hysteresis).
+    pub fn polyline_cost(&self, grid: &RiskGrid<'_>, points_world: &[DVec2]) -> Option<(f64, f64)> {
+        let mut prev: Option<(DVec2, f64, f64)> = None;
+        let (mut cost, mut integral) = (0.0, 0.0);
+        for &p in points_world {
+            let risk = grid.risk[grid.flat(grid.cell_of(p)?)];
+            let (c, rho) = (self.cell_cost(risk), self.hazard(risk)?);
+            if !c.is_finite() {
+                return None;
+            }
+            if let Some((q, cq, rq)) = prev {
+                let d = p.distance(q);
+                cost += d * 0.5 * (c + cq);
+                integral += d * 0.5 * (rho + rq);
+            }
+            prev = Some((p, c, rho));
+        }
+        let over_budget = self.cost_model == CostModel::Risk && -(-integral).exp_m1() > self.r_total;
+        (!over_budget).then_some((cost, integral))
     }
 
     /// The least cost per metre of any cell: the heuristic's scale [1/m].
@@ -433,6 +474,12 @@ struct Search<'a> {
     step: [f64; 2],
     /// The goal cell `(x, y)`.
     goal: (usize, usize),
+    /// Toward a target off the grid: its position in cell coordinates (cell `(x, y)`'s centre
+    /// at `(x, y)`); the goal is then the virtual node past the last cell (module docs,
+    /// "Toward a target off the grid").
+    exit: Option<(f64, f64)>,
+    /// The border cell the virtual node was last improved from, and that cell's `g`.
+    exit_from: (usize, f64),
     /// `λ·res` (or `res` with the additive model): the heuristic per cell of octile distance.
     h_scale: f64,
     /// Per cell, the moves that enter it unseen (bit `k` for move `k`); empty: none.
@@ -452,9 +499,13 @@ impl Search<'_> {
         node
     }
 
-    /// `h` of cell `(x, y)`: `h_scale·octile`, from integer distances (exact in `f64`).
+    /// `h` of cell `(x, y)`: `h_scale·octile`, from integer distances (exact in `f64`); toward
+    /// a target off the grid, `h_scale·euclid` to the target.
     #[inline(always)]
     fn heuristic(&self, x: usize, y: usize) -> f64 {
+        if let Some((tx, ty)) = self.exit {
+            return self.h_scale * (x as f64 - tx).hypot(y as f64 - ty);
+        }
         // Sides are at most MAX_SIDE = 2^16 cells: the distances fit a u32.
         let (dx, dy) = (x.abs_diff(self.goal.0) as u32, y.abs_diff(self.goal.1) as u32);
         self.h_scale * (f64::from(dx.max(dy)) + (std::f64::consts::SQRT_2 - 1.0) * f64::from(dx.min(dy)))
@@ -489,7 +540,7 @@ impl Search<'_> {
 
     /// A* until the goal is popped or the open list empties; `CUT`: corner cutting allowed.
     fn run<const CUT: bool>(&mut self, nx: usize, ny: usize) -> (PlanStatus, usize) {
-        let goal = self.goal.1 * nx + self.goal.0;
+        let goal = if self.exit.is_some() { nx * ny } else { self.goal.1 * nx + self.goal.0 };
         let mut expanded = 0;
         while let Some(key) = self.open.pop() {
             let a = key_flat(key);
@@ -505,10 +556,36 @@ impl Search<'_> {
             if ax > 0 && ay > 0 && ax + 1 < nx && ay + 1 < ny {
                 self.expand_interior::<CUT>(g_a, cost_a, a, ax, ay, nx);
             } else {
+                if self.exit.is_some() {
+                    self.offer_exit(g_a, a, ax, ay, goal);
+                }
                 self.expand_border::<CUT>(g_a, cost_a, ax, ay, nx, ny);
             }
         }
         (PlanStatus::NoPath, expanded)
+    }
+
+    /// From border cell `a` = `(ax, ay)` of cost `g_a`, the move off the grid straight to the
+    /// target: the virtual node `goal` gets `g_a + h(a)` (λ per metre on, the heuristic's own
+    /// price) if that is lower, with `h = 0`.
+    #[inline(never)]
+    fn offer_exit(&mut self, g_a: f64, a: usize, ax: usize, ay: usize, goal: usize) {
+        let g = g_a + self.heuristic(ax, ay);
+        let node = &mut self.nodes[goal];
+        if node.stamp != self.stamp {
+            *node = Node { g: f64::INFINITY, cost: 0.0, stamp: self.stamp, parent: NO_PARENT };
+        }
+        if g < node.g {
+            let open = node.g < f64::INFINITY;
+            node.g = g;
+            self.exit_from = (a, g_a);
+            let key = open_key(g, 0.0, goal);
+            if open {
+                self.open.decrease(key);
+            } else {
+                self.open.push(key);
+            }
+        }
     }
 
     /// Expands cell `a` = `(ax, ay)` away from the border (every neighbour inside the grid): the
@@ -586,13 +663,15 @@ pub struct RiskAStar {
     nodes: Vec<Node>,
     open: OpenList,
     stamp: u32,
+    /// The border cell the last search toward a target off the grid left by, and its `g`.
+    exit_from: (usize, f64),
 }
 
 impl RiskAStar {
     /// A planner; fails if the config is invalid.
     pub fn new(config: RiskAStarConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self { config, nodes: Vec::new(), open: OpenList::default(), stamp: 0 })
+        Ok(Self { config, nodes: Vec::new(), open: OpenList::default(), stamp: 0, exit_from: (0, f64::INFINITY) })
     }
 
     /// The config.
@@ -614,6 +693,44 @@ impl RiskAStar {
         self.plan_cells_with(grid, start, goal, entry)
     }
 
+    /// Plans from the cell holding `start_world` toward `target_world` [m], which may lie off
+    /// the grid: to the border cell `b` whose path cost plus `λ·|b - target|` (the heuristic's
+    /// price of the straight line on, [`RiskAStarConfig::min_cell_cost`] per metre) is least
+    /// (module docs, "Toward a target off the grid"). The path ends at `b`
+    /// ([`PlanOutcome::goal_cell`]); its cost, length and risk are those of the path on the
+    /// grid. A target on the grid is planned to as by [`RiskAStar::plan_with`]. Errors (naming
+    /// `start` or `target`) if a position is not finite or the start lies off the grid.
+    pub fn plan_toward(&mut self, grid: &RiskGrid<'_>, start_world: DVec2, target_world: DVec2, entry: Option<&EntryPrices<'_>>) -> Result<PlanOutcome> {
+        if !target_world.is_finite() {
+            return Err(Error::input("target", format!("must be finite, got ({}, {})", target_world.x, target_world.y)));
+        }
+        if grid.cell_of(target_world).is_some() {
+            return self.plan_with(grid, start_world, target_world, entry);
+        }
+        let started = Instant::now();
+        let start = grid.locate("start", start_world)?;
+        let entry = self.checked_entry(grid, entry)?;
+        // The target in cell coordinates: cell (x, y)'s centre at (x, y).
+        let c0 = grid.centre_of(grid.cell_at(0));
+        let exit = ((target_world.x - c0.x) / grid.resolution_m, (target_world.y - c0.y) / grid.resolution_m);
+        let (status, expanded) = self.search(grid, grid.flat(start), grid.flat(start), Some(exit), entry);
+        let (exit_cell, exit_g) = self.exit_from;
+        let goal = grid.cell_at(exit_cell);
+        let path = match status {
+            PlanStatus::Found => Some(self.trace(grid, exit_cell, exit_g, entry)),
+            _ => None,
+        };
+        let status = match &path {
+            Some(p) if self.config.cost_model == CostModel::Risk && p.accumulated_risk > self.config.r_total => PlanStatus::BudgetExceeded,
+            _ => status,
+        };
+        let carrot_world = match (&path, status) {
+            (Some(p), PlanStatus::Found) => Some(carrot(&p.points_world, self.config.carrot_m)),
+            _ => None,
+        };
+        Ok(PlanOutcome { status, path, carrot_world, start_cell: start, goal_cell: goal, expanded, time_s: started.elapsed().as_secs_f64() })
+    }
+
     /// Plans from cell `start` to cell `goal`. Errors (naming `start` or `goal`) if a cell is
     /// outside the grid.
     pub fn plan_cells(&mut self, grid: &RiskGrid<'_>, start: CellIndex, goal: CellIndex) -> Result<PlanOutcome> {
@@ -626,9 +743,9 @@ impl RiskAStar {
         grid.check_cell("start", start)?;
         grid.check_cell("goal", goal)?;
         let entry = self.checked_entry(grid, entry)?;
-        let (status, expanded) = self.search(grid, grid.flat(start), grid.flat(goal), entry);
+        let (status, expanded) = self.search(grid, grid.flat(start), grid.flat(goal), None, entry);
         let path = match status {
-            PlanStatus::Found | PlanStatus::BudgetExceeded => Some(self.trace(grid, grid.flat(goal), entry)),
+            PlanStatus::Found | PlanStatus::BudgetExceeded => Some(self.trace(grid, grid.flat(goal), self.nodes[grid.flat(goal)].g, entry)),
             _ => None,
         };
         let status = match &path {
@@ -677,18 +794,21 @@ impl RiskAStar {
         Ok(Entry { unseen: e.unseen, cost_extra, hazard_extra })
     }
 
-    fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize, entry: Entry<'_>) -> (PlanStatus, usize) {
+    fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize, exit: Option<(f64, f64)>, entry: Entry<'_>) -> (PlanStatus, usize) {
         let (nx, ny) = (grid.nx, grid.ny);
-        self.begin(nx * ny);
+        // One node more than the cells: the virtual goal toward a target off the grid.
+        self.begin(nx * ny + 1);
         let res = grid.resolution_m;
         let mut search = Search {
-            nodes: &mut self.nodes[..nx * ny],
+            nodes: &mut self.nodes[..nx * ny + 1],
             open: &mut self.open,
             risk: grid.risk,
             config: &self.config,
             stamp: self.stamp,
             step: [res, res * std::f64::consts::SQRT_2],
             goal: (goal % nx, goal / nx),
+            exit,
+            exit_from: (goal, f64::INFINITY),
             h_scale: self.config.min_cell_cost() * res,
             unseen: entry.unseen,
             unseen_extra: entry.cost_extra,
@@ -696,23 +816,21 @@ impl RiskAStar {
         if search.touch(start).cost.is_infinite() {
             return (PlanStatus::StartBlocked, 0);
         }
-        if search.touch(goal).cost.is_infinite() {
+        if exit.is_none() && search.touch(goal).cost.is_infinite() {
             return (PlanStatus::GoalBlocked, 0);
         }
         search.nodes[start].g = 0.0;
         let (sx, sy) = (start % nx, start / nx);
         let h0 = search.heuristic(sx, sy);
         search.open.push(open_key(h0, h0, start));
-        if self.config.allow_corner_cutting {
-            search.run::<true>(nx, ny)
-        } else {
-            search.run::<false>(nx, ny)
-        }
+        let out = if self.config.allow_corner_cutting { search.run::<true>(nx, ny) } else { search.run::<false>(nx, ny) };
+        self.exit_from = search.exit_from;
+        out
     }
 
     /// The path to `goal` through the parents of the last search, with its cost, length, risk
     /// integral and accumulated risk.
-    fn trace(&self, grid: &RiskGrid<'_>, goal: usize, entry: Entry<'_>) -> PlannedPath {
+    fn trace(&self, grid: &RiskGrid<'_>, goal: usize, cost: f64, entry: Entry<'_>) -> PlannedPath {
         let mut flat = vec![goal];
         let mut i = goal;
         while let Some(&(dx, dy)) = MOVES.get(self.nodes[i].parent as usize) {
@@ -732,7 +850,7 @@ impl RiskAStar {
             let unseen = !entry.unseen.is_empty() && entry.unseen[w[1]] & (1 << self.nodes[w[1]].parent) != 0;
             risk_integral += d * ((hazard(w[0]) + hazard(w[1])) * 0.5 + if unseen { entry.hazard_extra } else { 0.0 });
         }
-        PlannedPath { cells, points_world, cost: self.nodes[goal].g, length_m, risk_integral, accumulated_risk: -(-risk_integral).exp_m1() }
+        PlannedPath { cells, points_world, cost, length_m, risk_integral, accumulated_risk: -(-risk_integral).exp_m1() }
     }
 }
 
@@ -762,6 +880,82 @@ mod tests {
 
     fn cell(ix: u32, iy: u32) -> CellIndex {
         CellIndex { ix, iy }
+    }
+
+    #[test]
+    fn toward_a_target_off_the_grid_the_path_leaves_where_the_whole_way_is_cheapest() {
+        // 20 x 10 cells of 1 m; a lethal wall across the whole grid at column 15. The target
+        // lies beyond the east border at (30, 8): the way on leaves by the north or the south
+        // border before the wall, where a stand-in on the segment toward the target is walled
+        // off.
+        let mut risk = vec![0.0f32; 200];
+        for y in 0..10 {
+            risk[y * 20 + 15] = 1.0;
+        }
+        let grid = RiskGrid::new(&risk, 20, 10, 1.0, DVec2::ZERO).unwrap();
+        let mut p = planner(|c| c.r_total = 1.0);
+        let (start, target) = (DVec2::new(2.5, 2.5), DVec2::new(30.5, 8.5));
+        let out = p.plan_toward(&grid, start, target, None).unwrap();
+        assert_eq!(out.status, PlanStatus::Found);
+        let exit = out.goal_cell;
+        assert!(exit.ix < 15 && (exit.iy == 0 || exit.iy == 9), "a border cell before the wall: {exit:?}");
+        let path = out.path.as_ref().unwrap();
+        assert_eq!(*path.cells.last().unwrap(), exit);
+        let on_segment = p.plan(&grid, start, DVec2::new(19.5, 8.5)).unwrap();
+        assert_eq!(on_segment.status, PlanStatus::NoPath);
+        // A target on the grid is planned to as usual.
+        let inside = p.plan_toward(&grid, start, DVec2::new(10.5, 5.5), None).unwrap();
+        assert_eq!(inside.goal_cell, cell(10, 5));
+        assert!(p.plan_toward(&grid, start, DVec2::new(f64::NAN, 0.0), None).unwrap_err().to_string().contains("`target`"));
+    }
+
+    #[test]
+    fn the_way_out_is_the_least_over_every_border_cell() {
+        // Random risks (some untraversable) on 13 x 9 cells of 0.5 m; targets round the grid.
+        // The search's cost to its exit plus λ·|exit - target| equals the least, over every
+        // border cell reachable, of a plain search's cost plus the same leg.
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (nx, ny, res) = (13usize, 9usize, 0.5);
+        for case in 0..12 {
+            let risk: Vec<f32> = (0..nx * ny).map(|_| { let u = next(); if u < 0.15 { 1.0 } else { (u * 0.6) as f32 } }).collect();
+            let grid = RiskGrid::new(&risk, nx, ny, res, DVec2::new(-1.0, 2.0)).unwrap();
+            let mut p = planner(|c| c.r_total = 1.0);
+            let lam = p.config().min_cell_cost();
+            let start_cell = cell(6, 4);
+            if risk[4 * nx + 6] >= 0.8 {
+                continue;
+            }
+            let start = grid.centre_of(start_cell);
+            let angle = case as f64 * 0.53;
+            let target = start + 9.0 * DVec2::new(angle.cos(), angle.sin());
+            let out = p.plan_toward(&grid, start, target, None).unwrap();
+            let mut best = f64::INFINITY;
+            for iy in 0..ny as u32 {
+                for ix in 0..nx as u32 {
+                    if ix != 0 && iy != 0 && ix + 1 != nx as u32 && iy + 1 != ny as u32 {
+                        continue;
+                    }
+                    if let Some(path) = p.plan_cells(&grid, start_cell, cell(ix, iy)).unwrap().path {
+                        best = best.min(path.cost + lam * grid.centre_of(cell(ix, iy)).distance(target));
+                    }
+                }
+            }
+            match out.path {
+                Some(path) => {
+                    let got = path.cost + lam * grid.centre_of(out.goal_cell).distance(target);
+                    assert!((got - best).abs() < 1e-9, "case {case}: {got} vs {best}");
+                    let (cost, _) = p.config().polyline_cost(&grid, &path.points_world).unwrap();
+                    assert!((cost - path.cost).abs() < 1e-9);
+                }
+                None => assert!(best.is_infinite(), "case {case}: no way out found, but {best}"),
+            }
+        }
     }
 
     #[test]
@@ -795,6 +989,14 @@ mod tests {
         assert!((path.accumulated_risk - (1.0 - (-0.497_244_490_2f64).exp())).abs() < 1e-8);
         assert_eq!(path.points_world[0], DVec2::new(-0.75, 2.25));
         assert_eq!(path.points_world[2], DVec2::new(0.25, 2.75));
+        // The same polyline priced outside the search: the same cost and risk integral.
+        let (cost, integral) = p.config().polyline_cost(&grid, &path.points_world).unwrap();
+        assert!((cost - path.cost).abs() < 1e-12 && (integral - path.risk_integral).abs() < 1e-12);
+        // Through an untraversable cell (0.9 >= r_inst 0.8), off the grid, or over budget: none.
+        assert_eq!(p.config().polyline_cost(&grid, &[DVec2::new(-0.75, 2.25), DVec2::new(-0.25, 2.25)]), None);
+        assert_eq!(p.config().polyline_cost(&grid, &[DVec2::new(-0.75, 2.25), DVec2::new(-5.0, 2.25)]), None);
+        let tight = RiskAStarConfig { r_total: 0.1, ..*p.config() };
+        assert_eq!(tight.polyline_cost(&grid, &path.points_world), None);
     }
 
     #[test]

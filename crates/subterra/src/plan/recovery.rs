@@ -12,7 +12,10 @@
 //! budget) on `stuck_plan_failures` consecutive ticks, or (b) *no progress*: over the
 //! last `progress_window_s` seconds the distance to the target shrank by less than
 //! `progress_min_m` (checked only once that much time has passed since the last
-//! transition, so each behaviour gets a fair window). While tracking, each trigger
+//! transition, so each behaviour gets a fair window). When the navigator switches to a
+//! longer route ([`RecoveryInput::route_switched`]), the window's samples are shifted by the
+//! jump, so progress is measured along the new route; at most once a window, so a robot
+//! whose plans keep switching still triggers. While tracking, each trigger
 //! climbs one rung of the **ladder**; the rung reached decides the next behaviour:
 //!
 //! 1. `ClearMap`: drop the fused map (stale or smeared scans can close a passage); one
@@ -273,6 +276,10 @@ pub struct RecoveryInput {
     /// Whether the robot could turn in place here (the navigator checked the footprint a full
     /// turn sweeps): `BackOut` goes on past `backout_distance_m` while it could not.
     pub room_to_turn: bool,
+    /// Whether this tick's plan replaced the path by another route (the navigator's plan
+    /// hysteresis let it through): a longer route's jump in `distance_to_target_m` is then
+    /// not lost progress (module docs), at most once a progress window.
+    pub route_switched: bool,
 }
 
 /// Which target to drive to.
@@ -337,6 +344,8 @@ pub struct RecoveryMachine {
     plan_failures: u32,
     /// (time, distance to target) samples of the current progress window.
     progress: VecDeque<(f64, f64)>,
+    /// When the progress window was last shifted for a route switch.
+    last_rebase_s: Option<f64>,
     /// Breadcrumbs, oldest first.
     trail: VecDeque<DVec2>,
     rotate_to: Option<f64>,
@@ -370,6 +379,7 @@ impl RecoveryMachine {
             last_trigger_s: f64::NAN,
             plan_failures: 0,
             progress: VecDeque::new(),
+            last_rebase_s: None,
             trail: VecDeque::new(),
             rotate_to: None,
             best_distance: f64::INFINITY,
@@ -496,7 +506,7 @@ impl RecoveryMachine {
         if self.behaviour == Behaviour::Track {
             self.best_distance = self.best_distance.min(input.straight_distance_m);
         }
-        self.record_progress(t, input.distance_to_target_m);
+        self.record_progress(t, input.distance_to_target_m, input.route_switched);
 
         let backout_carrot = (self.behaviour == Behaviour::BackOut).then(|| self.backout_carrot(input.position));
         Ok(Directive {
@@ -651,7 +661,19 @@ impl RecoveryMachine {
         self.transitions.push(Transition { time_s, from, to, reason, r_inst: self.r_inst, r_total: self.r_total });
     }
 
-    fn record_progress(&mut self, t: f64, distance: f64) {
+    fn record_progress(&mut self, t: f64, distance: f64, route_switched: bool) {
+        // A switch to a longer route: the samples of the window are measured along the new
+        // route from now on (shifted by the jump), once a window, so that choosing a longer,
+        // safer way is not a stall but two switches in one window still are.
+        if let Some(&(_, last)) = self.progress.back() {
+            let jump = distance - last;
+            if route_switched && jump > 0.0 && self.last_rebase_s.is_none_or(|r| t - r >= self.config.progress_window_s) {
+                for sample in &mut self.progress {
+                    sample.1 += jump;
+                }
+                self.last_rebase_s = Some(t);
+            }
+        }
         self.progress.push_back((t, distance));
         // Keep one sample older than the window, drop the rest.
         while self.progress.len() > 2 && t - self.progress[1].0 >= self.config.progress_window_s {
@@ -708,6 +730,7 @@ mod tests {
             plan,
             clearance_heading_rad: Some(1.0),
             room_to_turn: true,
+            route_switched: false,
         }
     }
 
@@ -803,6 +826,38 @@ mod tests {
         let t = first.expect("no trigger");
         assert!((8.0..=8.15).contains(&t), "triggered at {t}");
         assert!(m.transitions()[0].reason.starts_with("no progress: 0.16 m"));
+    }
+
+    /// Drives at 0.5 m/s toward a target 10 m off; at `t = 3 s` the plan switches to a route
+    /// 4 m longer (and, with `again`, at 6 s back to one 4 m longer still). The first switch
+    /// is progress along the new route; a second within the window is not.
+    fn drive_with_switches(again: bool) -> Option<f64> {
+        let mut m = machine();
+        for k in 0..160 {
+            let t = k as f64 * 0.1;
+            let extra = if t >= 6.0 && again { 8.0 } else if t >= 3.0 { 4.0 } else { 0.0 };
+            let switched = (k == 30) || (again && k == 60);
+            let d = 10.0 - 0.5 * t + extra;
+            let out = m.step(&RecoveryInput { route_switched: switched, ..input(t, 0.0, d, PlanFeedback::Found) }).unwrap();
+            if out.behaviour != Behaviour::Track {
+                return Some(t);
+            }
+        }
+        None
+    }
+
+    #[test]
+    fn a_switch_to_a_longer_route_is_not_lost_progress_but_dithering_is() {
+        assert_eq!(drive_with_switches(false), None, "one switch: progress along the new route");
+        let t = drive_with_switches(true).expect("two switches in one window: no progress");
+        assert!((8.0..=9.0).contains(&t), "triggered at {t}");
+        // Without the flag, the same jump is a stall.
+        let mut m = machine();
+        let stalled = (0..160).map(|k| k as f64 * 0.1).find(|&t| {
+            let d = 10.0 - 0.5 * t + if t >= 3.0 { 4.0 } else { 0.0 };
+            m.step(&input(t, 0.0, d, PlanFeedback::Found)).unwrap().behaviour != Behaviour::Track
+        });
+        assert!(stalled.is_some());
     }
 
     #[test]

@@ -125,6 +125,21 @@ pub struct NavigatorSettings {
     /// follow only stops the tracker beside an obstacle. If no checked path is found the last
     /// path found is used.
     pub footprint_replans: u32,
+    /// **Plan hysteresis** (step 3), a fraction in [0, 1]: a new plan replaces the path being
+    /// followed only when that path's rest, priced on the current grid as the A* prices a
+    /// path, has become untraversable, over the risk budget or footprint-blocked, or costs
+    /// more than `1 + plan_hysteresis` times the new one; 0: every plan replaces the path.
+    /// Each scan re-rates the ground ahead, and two routes of nearly equal cost would
+    /// otherwise take turns, the robot turning back and forth between them. Only a clearly
+    /// better route is worth turning for.
+    pub plan_hysteresis: f64,
+    /// **Targets beyond the map** (step 3): plan toward them with the A*'s exit search, which
+    /// may leave the map by any border cell, the straight line on priced at λ a metre
+    /// ([`crate::plan::astar::RiskAStar::plan_toward`]); `false`: plan to one stand-in, the
+    /// traversable cell nearest where the segment to the target leaves the map. A detour
+    /// round a wall that runs past the map's edge (a ridge's walled flank) leaves by another
+    /// border than the segment does.
+    pub leave_by_any_border: bool,
     /// **Perception-aware planning** (step 3): price the unknown cells the A* enters by
     /// whether the sensor will have seen them from the path before the robot gets there.
     pub perception_aware: bool,
@@ -163,6 +178,8 @@ impl Default for NavigatorSettings {
             unseen_near_lethal: true,
             void_rim_m: 0.2,
             footprint_replans: 4,
+            plan_hysteresis: 0.2,
+            leave_by_any_border: true,
             perception_aware: true,
             coverage: SensorCoverage::default(),
         }
@@ -218,6 +235,9 @@ impl NavigatorSettings {
             ("near_memory_m", self.near_memory_m, MAX_RANGE_SETTING_M),
             ("driven_memory_m", self.driven_memory_m, MAX_RANGE_SETTING_M),
         ];
+        if !(0.0..=1.0).contains(&self.plan_hysteresis) {
+            return Err(Error::config("navigator.plan_hysteresis", "must be in [0, 1]", self.plan_hysteresis));
+        }
         if self.footprint_replans > MAX_FOOTPRINT_REPLANS {
             return Err(Error::config("navigator.footprint_replans", format!("must be at most {MAX_FOOTPRINT_REPLANS} (each is one more A* search a plan)"), self.footprint_replans));
         }

@@ -42,9 +42,12 @@
 //!    failed, the thresholds or the target changed): with `inflate_lethal`, the lethal patch
 //!    cells of the navigator's grid inflated by half the robot's width (plus
 //!    `inflation_margin_m`) except around the robot, and the cells grown into the unseen laid
-//!    over them as they are (a guess: they block, they are not inflated); a target off the map replaced by the map cell on the segment robot→target nearest
-//!    it, then by the nearest cell where the robot fits and that the A* reaches
-//!    ([`target`]); with `perception_aware`, the moves that would enter an unknown cell (not
+//!    over them as they are (a guess: they block, they are not inflated); a target off the map
+//!    is planned toward with the A*'s exit search (`leave_by_any_border`: the path leaves by
+//!    the border cell that makes the whole way cheapest, the straight line on priced at λ a
+//!    metre, [`RiskAStar::plan_toward`]), or without it replaced by the map cell on the
+//!    segment robot→target nearest it; a target on a cell the robot may not enter by the
+//!    nearest cell where the robot fits and that the A* reaches ([`target`]); with `perception_aware`, the moves that would enter an unknown cell (not
 //!    observed, not remembered, not driven) the sensor will not have seen on the way are priced
 //!    at the map's `risk.unknown` instead of the planner's `unknown_risk`
 //!    ([`crate::plan::coverage`]); then the A* with the recovery machine's `R_inst`/`R_total`.
@@ -54,7 +57,14 @@
 //!    less the inscribed radius around that pose is closed and the A* runs again, up to
 //!    `footprint_replans` times ([`reactive::footprint_checked`]): the disc the A* plans for
 //!    takes turns the rectangle cannot, and such a path only stops the tracker beside an
-//!    obstacle. The distance to the target the recovery machine measures progress by is the path's
+//!    obstacle. With `plan_hysteresis` > 0, a plan that takes another route than the path
+//!    being followed (a vertex of the path's rest farther than the robot's width from it)
+//!    replaces it only if that rest, priced alike ([`RiskAStarConfig::polyline_cost`] plus λ
+//!    per metre on to the target), is untraversable, over budget, footprint-blocked or more
+//!    than `1 + plan_hysteresis` times the plan's price; else the rest is kept. A switch is
+//!    reported to the recovery machine ([`RecoveryInput::route_switched`]), which measures
+//!    progress along the new route from then on.
+//!    The distance to the target the recovery machine measures progress by is the path's
 //!    length plus the straight remainder beyond the map when a path was found, else the
 //!    straight-line distance.
 //! 4. **Recovery.** [`RecoveryMachine::step`] with the plan's outcome and the heading of most
@@ -205,6 +215,8 @@ pub struct Navigator {
     scratch: PlanScratch,
     path: Vec<DVec2>,
     remainder_m: f64,
+    /// The last plan replaced the path by another route (step 3, plan hysteresis).
+    route_switched: bool,
     last_plan_s: Option<f64>,
     last_plan_ok: bool,
     planned_for: Option<(f64, f64, Target)>,
@@ -254,6 +266,7 @@ impl Navigator {
             scratch: PlanScratch::default(),
             path: Vec::new(),
             remainder_m: 0.0,
+            route_switched: false,
             last_plan_s: None,
             last_plan_ok: false,
             planned_for: None,
@@ -419,6 +432,7 @@ impl Navigator {
             plan: feedback,
             clearance_heading_rad: Some(clearance_heading),
             room_to_turn: self.recovery.behaviour() != Behaviour::BackOut || self.room_to_turn(grid, position, heading, lethal),
+            route_switched: plan.is_some() && self.route_switched,
         })?;
         if directive.target != self.planned_for.map_or(Target::Goal, |k| k.2) {
             self.path.clear();
@@ -590,8 +604,12 @@ impl Navigator {
         let (mut goal_on_map, mut remainder) = on_map(grid, position, target_point);
         let off_map = remainder > 0.0;
         let search = Search { r_inst: blocking, unknown, fit_radius_m: fit_radius, reachable: &s.reachable };
-        let standin = nearest_traversable(grid, goal_on_map, nav.standin_search_m, &search)
-            .or_else(|| off_map.then(|| nearest_traversable_to(grid, target_point, &search)).flatten());
+        let exit_search = off_map && nav.leave_by_any_border;
+        let standin = if exit_search {
+            None
+        } else {
+            nearest_traversable(grid, goal_on_map, nav.standin_search_m, &search).or_else(|| off_map.then(|| nearest_traversable_to(grid, target_point, &search)).flatten())
+        };
         if let Some(p) = standin {
             goal_on_map = p;
             remainder = p.distance(target_point);
@@ -610,7 +628,18 @@ impl Navigator {
         } else {
             None
         };
-        let mut outcome = self.planner.plan_with(&astar_grid, position, goal_on_map, entry.as_ref())?;
+        let mut outcome = if exit_search {
+            // Toward a target beyond the map: leave by whichever border cell makes the whole
+            // way cheapest (the A*'s "toward a target off the grid").
+            let out = self.planner.plan_toward(&astar_grid, position, target_point, entry.as_ref())?;
+            if out.path.is_some() {
+                goal_on_map = astar_grid.centre_of(out.goal_cell);
+                remainder = goal_on_map.distance(target_point);
+            }
+            out
+        } else {
+            self.planner.plan_with(&astar_grid, position, goal_on_map, entry.as_ref())?
+        };
         if nav.footprint_replans > 0 && outcome.found().is_some() {
             // The path checked with the tracker's own footprint test (the rectangle along the
             // path's tangent, lethal cells and the unknown next to them): where it fails, a
@@ -625,9 +654,35 @@ impl Navigator {
             };
             outcome = reactive::footprint_checked(&mut self.planner, &s.astar, &g, lethal, entry.as_ref(), &replan, outcome)?;
         }
+        let followed = self.last_plan_ok && self.planned_for == Some(key) && self.path.len() >= 2;
+        self.route_switched = false;
         if let Some(path) = outcome.found() {
-            self.path.clone_from(&path.points_world);
-            self.remainder_m = remainder;
+            let view = safety_view(&nav, self.robot, (&self.hazards, &self.near, &self.driven), *grid, lethal, lethal, false);
+            let check = FootprintReplan { view: &view, from: pose, goal: goal_on_map, replans: 0, half_window_m: self.config.tracker.tracking.tangent_half_window_m };
+            let rest = if followed { rest_of_path(&self.path, position, 0.5 * self.robot.width_m) } else { None };
+            let planner = self.planner.config();
+            // Both priced alike: the A*'s cost along the cells, then λ per metre of straight
+            // line on to the target (the heuristic's price of the unmapped remainder).
+            let price = |points: &[DVec2]| {
+                let end = *points.last()?;
+                planner.polyline_cost(&astar_grid, points).map(|(cost, _)| cost + planner.min_cell_cost() * end.distance(target_point))
+            };
+            let passable = |rest: &[DVec2]| {
+                let check = FootprintReplan { goal: *rest.last().unwrap_or(&goal_on_map), ..check };
+                reactive::first_blocked_along(&check, rest, g.resolution_m).is_none()
+            };
+            let decision = choose_route(rest, &path.points_world, self.robot.width_m, nav.plan_hysteresis, price, passable);
+            match decision {
+                Route::Kept(rest) => {
+                    self.remainder_m = rest.last().map_or(0.0, |e| e.distance(target_point));
+                    self.path = rest;
+                }
+                other => {
+                    self.route_switched = matches!(other, Route::Switched);
+                    self.path.clone_from(&path.points_world);
+                    self.remainder_m = remainder;
+                }
+            }
         } else {
             self.path.clear();
         }
@@ -655,6 +710,61 @@ impl Navigator {
             safety: None,
         }
     }
+}
+
+/// What step 3 does with a new plan while a path is being followed.
+#[derive(Debug, PartialEq)]
+enum Route {
+    /// No path was being followed: the plan is the path.
+    New,
+    /// The plan runs along the path being followed (within the robot's width): it replaces
+    /// it, as a refreshed copy of the same route.
+    Same,
+    /// The plan takes another route, and the rest of the path being followed is still
+    /// traversable, within the budget, passable for the footprint and at most
+    /// `1 + plan_hysteresis` times the plan's price: the rest is kept.
+    Kept(Vec<DVec2>),
+    /// The plan takes another route, clearly better or the only one left: it replaces the path.
+    Switched,
+}
+
+/// Step 3's choice between `rest`, the rest of the path being followed (if any), and `new`,
+/// the plan just found: the same route if every vertex of `rest` lies within `width_m` of
+/// `new`; else `rest` is kept if `price` prices both, `rest` at most `1 + hysteresis` times
+/// `new`, and the footprint can follow it (`passable`).
+fn choose_route(
+    rest: Option<Vec<DVec2>>,
+    new: &[DVec2],
+    width_m: f64,
+    hysteresis: f64,
+    price: impl Fn(&[DVec2]) -> Option<f64>,
+    passable: impl Fn(&[DVec2]) -> bool,
+) -> Route {
+    let Some(rest) = rest else { return Route::New };
+    if max_deviation(&rest, new) <= width_m {
+        return Route::Same;
+    }
+    let cheap_enough = matches!((price(&rest), price(new)), (Some(old), Some(new)) if old <= (1.0 + hysteresis) * new);
+    if hysteresis > 0.0 && cheap_enough && passable(&rest) { Route::Kept(rest) } else { Route::Switched }
+}
+
+/// The rest of `path` from the robot at `position`: the robot, then the path from its vertex
+/// nearest the robot; `None` if that vertex is farther than `within_m` (the robot is not
+/// following the path) or is the path's end.
+fn rest_of_path(path: &[DVec2], position: DVec2, within_m: f64) -> Option<Vec<DVec2>> {
+    let (nearest, d2) = path.iter().enumerate().map(|(i, p)| (i, p.distance_squared(position))).min_by(|a, b| a.1.total_cmp(&b.1))?;
+    if d2 > within_m * within_m || nearest + 1 >= path.len() {
+        return None;
+    }
+    let mut rest = Vec::with_capacity(path.len() - nearest + 1);
+    rest.push(position);
+    rest.extend_from_slice(&path[nearest..]);
+    Some(rest)
+}
+
+/// The largest distance from a vertex of `a` to the nearest vertex of `b` [m].
+fn max_deviation(a: &[DVec2], b: &[DVec2]) -> f64 {
+    a.iter().map(|p| b.iter().map(|q| p.distance_squared(*q)).fold(f64::INFINITY, f64::min)).fold(0.0, f64::max).sqrt()
 }
 
 /// What a motion is checked against ([`Navigator::safety_view`]), from the navigator's
@@ -692,4 +802,76 @@ fn safety_view<'a>(
 fn yaw_of(pose: &Isometry3) -> f64 {
     let x = pose.rotation * glam::DVec3::X;
     wrap_angle(x.y.atan2(x.x))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 30 x 15 cells of 0.2 m with a block across the middle (x 10-19, y 4-10): two routes
+    /// round it, over (rows 11-14) and under (rows 0-3); `top_risk` on the upper band.
+    fn two_routes(top_risk: f32) -> Vec<f32> {
+        let mut risk = vec![0.0f32; 30 * 15];
+        for y in 0..15 {
+            for x in 0..30 {
+                if (10..20).contains(&x) && (4..11).contains(&y) {
+                    risk[y * 30 + x] = 0.95;
+                } else if y >= 11 && (8..22).contains(&x) {
+                    risk[y * 30 + x] = top_risk;
+                }
+            }
+        }
+        risk
+    }
+
+    fn plan(risk: &[f32]) -> (RiskAStarConfig, Vec<DVec2>) {
+        let grid = RiskGrid::new(risk, 30, 15, 0.2, DVec2::ZERO).unwrap();
+        let config = RiskAStarConfig { r_total: 1.0, ..RiskAStarConfig::default() };
+        let out = RiskAStar::new(config).unwrap().plan(&grid, DVec2::new(0.5, 1.5), DVec2::new(5.7, 1.5)).unwrap();
+        (config, out.found().expect("a path").points_world.clone())
+    }
+
+    #[test]
+    fn a_route_is_kept_unless_the_new_one_is_clearly_better() {
+        // The robot follows the route over the block (planned when the under route was risky).
+        let mut under_risky = two_routes(0.0);
+        for y in 0..4 {
+            for x in 8..22 {
+                under_risky[y * 30 + x] = 0.3;
+            }
+        }
+        let (config, over) = plan(&under_risky);
+        assert!(over.iter().any(|p| p.y > 2.2), "the first plan goes over the block");
+        let rest = rest_of_path(&over, over[3], 0.3).unwrap();
+        let judge = |risk: &[f32], hysteresis: f64| {
+            let (_, new) = plan(risk);
+            let grid = RiskGrid::new(risk, 30, 15, 0.2, DVec2::ZERO).unwrap();
+            let price = |points: &[DVec2]| config.polyline_cost(&grid, points).map(|(c, _)| c);
+            (choose_route(Some(rest.clone()), &new, 0.67, hysteresis, price, |_| true), new)
+        };
+        // Now the under route is clear and the over one slightly risky: the new plan goes
+        // under, a little cheaper; the route over is kept.
+        let (route, new) = judge(&two_routes(0.02), 0.2);
+        assert!(new.iter().all(|p| p.y < 2.2), "the new plan goes under");
+        assert!(matches!(route, Route::Kept(_)), "{route:?}");
+        // Without hysteresis, or when the route over became clearly worse, it switches.
+        assert_eq!(judge(&two_routes(0.02), 0.0).0, Route::Switched);
+        assert_eq!(judge(&two_routes(0.4), 0.2).0, Route::Switched);
+        // A route the footprint cannot follow any more is not kept.
+        let grid = RiskGrid::new(&under_risky, 30, 15, 0.2, DVec2::ZERO).unwrap();
+        let price = |points: &[DVec2]| config.polyline_cost(&grid, points).map(|(c, _)| c);
+        assert_eq!(choose_route(Some(rest.clone()), &plan(&two_routes(0.02)).1, 0.67, 0.2, price, |_| false), Route::Switched);
+        // The same route found again replaces the old path; no path followed: the plan.
+        assert_eq!(choose_route(Some(rest.clone()), &over, 0.67, 0.2, price, |_| true), Route::Same);
+        assert_eq!(choose_route(None, &over, 0.67, 0.2, price, |_| true), Route::New);
+    }
+
+    #[test]
+    fn the_rest_of_a_path_starts_at_the_robot_and_needs_it_near() {
+        let path = [DVec2::new(0.0, 0.0), DVec2::new(1.0, 0.0), DVec2::new(2.0, 0.0)];
+        assert_eq!(rest_of_path(&path, DVec2::new(1.1, 0.1), 0.3).unwrap(), vec![DVec2::new(1.1, 0.1), DVec2::new(1.0, 0.0), DVec2::new(2.0, 0.0)]);
+        assert_eq!(rest_of_path(&path, DVec2::new(1.0, 1.0), 0.3), None, "off the path");
+        assert_eq!(rest_of_path(&path, DVec2::new(2.0, 0.0), 0.3), None, "at its end");
+        assert!((max_deviation(&path, &[DVec2::new(0.0, 0.5), DVec2::new(2.0, 0.5)]) - 1.0f64.hypot(0.5)).abs() < 1e-12);
+    }
 }

@@ -247,16 +247,9 @@ pub(crate) fn footprint_checked(
     let mut closed: Option<Vec<f32>> = None;
     for _ in 0..replan.replans {
         let Some(path) = outcome.found() else { break };
-        // Poses whose closing would close the start or the goal are not checked: the robot
-        // has to leave where it stands and reach where it goes whatever the footprint says.
-        let keep_off = close_m + g.resolution_m;
-        let poses: Vec<(DVec2, f64)> = path_poses(&path.points_world, 0.5 * g.resolution_m, replan.half_window_m.max(0.5 * robot.length_m))
-            .into_iter()
-            .filter(|(p, _)| p.distance(replan.from.0) > keep_off && p.distance(replan.goal) > keep_off)
-            .collect();
-        let Some((k, _)) = replan.view.first_blocked(replan.from, poses.iter().copied()) else { break };
+        let Some(((at, _), _)) = first_blocked_along(replan, &path.points_world, g.resolution_m) else { break };
         let closed = closed.get_or_insert_with(|| astar.to_vec());
-        for_cells_within(g, poses[k].0, close_m, |_, c| closed[c] = lethal);
+        for_cells_within(g, at, close_m, |_, c| closed[c] = lethal);
         let retry = planner.plan_with(&RiskGrid::on_geometry(closed, g)?, replan.from.0, replan.goal, entry)?;
         if retry.found().is_none() {
             break;
@@ -264,6 +257,27 @@ pub(crate) fn footprint_checked(
         outcome = retry;
     }
     Ok(outcome)
+}
+
+/// The first pose along `path` (from `replan.from` to `replan.goal`) whose footprint
+/// `replan.view` refuses, with why ([`footprint_checked`]'s test: poses every half cell of
+/// side `resolution_m`, the heading that of the chord over the robot's length or the
+/// tracker's tangent window if longer, poses whose closing would reach the start or the goal
+/// left out); `None` if the robot can follow the whole path.
+pub(crate) fn first_blocked_along(replan: &FootprintReplan<'_>, path: &[DVec2], resolution_m: f64) -> Option<((DVec2, f64), Blocked)> {
+    if path.len() < 2 {
+        return None;
+    }
+    let robot = replan.view.robot;
+    let close_m = (0.5 * robot.length_m.hypot(robot.width_m) - 0.5 * robot.width_m).max(resolution_m);
+    // Poses whose closing would close the start or the goal are not checked: the robot has
+    // to leave where it stands and reach where it goes whatever the footprint says.
+    let keep_off = close_m + resolution_m;
+    let poses: Vec<(DVec2, f64)> = path_poses(path, 0.5 * resolution_m, replan.half_window_m.max(0.5 * robot.length_m))
+        .into_iter()
+        .filter(|(p, _)| p.distance(replan.from.0) > keep_off && p.distance(replan.goal) > keep_off)
+        .collect();
+    replan.view.first_blocked(replan.from, poses.iter().copied()).map(|(k, why)| (poses[k], why))
 }
 
 /// A reactive command, or why none is safe.
