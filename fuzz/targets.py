@@ -748,6 +748,22 @@ def astar_plan(data: bytes) -> None:
         pass
 
 
+def astar_plan_toward(data: bytes) -> None:
+    """``RiskAStar.plan_toward`` on a fuzzed risk grid, start and a target on or off the grid."""
+    from subterra.errors import SubterraError
+
+    fdp = atheris.FuzzedDataProvider(data)
+    try:
+        planner = _astar(fdp)
+        res = planner.plan_toward(_risk_grid(fdp), point(fdp, 2, 2.0), point(fdp, 2, 1e7),
+                                  resolution=real(fdp, 0.01, 1.0), origin=maybe(fdp, lambda: (real(fdp, -2, 2), real(fdp, -2, 2))))
+        res.path_world
+        res.goal_cell
+        res.cost
+    except SubterraError:
+        pass
+
+
 def astar_plan_cells(data: bytes) -> None:
     """``RiskAStar.plan_cells`` on a fuzzed risk grid and start/goal cells."""
     from subterra.errors import SubterraError
@@ -1090,6 +1106,7 @@ TARGETS: dict[str, Callable[[bytes], None]] = {
     "path_follower": path_follower,
     "astar_plan": astar_plan,
     "astar_plan_cells": astar_plan_cells,
+    "astar_plan_toward": astar_plan_toward,
     "mpc_solve": mpc_solve,
     "terrain_mapper_update": terrain_mapper_update,
     "segment_ground": segment_ground,

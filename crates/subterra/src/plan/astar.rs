@@ -701,8 +701,9 @@ impl RiskAStar {
     /// grid. A target on the grid is planned to as by [`RiskAStar::plan_with`]. Errors (naming
     /// `start` or `target`) if a position is not finite or the start lies off the grid.
     pub fn plan_toward(&mut self, grid: &RiskGrid<'_>, start_world: DVec2, target_world: DVec2, entry: Option<&EntryPrices<'_>>) -> Result<PlanOutcome> {
-        if !target_world.is_finite() {
-            return Err(Error::input("target", format!("must be finite, got ({}, {})", target_world.x, target_world.y)));
+        let far = crate::frames::MAX_TRANSLATION_M;
+        if !(target_world.is_finite() && target_world.x.abs() <= far && target_world.y.abs() <= far) {
+            return Err(Error::input("target", format!("must be finite and within {far:e} m of the origin, got ({}, {})", target_world.x, target_world.y)));
         }
         if grid.cell_of(target_world).is_some() {
             return self.plan_with(grid, start_world, target_world, entry);
@@ -907,6 +908,7 @@ mod tests {
         let inside = p.plan_toward(&grid, start, DVec2::new(10.5, 5.5), None).unwrap();
         assert_eq!(inside.goal_cell, cell(10, 5));
         assert!(p.plan_toward(&grid, start, DVec2::new(f64::NAN, 0.0), None).unwrap_err().to_string().contains("`target`"));
+        assert!(p.plan_toward(&grid, start, DVec2::new(1e300, 0.0), None).unwrap_err().to_string().contains("`target`"));
     }
 
     #[test]

@@ -276,9 +276,10 @@ pub struct RecoveryInput {
     /// Whether the robot could turn in place here (the navigator checked the footprint a full
     /// turn sweeps): `BackOut` goes on past `backout_distance_m` while it could not.
     pub room_to_turn: bool,
-    /// Whether this tick's plan replaced the path by another route (the navigator's plan
-    /// hysteresis let it through): a longer route's jump in `distance_to_target_m` is then
-    /// not lost progress (module docs), at most once a progress window.
+    /// Whether this tick's plan rerouted the robot (the navigator sets it when a new plan
+    /// lengthens the way by more than `progress_min_m`): that jump in
+    /// `distance_to_target_m` is then not lost progress (module docs), at most once a
+    /// progress window.
     pub route_switched: bool,
 }
 

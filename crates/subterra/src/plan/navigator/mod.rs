@@ -61,9 +61,10 @@
 //!    being followed (a vertex of the path's rest farther than the robot's width from it)
 //!    replaces it only if that rest, priced alike ([`RiskAStarConfig::polyline_cost`] plus λ
 //!    per metre on to the target), is untraversable, over budget, footprint-blocked or more
-//!    than `1 + plan_hysteresis` times the plan's price; else the rest is kept. A switch is
-//!    reported to the recovery machine ([`RecoveryInput::route_switched`]), which measures
-//!    progress along the new route from then on.
+//!    than `1 + plan_hysteresis` times the plan's price; else the rest is kept. A plan that
+//!    lengthens the way to the target by more than the recovery's `progress_min_m` is
+//!    reported as a reroute ([`RecoveryInput::route_switched`]): the recovery machine then
+//!    measures progress along the new route (once a window).
 //!    The distance to the target the recovery machine measures progress by is the path's
 //!    length plus the straight remainder beyond the map when a path was found, else the
 //!    straight-line distance.
@@ -215,8 +216,8 @@ pub struct Navigator {
     scratch: PlanScratch,
     path: Vec<DVec2>,
     remainder_m: f64,
-    /// The last plan replaced the path by another route (step 3, plan hysteresis).
-    route_switched: bool,
+    /// The distance to the target the recovery machine was last told [m].
+    last_distance_m: Option<f64>,
     last_plan_s: Option<f64>,
     last_plan_ok: bool,
     planned_for: Option<(f64, f64, Target)>,
@@ -266,7 +267,7 @@ impl Navigator {
             scratch: PlanScratch::default(),
             path: Vec::new(),
             remainder_m: 0.0,
-            route_switched: false,
+            last_distance_m: None,
             last_plan_s: None,
             last_plan_ok: false,
             planned_for: None,
@@ -432,8 +433,12 @@ impl Navigator {
             plan: feedback,
             clearance_heading_rad: Some(clearance_heading),
             room_to_turn: self.recovery.behaviour() != Behaviour::BackOut || self.room_to_turn(grid, position, heading, lethal),
-            route_switched: plan.is_some() && self.route_switched,
+            // A plan of this tick lengthened the way by more than counts as progress: a
+            // reroute, not the robot going backwards.
+            route_switched: plan.as_ref().is_some_and(|o| o.found().is_some())
+                && self.last_distance_m.is_some_and(|last| distance - last > self.recovery.config().progress_min_m),
         })?;
+        self.last_distance_m = Some(distance);
         if directive.target != self.planned_for.map_or(Target::Goal, |k| k.2) {
             self.path.clear();
             self.last_plan_ok = false;
@@ -655,7 +660,6 @@ impl Navigator {
             outcome = reactive::footprint_checked(&mut self.planner, &s.astar, &g, lethal, entry.as_ref(), &replan, outcome)?;
         }
         let followed = self.last_plan_ok && self.planned_for == Some(key) && self.path.len() >= 2;
-        self.route_switched = false;
         if let Some(path) = outcome.found() {
             let view = safety_view(&nav, self.robot, (&self.hazards, &self.near, &self.driven), *grid, lethal, lethal, false);
             let check = FootprintReplan { view: &view, from: pose, goal: goal_on_map, replans: 0, half_window_m: self.config.tracker.tracking.tangent_half_window_m };
@@ -677,8 +681,7 @@ impl Navigator {
                     self.remainder_m = rest.last().map_or(0.0, |e| e.distance(target_point));
                     self.path = rest;
                 }
-                other => {
-                    self.route_switched = matches!(other, Route::Switched);
+                _ => {
                     self.path.clone_from(&path.points_world);
                     self.remainder_m = remainder;
                 }
