@@ -45,8 +45,9 @@
 //!    over them as they are (a guess: they block, they are not inflated); a target off the map
 //!    is planned toward with the A*'s exit search (`leave_by_any_border`: the path leaves by
 //!    the border cell that makes the whole way cheapest, the straight line on priced at λ a
-//!    metre, [`RiskAStar::plan_toward`]), or without it replaced by the map cell on the
-//!    segment robot→target nearest it; a target on a cell the robot may not enter by the
+//!    metre, [`RiskAStar::plan_toward`]; when it finds no way out within the thresholds, and
+//!    without it, the target is replaced by the map cell on the segment robot→target nearest
+//!    it); a target on a cell the robot may not enter by the
 //!    nearest cell where the robot fits and that the A* reaches ([`target`]); with `perception_aware`, the moves that would enter an unknown cell (not
 //!    observed, not remembered, not driven) the sensor will not have seen on the way are priced
 //!    at the map's `risk.unknown` instead of the planner's `unknown_risk`
@@ -610,15 +611,11 @@ impl Navigator {
         let off_map = remainder > 0.0;
         let search = Search { r_inst: blocking, unknown, fit_radius_m: fit_radius, reachable: &s.reachable };
         let exit_search = off_map && nav.leave_by_any_border;
-        let standin = if exit_search {
-            None
-        } else {
-            nearest_traversable(grid, goal_on_map, nav.standin_search_m, &search).or_else(|| off_map.then(|| nearest_traversable_to(grid, target_point, &search)).flatten())
+        let standin = nearest_traversable(grid, goal_on_map, nav.standin_search_m, &search).or_else(|| off_map.then(|| nearest_traversable_to(grid, target_point, &search)).flatten());
+        let (standin_goal, standin_remainder) = match standin {
+            Some(p) => (p, p.distance(target_point)),
+            None => (goal_on_map, remainder),
         };
-        if let Some(p) = standin {
-            goal_on_map = p;
-            remainder = p.distance(target_point);
-        }
         if self.planner.config().r_inst != key.0 || self.planner.config().r_total != key.1 {
             self.planner = RiskAStar::new(RiskAStarConfig { r_inst: key.0, r_total: key.1, ..self.config.planner })?;
         }
@@ -633,17 +630,21 @@ impl Navigator {
         } else {
             None
         };
-        let mut outcome = if exit_search {
-            // Toward a target beyond the map: leave by whichever border cell makes the whole
-            // way cheapest (the A*'s "toward a target off the grid").
-            let out = self.planner.plan_toward(&astar_grid, position, target_point, entry.as_ref())?;
-            if out.path.is_some() {
+        // Toward a target beyond the map: leave by whichever border cell makes the whole way
+        // cheapest (the A*'s "toward a target off the grid"); when no way out within the
+        // thresholds exists (the border walled off or over them), the stand-in still gets
+        // the robot as near as the map allows.
+        let toward = if exit_search { Some(self.planner.plan_toward(&astar_grid, position, target_point, entry.as_ref())?) } else { None };
+        let mut outcome = match toward {
+            Some(out) if out.status == PlanStatus::Found => {
                 goal_on_map = astar_grid.centre_of(out.goal_cell);
                 remainder = goal_on_map.distance(target_point);
+                out
             }
-            out
-        } else {
-            self.planner.plan_with(&astar_grid, position, goal_on_map, entry.as_ref())?
+            _ => {
+                (goal_on_map, remainder) = (standin_goal, standin_remainder);
+                self.planner.plan_with(&astar_grid, position, goal_on_map, entry.as_ref())?
+            }
         };
         if nav.footprint_replans > 0 && outcome.found().is_some() {
             // The path checked with the tracker's own footprint test (the rectangle along the
