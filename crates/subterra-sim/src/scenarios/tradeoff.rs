@@ -205,6 +205,11 @@ pub const CAVE_SIZE_M: [f64; 2] = [24.0, 12.0];
 /// x / L + φ)`, a = 1.5-2.5 m, L = 10-14 m), walled by rock (boxes 2 m high along both sides),
 /// its floor a few centimetres rough with 3-5 holes (NaN, radius 0.25-0.45 m) in it, each
 /// off the centreline so that at least 1.2 m stays passable beside it.
+/// Holes start this far along the passage from the cave's start [m]: a Husky's lidar sees no
+/// ground within its blind ring (2.35 m), plus the footprint's circumscribed radius (0.6 m)
+/// and a margin; a hole closer than that could not be seen before the robot was over it.
+pub const CAVE_START_CLEAR_M: f64 = 3.5;
+
 pub fn cave(seed: u64) -> WorldSpec {
     let mut rng = Rng::seed_from_u64(seed);
     let [sx, sy] = CAVE_SIZE_M;
@@ -213,11 +218,12 @@ pub fn cave(seed: u64) -> WorldSpec {
     let centre_y = move |x: f64| 0.5 * sy + amp * (2.0 * PI * x / wavelength + phase).sin();
     let slope = move |x: f64| amp * 2.0 * PI / wavelength * (2.0 * PI * x / wavelength + phase).cos();
     let (x0, x1) = (2.0, sx - 2.0);
-    // Holes along the passage, kept from start, goal and each other.
+    // Holes along the passage, kept from start, goal and each other: none within
+    // CAVE_START_CLEAR_M of the start, where a lidar on the robot never sees the floor.
     let mut holes: Vec<([f64; 2], f64)> = Vec::new();
     for _ in 0..uni_count(&mut rng, 3, 5) {
         for _ in 0..200 {
-            let x = uni(&mut rng, x0 + 3.0, x1 - 3.0);
+            let x = uni(&mut rng, x0 + 1.2 + CAVE_START_CLEAR_M, x1 - 3.0);
             let r = uni(&mut rng, 0.25, 0.45);
             // Off the centreline: the far side keeps 1.2 m to the wall.
             let max_off = 0.5 * width - 0.2;
@@ -344,6 +350,16 @@ mod tests {
             assert!(holes >= 3 * 15, "seed {seed}: {holes} hole samples");
             for r in &s.regions {
                 assert!(height(&s, [r.centre[0], r.centre[1]]).is_finite(), "seed {seed}: {}", r.name);
+            }
+            // No hole within the start's clear zone (less its largest radius).
+            let start = s.regions.iter().find(|r| r.name == "start").expect("a start region").centre;
+            for (iy, row) in grid(&s).iter().enumerate() {
+                for (ix, v) in row.iter().enumerate() {
+                    if v.is_nan() {
+                        let (x, y) = (ix as f64 * GROUND_RESOLUTION_M, iy as f64 * GROUND_RESOLUTION_M);
+                        assert!((x - start[0]).abs() > CAVE_START_CLEAR_M - 0.5, "seed {seed}: a hole at ({x}, {y})");
+                    }
+                }
             }
         }
     }
