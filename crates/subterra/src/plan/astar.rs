@@ -234,20 +234,32 @@ impl RiskAStarConfig {
     /// this is the path's `cost` and `risk_integral`; the navigator uses it to price the path
     /// it follows and a new one alike (plan hysteresis).
     pub fn polyline_cost(&self, grid: &RiskGrid<'_>, points_world: &[DVec2]) -> Option<(f64, f64)> {
-        let mut prev: Option<(DVec2, f64, f64)> = None;
+        self.polyline_cost_with(grid, points_world, Entry { unseen: &[], cost_extra: 0.0, hazard_extra: 0.0 })
+    }
+
+    /// [`Self::polyline_cost`] with the search's entry prices: a segment between 8-neighbour
+    /// cells whose move enters its cell unseen pays the extra, as in the search.
+    fn polyline_cost_with(&self, grid: &RiskGrid<'_>, points_world: &[DVec2], entry: Entry<'_>) -> Option<(f64, f64)> {
+        let mut prev: Option<(CellIndex, f64, f64, DVec2)> = None;
         let (mut cost, mut integral) = (0.0, 0.0);
         for &p in points_world {
-            let risk = grid.risk[grid.flat(grid.cell_of(p)?)];
+            let cell = grid.cell_of(p)?;
+            let flat = grid.flat(cell);
+            let risk = grid.risk[flat];
             let (c, rho) = (self.cell_cost(risk), self.hazard(risk)?);
             if !c.is_finite() {
                 return None;
             }
-            if let Some((q, cq, rq)) = prev {
+            if let Some((qc, cq, rq, q)) = prev {
                 let d = p.distance(q);
-                cost += d * 0.5 * (c + cq);
-                integral += d * 0.5 * (rho + rq);
+                let step = (i64::from(cell.ix) - i64::from(qc.ix), i64::from(cell.iy) - i64::from(qc.iy));
+                let unseen = !entry.unseen.is_empty()
+                    && MOVES.iter().position(|&(dx, dy)| (i64::from(dx), i64::from(dy)) == step).is_some_and(|k| entry.unseen[flat] & (1 << k) != 0);
+                let (ce, he) = if unseen { (entry.cost_extra, entry.hazard_extra) } else { (0.0, 0.0) };
+                cost += d * (0.5 * (c + cq) + ce);
+                integral += d * (0.5 * (rho + rq) + he);
             }
-            prev = Some((p, c, rho));
+            prev = Some((cell, c, rho, p));
         }
         let over_budget = self.cost_model == CostModel::Risk && -(-integral).exp_m1() > self.r_total;
         (!over_budget).then_some((cost, integral))
@@ -679,6 +691,14 @@ impl RiskAStar {
         &self.config
     }
 
+    /// [`RiskAStarConfig::polyline_cost`] with the perception-aware entry prices the search
+    /// would use (`entry`): a path priced so costs what the A* would charge for it. Errors as
+    /// [`RiskAStar::plan_with`] on a bad `entry`.
+    pub fn price_polyline(&self, grid: &RiskGrid<'_>, points_world: &[DVec2], entry: Option<&EntryPrices<'_>>) -> Result<Option<(f64, f64)>> {
+        let entry = self.checked_entry(grid, entry)?;
+        Ok(self.config.polyline_cost_with(grid, points_world, entry))
+    }
+
     /// Plans from the cell holding the world position `start_world` to the one holding
     /// `goal_world` [m]. Errors (naming `start` or `goal`) if a position is not finite or lies
     /// outside the grid; "no path" is an outcome.
@@ -999,6 +1019,18 @@ mod tests {
         assert_eq!(p.config().polyline_cost(&grid, &[DVec2::new(-0.75, 2.25), DVec2::new(-5.0, 2.25)]), None);
         let tight = RiskAStarConfig { r_total: 0.1, ..*p.config() };
         assert_eq!(tight.polyline_cost(&grid, &path.points_world), None);
+        // With entry prices: the move into the last cell (E, from (1, 1) to (2, 1)) entered
+        // unseen pays the search's extra, as the search would.
+        let mut unseen = vec![0u8; 6];
+        unseen[5] = 1 << 0;
+        let entry = EntryPrices { unseen: &unseen, unseen_risk: 0.5 };
+        let (priced, _) = p.price_polyline(&grid, &path.points_world, Some(&entry)).unwrap().unwrap();
+        let extra = p.config().cell_cost(0.5) - p.config().cell_cost(f32::NAN);
+        assert!((priced - (path.cost + 0.5 * extra)).abs() < 1e-9, "{priced} vs {}", path.cost + 0.5 * extra);
+        let searched = p.plan_cells_with(&grid, cell(0, 0), cell(2, 1), Some(&entry)).unwrap();
+        if searched.path.as_ref().map(|q| &q.cells) == Some(&path.cells) {
+            assert!((searched.path.unwrap().cost - priced).abs() < 1e-9);
+        }
     }
 
     #[test]

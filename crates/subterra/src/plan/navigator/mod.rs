@@ -60,8 +60,8 @@
 //!    takes turns the rectangle cannot, and such a path only stops the tracker beside an
 //!    obstacle. With `plan_hysteresis` > 0, a plan that takes another route than the path
 //!    being followed (a vertex of the path's rest farther than the robot's width from it)
-//!    replaces it only if that rest, priced alike ([`RiskAStarConfig::polyline_cost`] plus λ
-//!    per metre on to the target), is untraversable, over budget, footprint-blocked or more
+//!    replaces it only if that rest crosses an unknown cell, or, priced alike ([`RiskAStar::price_polyline`], the
+//!    perception-aware entry prices included, plus λ per metre on to the target), is untraversable, over budget, footprint-blocked or more
 //!    than `1 + plan_hysteresis` times the plan's price; else the rest is kept. A plan that
 //!    lengthens the way to the target by more than the recovery's `progress_min_m` is
 //!    reported as a reroute ([`RecoveryInput::route_switched`]): the recovery machine then
@@ -665,16 +665,23 @@ impl Navigator {
             let view = safety_view(&nav, self.robot, (&self.hazards, &self.near, &self.driven), *grid, lethal, lethal, false);
             let check = FootprintReplan { view: &view, from: pose, goal: goal_on_map, replans: 0, half_window_m: self.config.tracker.tracking.tangent_half_window_m };
             let rest = if followed { rest_of_path(&self.path, position, 0.5 * self.robot.width_m) } else { None };
-            let planner = self.planner.config();
-            // Both priced alike: the A*'s cost along the cells, then λ per metre of straight
-            // line on to the target (the heuristic's price of the unmapped remainder).
+            let planner = &self.planner;
+            // Both priced alike, as the A* prices a path (its perception-aware entry prices
+            // included: a path kept through ground the sensor will not have seen costs what
+            // the search would charge for it), then λ per metre of straight line on to the
+            // target (the heuristic's price of the unmapped remainder).
             let price = |points: &[DVec2]| {
                 let end = *points.last()?;
-                planner.polyline_cost(&astar_grid, points).map(|(cost, _)| cost + planner.min_cell_cost() * end.distance(target_point))
+                let (cost, _) = planner.price_polyline(&astar_grid, points, entry.as_ref()).ok()??;
+                Some(cost + planner.config().min_cell_cost() * end.distance(target_point))
             };
+            // Only over ground the map has rated: a path kept through unknown ground would
+            // take the robot where the planner no longer goes (a pit whose floor its rim
+            // hides), on the strength of an old guess.
             let passable = |rest: &[DVec2]| {
                 let check = FootprintReplan { goal: *rest.last().unwrap_or(&goal_on_map), ..check };
-                reactive::first_blocked_along(&check, rest, g.resolution_m).is_none()
+                rest.iter().skip(1).all(|p| astar_grid.value_at(*p).is_some_and(|v| !v.is_nan()))
+                    && reactive::first_blocked_along(&check, rest, g.resolution_m).is_none()
             };
             let decision = choose_route(rest, &path.points_world, self.robot.width_m, nav.plan_hysteresis, price, passable);
             match decision {
