@@ -741,15 +741,7 @@ impl RiskAStar {
             PlanStatus::Found => Some(self.trace(grid, exit_cell, exit_g, entry)),
             _ => None,
         };
-        let status = match &path {
-            Some(p) if self.config.cost_model == CostModel::Risk && p.accumulated_risk > self.config.r_total => PlanStatus::BudgetExceeded,
-            _ => status,
-        };
-        let carrot_world = match (&path, status) {
-            (Some(p), PlanStatus::Found) => Some(carrot(&p.points_world, self.config.carrot_m)),
-            _ => None,
-        };
-        Ok(PlanOutcome { status, path, carrot_world, start_cell: start, goal_cell: goal, expanded, time_s: started.elapsed().as_secs_f64() })
+        Ok(self.outcome(status, path, (start, goal), expanded, started))
     }
 
     /// Plans from cell `start` to cell `goal`. Errors (naming `start` or `goal`) if a cell is
@@ -769,6 +761,12 @@ impl RiskAStar {
             PlanStatus::Found | PlanStatus::BudgetExceeded => Some(self.trace(grid, grid.flat(goal), self.nodes[grid.flat(goal)].g, entry)),
             _ => None,
         };
+        Ok(self.outcome(status, path, (start, goal), expanded, started))
+    }
+
+    /// The outcome of a search that ended with `status` and traced `path`: the budget check
+    /// (with the `risk` model) and the carrot.
+    fn outcome(&self, status: PlanStatus, path: Option<PlannedPath>, (start, goal): (CellIndex, CellIndex), expanded: usize, started: Instant) -> PlanOutcome {
         let status = match &path {
             Some(p) if self.config.cost_model == CostModel::Risk && p.accumulated_risk > self.config.r_total => PlanStatus::BudgetExceeded,
             _ => status,
@@ -777,7 +775,7 @@ impl RiskAStar {
             (Some(p), PlanStatus::Found) => Some(carrot(&p.points_world, self.config.carrot_m)),
             _ => None,
         };
-        Ok(PlanOutcome { status, path, carrot_world, start_cell: start, goal_cell: goal, expanded, time_s: started.elapsed().as_secs_f64() })
+        PlanOutcome { status, path, carrot_world, start_cell: start, goal_cell: goal, expanded, time_s: started.elapsed().as_secs_f64() }
     }
 
     /// Starts a new search over `cells` cells: grows the node array, moves to a fresh stamp and
