@@ -603,19 +603,9 @@ impl Navigator {
             s.astar.clone_from(&s.grown);
         }
         let astar_grid = RiskGrid::on_geometry(&s.astar, &g)?;
-        // A stand-in for a target off the map, or on a cell the robot may not enter, must be
-        // a cell where it fits and that the planner can reach.
-        let blocking = key.0.min(f64::from(lethal));
-        reachable_from(&astar_grid, position, blocking, unknown, self.config.planner.allow_corner_cutting, &mut s.reachable, &mut s.flood);
         let (mut goal_on_map, mut remainder) = on_map(grid, position, target_point);
         let off_map = remainder > 0.0;
-        let search = Search { r_inst: blocking, unknown, fit_radius_m: fit_radius, reachable: &s.reachable };
         let exit_search = off_map && nav.leave_by_any_border;
-        let standin = nearest_traversable(grid, goal_on_map, nav.standin_search_m, &search).or_else(|| off_map.then(|| nearest_traversable_to(grid, target_point, &search)).flatten());
-        let (standin_goal, standin_remainder) = match standin {
-            Some(p) => (p, p.distance(target_point)),
-            None => (goal_on_map, remainder),
-        };
         if self.planner.config().r_inst != key.0 || self.planner.config().r_total != key.1 {
             self.planner = RiskAStar::new(RiskAStarConfig { r_inst: key.0, r_total: key.1, ..self.config.planner })?;
         }
@@ -642,7 +632,17 @@ impl Navigator {
                 out
             }
             _ => {
-                (goal_on_map, remainder) = (standin_goal, standin_remainder);
+                // A stand-in for a target off the map, or on a cell the robot may not enter,
+                // must be a cell where it fits and that the planner can reach.
+                let blocking = key.0.min(f64::from(lethal));
+                reachable_from(&astar_grid, position, blocking, unknown, self.config.planner.allow_corner_cutting, &mut s.reachable, &mut s.flood);
+                let search = Search { r_inst: blocking, unknown, fit_radius_m: fit_radius, reachable: &s.reachable };
+                let standin = nearest_traversable(grid, goal_on_map, nav.standin_search_m, &search)
+                    .or_else(|| off_map.then(|| nearest_traversable_to(grid, target_point, &search)).flatten());
+                if let Some(p) = standin {
+                    goal_on_map = p;
+                    remainder = p.distance(target_point);
+                }
                 self.planner.plan_with(&astar_grid, position, goal_on_map, entry.as_ref())?
             }
         };
