@@ -131,3 +131,37 @@ def test_the_navigators_grid_holds_the_hole_lethal(hole):
     # The navigator's own map of the same scans: the same geometry and lethal cells.
     assert nav_map.shape == m.shape and nav_map.origin == m.origin
     assert np.all(grid[cells] >= m.lethal_risk)
+
+
+@pytest.mark.parametrize("drop_shadows", [True, False])
+def test_the_ground_a_pit_edge_hides_is_lethal(drop_shadows):
+    """Mine seed 363 fell here: a pit 0.63 m deep with vertical sides, its near (west) edge at
+    x = 11.45 m, scanned from 3.1 m before it. The floor just past the edge is hidden; the
+    rays that graze it on their way to the far wall pass only centimetres below the ground
+    there. With ``ground.drop_shadows`` the hidden strip is as deep as the pit's evidence,
+    lethal; without, it reads as ground (the fall)."""
+    world = World.scenario("mine", 363)
+    edge_x = 11.45
+    assert world.ground_height(edge_x - 0.1, 7.3) > 0.1 and world.ground_height(edge_x + 0.1, 7.3) < -0.4
+    robot = (edge_x - 3.1, 7.25)
+    world_from_body = _pose(*robot, world.ground_height(*robot), 0.0)
+    body_from_sensor = translation(z=LIDAR_HEIGHT_M)
+    terrain = {"ground": {"void_min_gap_deg": LIDAR_VOID_MIN_GAP_DEG, "drop_shadows": drop_shadows}}
+    mapper = subterra.TerrainMapper(config=terrain)
+    lidar = Lidar("os1_64")
+    for k in range(3):
+        points, _ = lidar.scan(world, world_from_body @ body_from_sensor, noise="os1_64", seed=k)
+        m = mapper.update(points, stamp=0.1 * k, world_from_body=world_from_body, body_from_sensor=body_from_sensor)
+    # The strip 0.05-0.35 m past the edge, where the robot's corner went over it.
+    strip = [(x, y) for x in (edge_x + 0.1, edge_x + 0.2, edge_x + 0.3) for y in (7.05, 7.25, 7.45)]
+    assert all(world.ground_height(x, y) < -0.4 for x, y in strip)
+    risks = [m.risk_at(x, y) for x, y in strip]
+    lethal = [r is not None and r >= m.lethal_risk for r in risks]
+    if drop_shadows:
+        assert all(lethal), f"hidden pit floor rated {risks}"
+        assert all(m.value_at("observed", x, y) == 1.0 for x, y in strip)
+        # The ground before the edge stays drivable.
+        before = [m.risk_at(edge_x - d, 7.25) for d in (0.4, 0.8, 1.5)]
+        assert all(r is not None and r < 0.5 for r in before), before
+    else:
+        assert not all(lethal), "the regression this guards against no longer reproduces"

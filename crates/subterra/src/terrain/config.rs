@@ -227,6 +227,33 @@ pub struct GroundConfig {
     /// so the span is long (a plateau, not a rock). 0 (the default) turns it off. subterra.
     #[serde(default)]
     pub unseen_rise_min_length_m: f64,
+    /// Shadows of drops (the STEP `negative` layer): where rays passed below the expected
+    /// ground beyond a return, the floor is missing somewhere between that return and them;
+    /// the positions in between take the deepest such evidence as their `negative_depth`
+    /// (module doc of `terrain::ground`, *Shadow*). A pit's near edge hides its floor from the
+    /// sensor: without this the cells just past the edge read as ground, rated only by rays
+    /// that graze them. On (the default) for every sensor: it needs rays that passed below
+    /// the ground, which dropouts do not make. subterra.
+    #[serde(default = "enabled")]
+    pub drop_shadows: bool,
+    /// A run is a drop's shadow only behind a return whose ray descends at least this steeply
+    /// [deg]: the robot's safe tilt. The ground hidden behind a return falls away at least as
+    /// steeply as the ray that grazed it; seen more steeply than the robot's safe tilt, no
+    /// reading of it is safe, seen shallower (far off, past a gentle crest) it may be a slope
+    /// the robot could drive, and the sensor sees it again from closer. The Husky's 10° puts
+    /// the limit 4 m out for a lidar 0.7 m up. subterra.
+    #[serde(default = "default_min_grazing_deg")]
+    pub drop_shadow_min_grazing_deg: f64,
+}
+
+/// `ground.drop_shadow_min_grazing_deg` by default: the Husky's safe tilt [deg].
+fn default_min_grazing_deg() -> f64 {
+    10.0
+}
+
+/// `true`, for `#[serde(default = "enabled")]`.
+fn enabled() -> bool {
+    true
 }
 
 /// `ground.void_min_gap_deg` for the simulated spinning lidars (VLP-16, OS1-64): above the
@@ -357,6 +384,8 @@ impl Default for GroundConfig {
             max_dist_to_line_m: 0.1,
             void_min_gap_deg: 0.0,
             unseen_rise_min_length_m: 0.0,
+            drop_shadows: true,
+            drop_shadow_min_grazing_deg: 10.0,
         }
     }
 }
@@ -432,6 +461,9 @@ impl GroundConfig {
             return Err(Error::config("ground.min_line_points", "must be >= 2 (a line needs two points)", self.min_line_points));
         }
         require_positive("ground.max_dist_to_line_m", self.max_dist_to_line_m)?;
+        if !(self.drop_shadow_min_grazing_deg.is_finite() && self.drop_shadow_min_grazing_deg >= 0.0 && self.drop_shadow_min_grazing_deg < 90.0) {
+            return Err(Error::config("ground.drop_shadow_min_grazing_deg", "must be in [0, 90) deg", self.drop_shadow_min_grazing_deg));
+        }
         if !(self.void_min_gap_deg.is_finite() && self.void_min_gap_deg >= 0.0 && self.void_min_gap_deg < 90.0) {
             return Err(Error::config("ground.void_min_gap_deg", "must be 0 (off) or in (0, 90) deg", self.void_min_gap_deg));
         }

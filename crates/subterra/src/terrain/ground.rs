@@ -61,7 +61,10 @@
 //! 4. **Line of each bin.** Bin `k` of a sector takes the first accepted line (in order of
 //!    acceptance) whose bin interval contains `k` (the bin is then *covered*); if none does,
 //!    the line whose interval is nearest in bins (distance `first - k` or `k - last`; on a tie
-//!    the earlier line). A sector without lines uses the flat line `m = 0, b = -H`.
+//!    the earlier line), except before the sector's first line, where it takes the straight
+//!    line from the ground under the sensor `(0, -H)` to that line at its first prototype's
+//!    radius `r₁` (`m = (z₁ + H) / r₁, b = -H`; not covered). A sector without lines uses
+//!    the flat line `m = 0, b = -H`.
 //! 5. **Labels.** A point's height above ground is `h = z - (m·r + b)` with its bin's line;
 //!    it is ground iff `|h| <= max_dist_to_line_m`. Points without a bin are obstacles with
 //!    `h = NaN`.
@@ -91,6 +94,28 @@
 //! is missing (a hole, or a drop beyond the sensor's range). Runs behind an occluder, past
 //! a crest, or beyond a partial occluder are not void: the rays over them came back from
 //! farther, or from the occluder.
+//!
+//! *Shadow* (`drop_shadows`): a drop with a floor (a pit, a ledge) hides the floor behind
+//! its near edge. Per sector, a bin's return *came back* when it lies not more than
+//! `max_dist_to_line_m` below its line; the bins after a bin's farthest such return, up to
+//! the next bin with one, form a *run*. Each bin of a run has a depth below the ground last
+//! seen going on (the expected ground of the bin that starts the run, its line continued):
+//! that at the bin's far edge minus the steepest downward ray to a farther bin's prototype
+//! there, or, if deeper, how far its lowest point lies below it where that is more than
+//! `max_dist_to_line_m`. The starting bin's line, not the bin's own: a line accepted from
+//! the near rim to the floor or far wall of a pit (a "slope" with nothing returned along
+//! it) would otherwise explain the drop away. The floor is missing wherever a ray passed
+//! below that ground, and from the return that starts the run to there nothing shows where
+//! the drop begins: every position of the run (including the part of the starting bin beyond its
+//! farthest return) takes the deepest depth of the run's bins from there on, at least 0
+//! (`shadow_depth`), if the ray to that return (at the expected ground there) descends at
+//! least `drop_shadow_min_grazing_deg`; otherwise, and before the sector's first return (the
+//! blind ring around the sensor), there is no shadow. Ground hidden behind a return is
+//! steeper than the ray that grazed it, or falls away: seen at a grazing angle above the
+//! robot's safe tilt, every reading of the run is a hazard; at a shallower one (far away,
+//! past a crest) it may be a slope the robot could drive, which it sees from closer. Behind
+//! a rock the rays over the run pass above the ground (depth 0); between two rings on flat
+//! ground they too pass above it.
 
 use super::config::GroundConfig;
 use crate::error::{Error, Result};
@@ -130,6 +155,9 @@ pub struct PolarBin {
     pub floor_bound_z: f64,
     /// Whether the bin is void: beams crossed its expected ground and none returned.
     pub void: bool,
+    /// How deep the drop may be that begins at the queried radius: the deepest evidence of
+    /// missing ground in the shadow run it lies in (module doc, *Shadow*), 0 outside one [m].
+    pub shadow_depth: f64,
 }
 
 /// A polar bin's prototype and steepest ray, gathered while binning.
@@ -146,10 +174,24 @@ struct BinAccumulator {
     low_slope: f32,
     /// After the sweep: whether the bin is void (module doc).
     void: bool,
+    /// The radius of the bin's farthest return that came back (not more than
+    /// `max_dist_to_line_m` below its line); `-inf` when none did.
+    solid_r: f32,
+    /// After the sweep: the shadow depth beyond `solid_r` (module doc, *Shadow*) [m].
+    shadow_depth: f32,
 }
 
 impl BinAccumulator {
-    const EMPTY: Self = Self { proto_r: 0.0, proto_z: f32::INFINITY, ray_slope: f32::INFINITY, top_slope: f32::NEG_INFINITY, low_slope: f32::INFINITY, void: false };
+    const EMPTY: Self = Self {
+        proto_r: 0.0,
+        proto_z: f32::INFINITY,
+        ray_slope: f32::INFINITY,
+        top_slope: f32::NEG_INFINITY,
+        low_slope: f32::INFINITY,
+        void: false,
+        solid_r: f32::NEG_INFINITY,
+        shadow_depth: 0.0,
+    };
 }
 
 /// A polar bin's ground line and the radii it covers (empty range if not covered).
@@ -244,6 +286,9 @@ pub struct GroundSegmenter {
     spans: Vec<(f64, f64)>,
     /// One sector's non-empty bins, in order, in [`mark_voids`](Self::mark_voids).
     full_bins: Vec<usize>,
+    /// One sector's run start per bin in [`mark_shadows`](Self::mark_shadows) ([`NO_BIN`]:
+    /// none).
+    run_start: Vec<u32>,
     /// Per polar bin while binning: the smallest [`proto_key`] of its points (`u64::MAX`:
     /// empty).
     proto_key: Vec<u64>,
@@ -278,6 +323,7 @@ impl GroundSegmenter {
             proto_key: vec![u64::MAX; polar],
             spans: vec![(f64::NAN, f64::NAN); bins],
             full_bins: Vec::with_capacity(bins),
+            run_start: Vec::with_capacity(bins),
             // Before the first scan every bin has the line of `BinLine::NONE`.
             bin_line: vec![0; polar],
             bin_lines: vec![BinLine::NONE],
@@ -322,9 +368,12 @@ impl GroundSegmenter {
             let line = &lines[bin_line[sb as usize] as usize];
             (p[2] as f64 - (line.m * r + line.b)) as f32
         }));
+        self.gather_ray_spans(points, heights_out);
         if self.config.void_min_gap_deg != 0.0 {
-            self.gather_ray_spans(points, heights_out);
             self.mark_voids();
+        }
+        if self.config.drop_shadows {
+            self.mark_shadows();
         }
         Ok(())
     }
@@ -413,7 +462,8 @@ impl GroundSegmenter {
         // bound is taken only when lower (a NaN ray bound, inf·0, leaves the prototype's z).
         let (proto_z, ray_z) = (acc.proto_z as f64, acc.ray_slope as f64 * r);
         let floor_bound_z = if ray_z < proto_z { ray_z } else { proto_z };
-        PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z, void: acc.void }
+        let shadow_depth = if r > f64::from(acc.solid_r) { f64::from(acc.shadow_depth) } else { 0.0 };
+        PolarBin { covered: r >= line.cover_lo && r <= line.cover_hi, ground_z, floor_bound_z, void: acc.void, shadow_depth }
     }
 
     fn bin_points(&mut self, points: &[[f32; 3]]) {
@@ -485,10 +535,10 @@ impl GroundSegmenter {
     }
 
     /// Each bin's ray span for the void detection (module doc, *Void*): the slopes `z/r` of
-    /// its points that are not more than `max_dist_to_line_m` below its ground line. A return
-    /// from deeper came through the floor: its ray crossed the expected ground where there
-    /// was none (a hole's inside, or what lies under it), so it is evidence for a void, not a
-    /// beam that came back from the ground.
+    /// its points that are not more than `max_dist_to_line_m` below its ground line, and the
+    /// radius of the farthest of them (*Shadow*). A return from deeper came through the floor:
+    /// its ray crossed the expected ground where there was none (a hole's inside, or what lies
+    /// under it), so it is evidence for a void, not a beam that came back from the ground.
     fn gather_ray_spans(&mut self, points: &[[f32; 3]], heights: &[f32]) {
         let below = -(self.config.max_dist_to_line_m as f32);
         let acc = &mut self.acc[..];
@@ -503,6 +553,55 @@ impl GroundSegmenter {
                 let acc = &mut acc[sb as usize];
                 acc.top_slope = acc.top_slope.max((z / r) as f32);
                 acc.low_slope = acc.low_slope.min((z / r) as f32);
+                acc.solid_r = acc.solid_r.max(r as f32);
+            }
+        }
+    }
+
+    /// The shadow depth of every bin (module doc, *Shadow*): per sector, from the sensor out,
+    /// the return that starts each bin's run; from the farthest bin in, the deepest missing
+    /// ground below that return's line over the rest of the run, kept where that return is
+    /// seen steeply enough.
+    fn mark_shadows(&mut self) {
+        let bins = self.bins;
+        let (bin_m, thr) = (self.config.bin_m, self.config.max_dist_to_line_m);
+        let min_tan = self.config.drop_shadow_min_grazing_deg.to_radians().tan();
+        let starts = &mut self.run_start;
+        starts.clear();
+        starts.resize(bins, NO_BIN);
+        for s in 0..self.config.sectors as usize {
+            let (row, bin_line) = (&mut self.acc[s * bins..(s + 1) * bins], &self.bin_line[s * bins..(s + 1) * bins]);
+            let line = |k: usize| &self.bin_lines[bin_line[k] as usize];
+            // The run's start: the nearest bin at or before with a return that came back, if
+            // the sensor sees that return steeply enough (else, and in the blind ring, none).
+            let mut start = NO_BIN;
+            for (k, acc) in row.iter().enumerate() {
+                if acc.solid_r > f32::NEG_INFINITY {
+                    let r = f64::from(acc.solid_r);
+                    start = if -line(k).expected(r) >= min_tan * r { k as u32 } else { NO_BIN };
+                }
+                starts[k] = start;
+            }
+            let mut run = 0.0f32;
+            for (k, acc) in row.iter_mut().enumerate().rev() {
+                let start = starts[k];
+                let deepest = if start == NO_BIN {
+                    f32::NEG_INFINITY
+                } else {
+                    // How far the floor lies below where the ground last seen would go on:
+                    // under the lowest ray over the bin's far edge, and at the bin's lowest
+                    // point if that lies deeper than a ground return may (it came through
+                    // the floor).
+                    let ground = line(start as usize);
+                    let r = (k + 1) as f64 * bin_m;
+                    let under_ray = ground.expected(r) - f64::from(acc.ray_slope) * r;
+                    let below = ground.expected(acc.proto_r) - f64::from(acc.proto_z);
+                    let own = (if below > thr { under_ray.max(below) } else { under_ray }) as f32;
+                    if own > run { own } else { run }
+                };
+                acc.shadow_depth = deepest.max(0.0);
+                // A return that came back ends the run beyond it; the next starts fresh.
+                run = if acc.solid_r > f32::NEG_INFINITY { 0.0 } else { deepest.max(0.0) };
             }
         }
     }
@@ -683,9 +782,19 @@ impl GroundSegmenter {
         }
         let covered = |j: usize| base + 2 * j as u32;
         let uncovered = |j: usize| base + 2 * j as u32 + 1;
-        // Bins below `next` are assigned.
+        // Bins below `next` are assigned. Before the first line, the ground runs from under
+        // the sensor to the line's first prototype (not the line drawn back: a short steep
+        // line off a bump would put the ground under the robot high above it).
         let mut next = (lines[0].first_bin as usize).min(bins);
-        row[..next].fill(uncovered(0));
+        let first = &lines[0];
+        let approach = if first.first_r_m > 0.0 {
+            let h = self.sensor_height_m;
+            self.bin_lines.push(BinLine { m: (first.m * first.first_r_m + first.b + h) / first.first_r_m, b: -h, ..BinLine::NONE });
+            base + 2 * lines.len() as u32
+        } else {
+            uncovered(0)
+        };
+        row[..next].fill(approach);
         for (j, line) in lines.iter().enumerate() {
             let (lo, hi) = (line.first_bin as usize, (line.last_bin as usize + 1).min(bins));
             if j > 0 && next < lo {
@@ -928,6 +1037,69 @@ mod tests {
         }
     }
 
+    /// A level lidar `h` above flat ground (rings as [`ring_scan`]) with a pit `depth` deep
+    /// between radii `near` and `near + 1.5` m for azimuths within 15° of +x, vertical sides:
+    /// rays over the near edge reach the floor or the far wall; behind a 0.3 m rock face 3 m
+    /// away along -x, the shadow of a rock.
+    fn pit_scan(h: f64, depth: f64, near: f64) -> Vec<[f32; 3]> {
+        let far = near + 1.5;
+        let mut out = Vec::new();
+        for col in 0..1440 {
+            let az = (col as f64 + 0.5) * 0.25f64.to_radians();
+            let (sin, cos) = az.sin_cos();
+            let pit = cos > 15f64.to_radians().cos();
+            let rock = cos < -0.99 && sin.abs() < 0.1;
+            for ring in 0..31 {
+                let t = (16.5 - 0.5 * ring as f64).to_radians().tan();
+                let r = h / t;
+                let (r, z) = if pit && (near..=far).contains(&r) {
+                    let floor = (h + depth) / t;
+                    if floor <= far { (floor, -h - depth) } else { (far, -far * t) }
+                } else if rock && r >= 3.0 && -3.0 * t <= 0.3 - h {
+                    (3.0, -3.0 * t)
+                } else {
+                    (r, -h)
+                };
+                out.push([(r * cos) as f32, (r * sin) as f32, z as f32]);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_ground_a_pit_edge_hides_is_as_deep_as_the_pit() {
+        // Regression (mine seed 363, "fall"): the cells just past a pit's near edge had no
+        // return, and the rays that grazed them, on their way to the far wall, passed barely
+        // below the ground there: rated ground, the robot's corner went over the edge.
+        let h = 0.7;
+        let mut seg = GroundSegmenter::new(GroundConfig::default()).unwrap();
+        let mut heights = Vec::new();
+        seg.segment(&pit_scan(h, 0.5, 3.0), h, &mut heights).unwrap();
+        let shadow = |x: f64, y: f64| seg.query(x, y).unwrap().shadow_depth;
+        // Just past the edge, where the rays still pass within a few cm of the ground, and on.
+        for (x, y) in [(3.05, 0.0), (3.15, 0.1), (3.5, -0.3), (4.2, 0.0)] {
+            assert!(shadow(x, y) > 0.3, "pit at ({x}, {y}): shadow depth {}", shadow(x, y));
+            assert!(seg.query(x, y).unwrap().ground_z - seg.query(x, y).unwrap().floor_bound_z < 0.13 || x > 3.5, "the rays alone rate ({x}, {y}) deep");
+        }
+        // Before the edge, beside the pit, between rings far off, behind the rock: none.
+        for (x, y) in [(2.85, 0.0), (3.5, 2.5), (0.0, -9.0), (12.0, 6.0), (-3.3, 0.0), (-4.0, 0.1), (0.5, 0.5)] {
+            assert!(shadow(x, y) < 0.03, "no drop at ({x}, {y}): shadow depth {}", shadow(x, y));
+        }
+        let mut off = GroundSegmenter::new(GroundConfig { drop_shadows: false, ..GroundConfig::default() }).unwrap();
+        off.segment(&pit_scan(h, 0.5, 3.0), h, &mut heights).unwrap();
+        assert_eq!(off.query(3.05, 0.0).unwrap().shadow_depth, 0.0);
+        // The same pit 5 m out is seen at 8° (below the 10° default): it may be a slope the
+        // robot could drive; at a 7° limit it is a drop's shadow.
+        seg.segment(&pit_scan(h, 0.5, 5.0), h, &mut heights).unwrap();
+        assert_eq!(seg.query(5.05, 0.0).unwrap().shadow_depth, 0.0);
+        let mut shallow = GroundSegmenter::new(GroundConfig { drop_shadow_min_grazing_deg: 7.0, ..GroundConfig::default() }).unwrap();
+        shallow.segment(&pit_scan(h, 0.5, 5.0), h, &mut heights).unwrap();
+        let deep = shallow.query(5.05, 0.0).unwrap().shadow_depth;
+        assert!(deep > 0.13, "{deep}");
+        let err = GroundSegmenter::new(GroundConfig { drop_shadow_min_grazing_deg: 90.0, ..GroundConfig::default() }).unwrap_err().to_string();
+        assert!(err.contains("drop_shadow_min_grazing_deg"), "{err}");
+    }
+
     #[test]
     fn hole_with_no_floor_is_void_and_a_rock_shadow_is_not() {
         // Regression: a bottomless hole (the mine's NaN holes) gave no return and no
@@ -1149,6 +1321,11 @@ mod tests {
             .map(|k| {
                 if lines.is_empty() {
                     return BinLine { b: -h, ..BinLine::NONE };
+                }
+                let first = &lines[0];
+                if k < first.first_bin as usize && first.first_r_m > 0.0 {
+                    // From the ground under the sensor to the first line's first prototype.
+                    return BinLine { m: (first.m * first.first_r_m + first.b + h) / first.first_r_m, b: -h, ..BinLine::NONE };
                 }
                 if let Some(line) = lines.iter().find(|l| l.first_bin as usize <= k && k <= l.last_bin as usize) {
                     return BinLine::of(line, true);

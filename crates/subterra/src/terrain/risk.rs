@@ -26,6 +26,9 @@
 //!   below their mean height, where that exceeds `thr`, else 0: seen ground is no hole
 //!   (the bin's line, carried across a hole, overestimates a lower floor seen beyond it),
 //!   but a rim cell holding part of the drop's wall or floor is as deep as they reach.
+//!   A cell without ground points in a drop's shadow (`ground.drop_shadows`: beyond the
+//!   bin's last return, in a run of bins that returned nothing, where rays passed below the
+//!   expected ground farther on) is at least as deep as the deepest such ray or point.
 //! - `tilt_angle`: *settling*. Each wheel rests on the highest ground in a square patch
 //!   (`layers.wheel_patch_m`) around its corner of the footprint (`robot.length_m x
 //!   robot.width_m`, corners rounded to cell centres) at heading ψ; the rigid body rests on
@@ -450,6 +453,8 @@ impl MapBuilder {
                     height[c] = select_f32(bin.covered & (cell.ground_n == 0) & !void, line_height, height[c]);
                     let below = (bin.ground_z - bin.floor_bound_z).max(0.0) as f32;
                     let below = select_f32(bin.floor_bound_z.is_finite(), below, depth[c]);
+                    // In a drop's shadow the drop may begin anywhere: as deep as it gets.
+                    let below = below.max(bin.shadow_depth as f32);
                     let below = select_f32(cell.ground_n > 0, depth[c], below);
                     depth[c] = select_f32(void, f32::INFINITY, below);
                 });

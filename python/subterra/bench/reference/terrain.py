@@ -342,7 +342,8 @@ def fit_sector_lines(bins: np.ndarray, r: np.ndarray, z: np.ndarray, sensor_heig
 
 def _bin_lines(lines: list[GroundLine], bins: int, sensor_height_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Step 4 for one sector: ``(m, b, cover_lo, cover_hi, cap_r)`` per bin (float64 arrays of
-    length ``bins``): the bin's line and, where a line's bin interval contains the bin
+    length ``bins``): the bin's line (before the first line, the straight line from ``(0, -H)``
+    to the first line at its first prototype's radius) and, where a line's bin interval contains the bin
     (*covered*), the radii of that line's first and last prototype (else ``+inf, -inf``:
     no radius is covered); ``cap_r``: the last prototype's radius of a rising line (beyond it
     the expected ground stays at its height there), ``+inf`` otherwise."""
@@ -362,6 +363,14 @@ def _bin_lines(lines: list[GroundLine], bins: int, sensor_height_m: float) -> tu
     lo = np.where(covered, np.array([ln.first_r_m for ln in lines])[chosen], none_lo)
     hi = np.where(covered, np.array([ln.last_r_m for ln in lines])[chosen], none_hi)
     cap = np.where(m > 0.0, np.array([ln.last_r_m for ln in lines])[chosen], np.inf)
+    # Before the first line: from the ground under the sensor to the line's first prototype.
+    first = lines[0]
+    if first.first_r_m > 0.0:
+        h = float(sensor_height_m)
+        before = np.arange(bins) < min(first.first_bin, bins)
+        m = np.where(before, (first.m * first.first_r_m + first.b + h) / first.first_r_m, m)
+        b = np.where(before, -h, b)
+        cap = np.where(before, np.inf, cap)
     return m, b, lo, hi, cap
 
 
@@ -394,6 +403,10 @@ class PolarTable:
     void: np.ndarray | None = None
     #: Per polar bin: where a rising line's expected ground stops rising (:func:`_bin_lines`).
     cap_r: np.ndarray | None = None
+    #: Per polar bin: the farthest return that came back (float32, ``-inf``: none) and the
+    #: shadow depth beyond it (float32; ground.rs ``mark_shadows``, :func:`_shadow_depths`).
+    solid_r: np.ndarray | None = None
+    shadow_depth: np.ndarray | None = None
 
 
 @dataclass
@@ -485,6 +498,55 @@ def _void_bins(flat_bin: np.ndarray, r: np.ndarray, z32: np.ndarray, h: np.ndarr
     return void
 
 
+def _shadow_depths(flat_bin: np.ndarray, r: np.ndarray, h: np.ndarray, proto_r: np.ndarray, proto_z: np.ndarray,
+                   ray_slope: np.ndarray, m_bin: np.ndarray, b_bin: np.ndarray, cap_bin: np.ndarray, sectors: int, bins: int,
+                   bin_m: float, thr: float, enabled: bool, min_grazing_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """ground.rs ``mark_shadows``: per polar bin ``(solid_r, shadow_depth)`` (float32).
+    ``solid_r``: the largest ``r`` (as float32) of the bin's points with ``r > 0`` and ``h >=
+    -thr`` (float32), ``-inf`` without one. A bin's run start is the nearest bin at or before
+    it with a ``solid_r``, if that one's ``-E(solid_r) >= tan(min_grazing_deg)·solid_r``,
+    else none (``E``: :func:`expected_ground` with that bin's line). A bin's own depth (float32
+    of the float64 value), with ``E`` the start's line: ``E(r_f) - ray_slope·r_f`` at its far
+    edge ``r_f = (k + 1)·Δ``, or the larger of that and ``E(proto_r) - proto_z`` where the
+    latter exceeds ``thr``; ``shadow_depth`` is the largest own depth from the bin to the next
+    bin with a ``solid_r`` (exclusive), at least 0, and 0 without a start; all 0 when
+    ``enabled`` is false. ``proto_r``, ``proto_z``: per polar bin (0 and ``+inf`` when empty)."""
+    with np.errstate(invalid="ignore"):
+        ok = (flat_bin >= 0) & (r > 0.0) & (h >= -np.float32(thr))
+    solid_r = np.full(sectors * bins, -np.inf, dtype=np.float32)
+    np.maximum.at(solid_r, flat_bin[ok], r[ok].astype(np.float32))
+    shadow = np.zeros(sectors * bins, dtype=np.float32)
+    if not enabled:
+        return solid_r, shadow
+    m2, b2, cap2 = m_bin.reshape(sectors, bins), b_bin.reshape(sectors, bins), cap_bin.reshape(sectors, bins)
+    solid = (solid_r > -np.inf).reshape(sectors, bins)
+    rs = np.where(solid, solid_r.reshape(sectors, bins).astype(np.float64), 0.0)
+    steep_here = -expected_ground(m2, b2, cap2, rs) >= math.tan(math.radians(min_grazing_deg)) * rs
+    # The run start of each bin (-1: none), from the sensor out.
+    start = np.full((sectors, bins), -1, dtype=np.int64)
+    cur = np.full(sectors, -1, dtype=np.int64)
+    for j in range(bins):
+        cur = np.where(solid[:, j], np.where(steep_here[:, j], j, -1), cur)
+        start[:, j] = cur
+    rows = np.arange(sectors)[:, None]
+    st = np.where(start >= 0, start, 0)
+    sm, sb_, sc = m2[rows, st], b2[rows, st], cap2[rows, st]
+    k = np.arange(bins)[None, :]
+    r_far = (k + 1).astype(np.float64) * bin_m
+    with np.errstate(invalid="ignore", over="ignore"):
+        under_ray = expected_ground(sm, sb_, sc, r_far) - ray_slope.reshape(sectors, bins).astype(np.float64) * r_far
+        below = expected_ground(sm, sb_, sc, proto_r.reshape(sectors, bins)) - proto_z.reshape(sectors, bins).astype(np.float64)
+    own = np.where(below > thr, np.maximum(under_ray, below), under_ray).astype(np.float32)
+    own = np.where(start >= 0, own, np.float32(-np.inf))
+    out = shadow.reshape(sectors, bins)
+    run = np.zeros(sectors, dtype=np.float32)
+    for j in range(bins - 1, -1, -1):
+        deepest = np.where(own[:, j] > run, own[:, j], run)
+        out[:, j] = np.maximum(deepest, np.float32(0.0))
+        run = np.where(solid[:, j], np.float32(0.0), np.maximum(deepest, np.float32(0.0)))
+    return solid_r, out.reshape(-1)
+
+
 def void_samples(polar: PolarTable) -> np.ndarray:
     """ground.rs ``void_samples``: ``(n, 2)`` float32 sensor-centred positions on the
     centre ray of every void bin, at a quarter and three quarters of the bin."""
@@ -535,12 +597,17 @@ def ground_heights(
     h[~has] = np.nan
     pz = np.full(sectors * bins, np.inf, dtype=np.float32)
     pz[proto_bin] = proto_z.astype(np.float32)
+    pr = np.zeros(sectors * bins)
+    pr[proto_bin] = proto_r
+    ray = _ray_slopes(proto_bin, proto_r, proto_z, sectors, bins)
+    solid_r, shadow = _shadow_depths(flat_bin, r, h, pr, pz, ray, m_bin, b_bin, cap_bin, sectors, bins, float(ground["bin_m"]),
+                                     float(ground["max_dist_to_line_m"]), bool(ground.get("drop_shadows", True)),
+                                     float(ground.get("drop_shadow_min_grazing_deg", 10.0)))
     polar = PolarTable(
-        sectors, bins, float(ground["bin_m"]), float(ground["max_range_m"]), m_bin, b_bin, lo_bin, hi_bin, pz,
-        _ray_slopes(proto_bin, proto_r, proto_z, sectors, bins),
+        sectors, bins, float(ground["bin_m"]), float(ground["max_range_m"]), m_bin, b_bin, lo_bin, hi_bin, pz, ray,
         _void_bins(flat_bin, r, z32, h, m_bin, b_bin, cap_bin, sectors, bins, float(ground["bin_m"]), float(ground.get("void_min_gap_deg", 0.0)),
                    float(ground["max_dist_to_line_m"])),
-        cap_bin,
+        cap_bin, solid_r, shadow,
     )
     return GroundSegmentation(h, all_lines, float(ground["max_dist_to_line_m"]), polar)
 
@@ -778,6 +845,8 @@ class PolarQuery:
     ground_z: np.ndarray
     floor_bound_z: np.ndarray
     void: np.ndarray | None = None
+    #: The shadow depth at the position (0 outside a shadow) [m].
+    shadow_depth: np.ndarray | None = None
 
 
 def polar_query(polar: PolarTable, x: np.ndarray, y: np.ndarray, *, atan: str = "fast") -> PolarQuery:
@@ -808,7 +877,11 @@ def polar_query(polar: PolarTable, x: np.ndarray, y: np.ndarray, *, atan: str = 
         # f64::min ignores a NaN (inf·0 at r = 0); so does fmin.
         floor_bound = np.fmin(polar.proto_z[sb].astype(np.float64), polar.ray_slope[sb].astype(np.float64) * r)
     void = inside & polar.void[sb] if polar.void is not None else np.zeros_like(inside)
-    return PolarQuery(inside, covered, ground_z, floor_bound, void)
+    if polar.solid_r is not None and polar.shadow_depth is not None:
+        shadow = np.where(inside & (r > polar.solid_r[sb].astype(np.float64)), polar.shadow_depth[sb].astype(np.float64), 0.0)
+    else:
+        shadow = np.zeros(r.shape)
+    return PolarQuery(inside, covered, ground_z, floor_bound, void, shadow)
 
 
 def polar_fill(
@@ -839,6 +912,9 @@ def polar_fill(
     observed = ((cells.count.reshape(shape) > 0) | q.covered).astype(np.float32)
     with np.errstate(invalid="ignore"):
         depth = np.where(q.inside & np.isfinite(q.floor_bound_z) & (ground_n == 0), np.maximum(q.ground_z - q.floor_bound_z, 0.0), 0.0)
+        if q.shadow_depth is not None:
+            # In a drop's shadow the drop may begin anywhere (f32 max, as risk.rs).
+            depth = np.where(q.inside & (ground_n == 0), np.maximum(depth.astype(np.float32), q.shadow_depth.astype(np.float32)), depth)
         drop = (mean - cells.min_z.reshape(shape)).astype(np.float32)
         depth = np.where((ground_n > 0) & (drop > np.float32(ground_threshold)), drop, depth)
     # Void: the floor found missing (this scan's bin, or a void sample in the cell) and no

@@ -102,7 +102,9 @@ pub struct NavigatorSettings {
     /// blind ring (`coverage.min_range_m`) lies inside `near_memory_m`, every patch of ground
     /// that comes within the blind ring passed through the ring between the two, where the
     /// sensor sees it and the near memory records it. A cell within the blind ring that the
-    /// near memory never held below the lethal level, that the robot never stood on, not
+    /// near memory never held below the lethal level as shown ground (a point of its own, or a
+    /// rating from outside the blind ring: inside it a ground line is drawn on into ground the
+    /// sensor cannot see), that the robot never stood on, not
     /// within the blind ring of where the robot started, with its 8 neighbours the same, is
     /// therefore not ground the sensor missed by chance: it returned nothing (a hole's mouth,
     /// a drop), and it is lethal on the navigator's grid. The tracker then stops short of it

@@ -28,7 +28,8 @@
 //!    its near-memory rating if that is above the planner's `unknown_risk`. With
 //!    `unseen_near_lethal`, the **unseen-near rule** marks lethal on both each cell within the
 //!    sensor's blind ring (`coverage.min_range_m`) that is unobserved, never held by the near
-//!    memory below lethal, never stood on, not within the blind ring of the robot's first
+//!    memory below lethal as shown ground (a point of its own, or rated from outside the
+//!    blind ring), never stood on, not within the blind ring of the robot's first
 //!    pose, with its 8 neighbours the same: ground the all-round sensor had in view on its way
 //!    in and never got a return from (a hole's mouth; [`memory::mark_unseen_near`]). With
 //!    `void_rim_m` > 0, every cell within it of a void (a cell whose `negative` layer is
@@ -537,7 +538,7 @@ impl Navigator {
         let g = *map.geometry();
         let lethal = map.lethal_risk;
         if nav.near_memory_m > 0.0 {
-            self.near.record(&self.grid, &g, position, nav.near_memory_m, nav.near_memory_highest);
+            self.near.record(&self.grid, map.layer("count")?, &g, position, nav.near_memory_m, nav.coverage.min_range_m, nav.near_memory_highest);
         }
         if nav.hazard_memory {
             let rules = HazardRules {
