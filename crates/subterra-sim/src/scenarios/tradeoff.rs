@@ -201,15 +201,15 @@ pub fn ledge(seed: u64) -> WorldSpec {
 /// World size of `cave` [m]: x in [0, 24], y in [0, 12].
 pub const CAVE_SIZE_M: [f64; 2] = [24.0, 12.0];
 
-/// `cave`: a winding passage 2.6-3.2 m wide from x = 2 to x = 22 (centreline `y = 6 + a·sin(2π
-/// x / L + φ)`, a = 1.5-2.5 m, L = 10-14 m), walled by rock (boxes 2 m high along both sides),
-/// its floor a few centimetres rough with 3-5 holes (NaN, radius 0.25-0.45 m) in it, each
-/// off the centreline so that at least 1.2 m stays passable beside it.
 /// Holes start this far along the passage from the cave's start [m]: a Husky's lidar sees no
 /// ground within its blind ring (2.35 m), plus the footprint's circumscribed radius (0.6 m)
 /// and a margin; a hole closer than that could not be seen before the robot was over it.
 pub const CAVE_START_CLEAR_M: f64 = 3.5;
 
+/// `cave`: a winding passage 2.6-3.2 m wide from x = 2 to x = 22 (centreline `y = 6 + a·sin(2π
+/// x / L + φ)`, a = 1.5-2.5 m, L = 10-14 m), walled by rock (boxes 2 m high along both sides),
+/// its floor a few centimetres rough with 3-5 holes (NaN, radius 0.25-0.45 m) in it, each
+/// off the centreline so that at least 1.2 m stays passable beside it.
 pub fn cave(seed: u64) -> WorldSpec {
     let mut rng = Rng::seed_from_u64(seed);
     let [sx, sy] = CAVE_SIZE_M;
