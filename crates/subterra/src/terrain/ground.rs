@@ -359,17 +359,38 @@ impl GroundSegmenter {
         self.fit_lines();
         heights_out.clear();
         let (bin_line, lines) = (&self.bin_line[..], &self.bin_lines[..]);
-        heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
-            if sb == NO_BIN {
-                return f32::NAN;
-            }
-            let (x, y) = (p[0] as f64, p[1] as f64);
-            let r = (x * x + y * y).sqrt();
-            let line = &lines[bin_line[sb as usize] as usize];
-            (p[2] as f64 - (line.m * r + line.b)) as f32
-        }));
-        self.gather_ray_spans(points, heights_out);
+        if self.config.drop_shadows && self.config.void_min_gap_deg == 0.0 {
+            // Each bin's `solid_r` (module doc, *Shadow*) in the same pass: the radius of its
+            // farthest point not more than `max_dist_to_line_m` below its line (with voids on,
+            // `gather_ray_spans` finds it among the same points).
+            let below = -(self.config.max_dist_to_line_m as f32);
+            let acc = &mut self.acc[..];
+            heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
+                if sb == NO_BIN {
+                    return f32::NAN;
+                }
+                let (x, y) = (p[0] as f64, p[1] as f64);
+                let r = (x * x + y * y).sqrt();
+                let line = &lines[bin_line[sb as usize] as usize];
+                let h = (p[2] as f64 - (line.m * r + line.b)) as f32;
+                let acc = &mut acc[sb as usize];
+                acc.solid_r = if h >= below && r > 0.0 { acc.solid_r.max(r as f32) } else { acc.solid_r };
+                h
+            }));
+        } else {
+            heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
+                if sb == NO_BIN {
+                    return f32::NAN;
+                }
+                let (x, y) = (p[0] as f64, p[1] as f64);
+                let r = (x * x + y * y).sqrt();
+                let line = &lines[bin_line[sb as usize] as usize];
+                (p[2] as f64 - (line.m * r + line.b)) as f32
+            }));
+        }
         if self.config.void_min_gap_deg != 0.0 {
+            // Also each bin's `solid_r`: the same points, one pass.
+            self.gather_ray_spans(points, heights_out);
             self.mark_voids();
         }
         if self.config.drop_shadows {
@@ -535,10 +556,11 @@ impl GroundSegmenter {
     }
 
     /// Each bin's ray span for the void detection (module doc, *Void*): the slopes `z/r` of
-    /// its points that are not more than `max_dist_to_line_m` below its ground line, and the
-    /// radius of the farthest of them (*Shadow*). A return from deeper came through the floor:
-    /// its ray crossed the expected ground where there was none (a hole's inside, or what lies
-    /// under it), so it is evidence for a void, not a beam that came back from the ground.
+    /// its points that are not more than `max_dist_to_line_m` below its ground line, and its
+    /// `solid_r` (the largest `r` of the same points; module doc, *Shadow*). A return
+    /// from deeper came through the floor: its ray crossed the expected ground where there
+    /// was none (a hole's inside, or what lies under it), so it is evidence for a void, not a
+    /// beam that came back from the ground.
     fn gather_ray_spans(&mut self, points: &[[f32; 3]], heights: &[f32]) {
         let below = -(self.config.max_dist_to_line_m as f32);
         let acc = &mut self.acc[..];
