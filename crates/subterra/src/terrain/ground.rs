@@ -359,35 +359,27 @@ impl GroundSegmenter {
         self.fit_lines();
         heights_out.clear();
         let (bin_line, lines) = (&self.bin_line[..], &self.bin_lines[..]);
-        if self.config.drop_shadows && self.config.void_min_gap_deg == 0.0 {
-            // Each bin's `solid_r` (module doc, *Shadow*) in the same pass: the radius of its
-            // farthest point not more than `max_dist_to_line_m` below its line (with voids on,
-            // `gather_ray_spans` finds it among the same points).
-            let below = -(self.config.max_dist_to_line_m as f32);
-            let acc = &mut self.acc[..];
-            heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
-                if sb == NO_BIN {
-                    return f32::NAN;
-                }
-                let (x, y) = (p[0] as f64, p[1] as f64);
-                let r = (x * x + y * y).sqrt();
-                let line = &lines[bin_line[sb as usize] as usize];
-                let h = (p[2] as f64 - (line.m * r + line.b)) as f32;
+        // Each bin's `solid_r` (module doc, *Shadow*) in the same pass: the radius of its
+        // farthest point not more than `max_dist_to_line_m` below its line (with voids on,
+        // `gather_ray_spans` finds it among the same points). The test is the same for every
+        // point: predicted, not a data-dependent branch.
+        let track = self.config.drop_shadows && self.config.void_min_gap_deg == 0.0;
+        let below = -(self.config.max_dist_to_line_m as f32);
+        let acc = &mut self.acc[..];
+        heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
+            if sb == NO_BIN {
+                return f32::NAN;
+            }
+            let (x, y) = (p[0] as f64, p[1] as f64);
+            let r = (x * x + y * y).sqrt();
+            let line = &lines[bin_line[sb as usize] as usize];
+            let h = (p[2] as f64 - (line.m * r + line.b)) as f32;
+            if track {
                 let acc = &mut acc[sb as usize];
                 acc.solid_r = if h >= below && r > 0.0 { acc.solid_r.max(r as f32) } else { acc.solid_r };
-                h
-            }));
-        } else {
-            heights_out.extend(points.iter().zip(&self.point_bin).map(|(p, &sb)| {
-                if sb == NO_BIN {
-                    return f32::NAN;
-                }
-                let (x, y) = (p[0] as f64, p[1] as f64);
-                let r = (x * x + y * y).sqrt();
-                let line = &lines[bin_line[sb as usize] as usize];
-                (p[2] as f64 - (line.m * r + line.b)) as f32
-            }));
-        }
+            }
+            h
+        }));
         if self.config.void_min_gap_deg != 0.0 {
             // Also each bin's `solid_r`: the same points, one pass.
             self.gather_ray_spans(points, heights_out);
