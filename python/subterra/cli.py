@@ -165,7 +165,7 @@ def _parser() -> argparse.ArgumentParser:
 
     fly = sub.add_parser("fly", help="one closed-loop flight in the simulator (depth camera -> controller -> quadrotor)")
     _flight_options(fly)
-    fly.add_argument("--route", default="A-B", help="route, e.g. A-B (highbay: A-B, B-C, C-D, D-C, D-B)")
+    fly.add_argument("--route", default=None, help="route, e.g. A-B (default: the world's first; highbay: A-B, B-C, C-D, D-C, D-B; tunnel: start-goal)")
     fly.add_argument("--controller", default="apf-pf", choices=list(Pilot.controllers()),
                      help="apf-pf (particle filter, the paper), apf-pf-histogram (exact filter), apf-pf-qmdp (QMDP "
                           "action selection over the particle belief, the authors' follow-up) or raw-apf (the baseline)")
@@ -286,11 +286,17 @@ def _fly(args: argparse.Namespace) -> int:
     config = load_config(args.config) if args.config else None
     world = load_world(args.world) if args.world else None
     scenario = world.name if world is not None else args.scenario
-    out = Path(args.out or f"runs/fly-{scenario}-{args.route}-{args.controller}-{args.noise}-s{args.seed}")
+    route = args.route or (world.routes[0][0] if world is not None and world.routes else None)
+    if route is None and world is None:
+        from subterra.sim import World
+
+        first = World.scenario(scenario, args.seed).routes
+        route = first[0][0] if first else None
+    out = Path(args.out or f"runs/fly-{scenario}-{route}-{args.controller}-{args.noise}-s{args.seed}")
     rerun = None if args.no_rerun or not rerun_available() else out / "flight.rrd"
     if rerun is not None:
         out.mkdir(parents=True, exist_ok=True)
-    result = fly(args.scenario, args.route, controller=args.controller, noise=args.noise, preset=args.preset, config=config,
+    result = fly(args.scenario, route, controller=args.controller, noise=args.noise, preset=args.preset, config=config,
                  seed=args.seed, world=world, rate_hz=args.rate, time_limit_s=args.time_limit, progress=True, rerun_path=rerun)
     paths = result.save(out, plots=not args.no_plots)
     m = result.summary()

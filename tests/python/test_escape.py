@@ -10,6 +10,7 @@ import pytest
 import subterra
 from subterra.errors import ConfigError, InputError
 from subterra.flight import resolve_path
+from subterra.flight.run import resolve_route
 from subterra.sim import World
 
 
@@ -51,6 +52,13 @@ def test_the_tunnels_waypoints_are_the_path():
     assert mine.shape == (3, 3)
     with pytest.raises(InputError, match="path"):
         resolve_path(world, "start", "goal", "zigzag")
+
+
+def test_without_a_route_a_flight_takes_the_worlds_first():
+    assert resolve_route(World.scenario("tunnel", 3), None) == ("start-goal", "start", "goal")
+    assert resolve_route(World.scenario("highbay", 0), None) == ("A-B", "A", "B")
+    with pytest.raises(InputError, match="route.*start-goal"):
+        resolve_route(World.scenario("tunnel", 3), "A-B")
 
 
 def test_escape_passes_the_goal_through_until_a_stall_near_an_obstacle():

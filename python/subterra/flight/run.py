@@ -193,10 +193,15 @@ def _write_frames(result: FlightResult, path: Path) -> Path:
     return path
 
 
-def resolve_route(world: World, route: str) -> tuple[str, str, str]:
-    """``(name, from, to)`` of ``route`` on ``world``: a route name (``"A-B"``) or two region
-    names joined by ``-``. Raises :class:`InputError` naming the known routes."""
+def resolve_route(world: World, route: str | None) -> tuple[str, str, str]:
+    """``(name, from, to)`` of ``route`` on ``world``: a route name (``"A-B"``), two region
+    names joined by ``-``, or None for the world's first route. Raises :class:`InputError`
+    naming the known routes."""
     regions = world.regions
+    if route is None:
+        if not world.routes:
+            raise InputError(f"argument `route`: world {world.name!r} defines no route; name two regions as 'from-to' (regions: {', '.join(regions) or 'none'})")
+        return world.routes[0]
     for name, a, b in world.routes:
         if route == name or route == f"{a}-{b}":
             return name, a, b
@@ -247,7 +252,7 @@ def _yaw_of(world_from_body: np.ndarray) -> float:
 
 def fly(
     scenario: str = "highbay",
-    route: str = "A-B",
+    route: str | None = None,
     *,
     controller: str = "apf-pf",
     noise: str = "d435",
@@ -265,7 +270,8 @@ def fly(
     path: Any = "auto",
     lookahead_m: float = 1.5,
 ) -> FlightResult:
-    """Flies ``route`` of ``scenario`` (or of ``world``) once and returns the record.
+    """Flies ``route`` of ``scenario`` (or of ``world``; default: its first route, e.g.
+    highbay's ``A-B``, tunnel's ``start-goal``) once and returns the record.
 
     ``controller``: ``"apf-pf"`` (particle filter, the paper), ``"apf-pf-histogram"`` (the
     exact filter), ``"apf-pf-qmdp"`` (the particle filter's belief scores a discrete set of

@@ -47,9 +47,21 @@
 //!    tangent that keeps the direction of travel is taken, and the side with it. The repulsion still acts, capped at `follow_repulsion_ratio` times the
 //!    attraction's full strength `ρ_r·ξ`: near an obstacle the field's push is what held
 //!    the robot in the minimum (0.3-0.7 N against a 0.2 N pull, so the forward speed of
-//!    eq. 10 is 0), and the boundary term keeps the distance instead.
+//!    eq. 10 is 0), and the boundary term keeps the distance instead. A jump counts as a
+//!    reversal only when the new tangent points back by more than 120°; when it is within
+//!    60° of square to the heading — a wall ahead, in a concave corner or beyond the pole
+//!    followed — the way round turns along it toward the goal when that way keeps clear
+//!    (step 5; the side may change), else along it on the same side (out of a U).
+//! 5. **Look ahead.** The capped repulsion cannot stop the robot, so the direction is
+//!    checked against every known point within the z band: along the next 0.5 m it must
+//!    keep each at least `min(d₀, min_standoff_m)` away, `d₀` being the nearest one's
+//!    distance now (the robot may close in on the boundary down to the standoff, never
+//!    past what it already is). If not — a wall ahead in a concave corner, which the
+//!    nearest-point tangent does not see until the robot is in the corner — the direction
+//!    turns away from the boundary in 15° steps until it does (at most half a turn; of
+//!    none, the one that keeps the points farthest).
 
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 
 use crate::config::{ApfConfig, EscapeConfig};
 use crate::error::{Error, Result};
@@ -58,6 +70,21 @@ use crate::frames::Isometry3;
 /// How far ahead of the robot the boundary target is put [m]: beyond the attraction's
 /// `ρ_r` = 0.5 m, so that the pull has its full (conic) strength.
 const TARGET_DISTANCE_M: f64 = 1.0;
+
+/// How far ahead the followed direction must keep clear of the known points (step 5)
+/// [m]: a little under a second of flight at the 0.6 m/s speed limit.
+const LOOKAHEAD_M: f64 = 0.5;
+/// Points along it where the clearance is checked (every 0.1 m).
+const LOOKAHEAD_SAMPLES: u32 = 5;
+/// The followed direction turns away from the boundary in steps of this [rad] (15°) ...
+const TURN_STEP_RAD: f64 = std::f64::consts::PI / 12.0;
+/// ... at most this many: half a turn.
+const TURN_STEPS: u32 = 12;
+/// When the nearest point jumps to another obstacle, a new tangent pointing back by more
+/// than 120° (cos 120°) is a reversal (the far wall of a tube): the side flips to keep the
+/// direction of travel. One within 60° of square to it (a wall ahead) is a turn: the side
+/// whose tangent points toward the goal is taken if that way keeps clear.
+const REVERSAL_COS: f64 = -0.5;
 
 /// Horizontal lengths below this are treated as zero [m].
 const TINY_M: f64 = 1e-9;
@@ -116,6 +143,67 @@ pub struct Escape {
 
 fn horizontal(v: DVec3) -> DVec3 {
     DVec3::new(v.x, v.y, 0.0)
+}
+
+/// The known points near the robot, relative to it, for the look-ahead (module docs,
+/// step 5).
+struct Lookahead {
+    /// Horizontal offsets from the robot of the points within the z band and reach.
+    near: Vec<DVec3>,
+    /// The clearance a direction must keep: `min(d₀, min_standoff_m)` [m].
+    keep_m: f64,
+}
+
+impl Lookahead {
+    fn new(config: &EscapeConfig, position: DVec3, obstacles_world: &[DVec3]) -> Self {
+        let reach = config.follow_range_m.max(config.min_standoff_m) + LOOKAHEAD_M;
+        let near: Vec<DVec3> = obstacles_world
+            .iter()
+            .filter(|p| (p.z - position.z).abs() <= config.z_band_m)
+            .map(|&p| horizontal(p - position))
+            .filter(|p| p.length() <= reach)
+            .collect();
+        let now = near.iter().map(|p| p.length()).fold(f64::INFINITY, f64::min);
+        Self { near, keep_m: now.min(config.min_standoff_m) }
+    }
+
+    /// The closest any point comes along the next [`LOOKAHEAD_M`] in the unit direction `u`.
+    fn closest(&self, u: DVec3) -> f64 {
+        let mut least = f64::INFINITY;
+        for k in 1..=LOOKAHEAD_SAMPLES {
+            let at = u * (LOOKAHEAD_M * f64::from(k) / f64::from(LOOKAHEAD_SAMPLES));
+            for &p in &self.near {
+                least = least.min((p - at).length());
+            }
+        }
+        least
+    }
+
+    /// Whether `u` keeps the clearance.
+    fn clear(&self, u: DVec3) -> bool {
+        self.closest(u) >= self.keep_m
+    }
+
+    /// `direction`, or the first direction turned from it by `turn`·k·[`TURN_STEP_RAD`]
+    /// (`turn` = +1: counter-clockwise) that keeps the clearance; of none, the one that
+    /// keeps the points farthest.
+    fn turn_clear(&self, direction: DVec3, turn: f64) -> DVec3 {
+        if self.near.is_empty() || direction.length() < TINY_M {
+            return direction;
+        }
+        let mut best = (f64::NEG_INFINITY, direction);
+        for k in 0..=TURN_STEPS {
+            let u = DMat3::from_rotation_z(turn * TURN_STEP_RAD * f64::from(k)) * direction;
+            let least = self.closest(u);
+            if least >= self.keep_m {
+                return u;
+            }
+            if least > best.0 {
+                best = (least, u);
+            }
+        }
+        best.1
+    }
 }
 
 impl Escape {
@@ -293,15 +381,29 @@ impl Escape {
         let mut tangent = side * DVec3::Z.cross(n);
         // The way round goes on: when the nearest point jumps to another obstacle (the far
         // wall of a tube), keep the direction of travel, not the side the boundary is on.
+        // A wall ahead, square to the heading (a concave corner, or a wall beyond the pole
+        // followed), is a turn, not a reversal: toward the goal if that way is clear, else
+        // on the same side (out of a U).
+        let ahead = Lookahead::new(&c, position, obstacles_world);
         if let Some(heading) = self.heading {
-            if tangent.dot(heading) < 0.0 {
+            let along = tangent.dot(heading);
+            let toward_goal = if tangent.dot(to_goal) < -TIE { -tangent } else { tangent };
+            let flip = if along < REVERSAL_COS {
+                true
+            } else if along <= -REVERSAL_COS {
+                toward_goal != tangent && ahead.clear(toward_goal)
+            } else {
+                false
+            };
+            if flip {
                 tangent = -tangent;
                 self.mode = if self.mode == EscapeMode::FollowLeft { EscapeMode::FollowRight } else { EscapeMode::FollowLeft };
             }
         }
         self.heading = Some(tangent);
         let pull = (c.gain_per_m * (self.standoff_m - d)).clamp(-1.0, 1.0);
-        let direction = (tangent + pull * n).normalize_or_zero();
+        let side = if self.mode == EscapeMode::FollowLeft { 1.0 } else { -1.0 };
+        let direction = ahead.turn_clear((tangent + pull * n).normalize_or_zero(), -side);
         let climb = (goal_world.z - position.z).clamp(-TARGET_DISTANCE_M, TARGET_DISTANCE_M);
         let target_world = position + TARGET_DISTANCE_M * direction + DVec3::new(0.0, 0.0, climb);
         let cap = c.follow_repulsion_ratio * self.attraction_n;
@@ -346,7 +448,6 @@ mod tests {
     use super::*;
     use crate::apf::{repulsive_force, ApfController};
     use crate::config::{ApfConfig, PerceptionConfig};
-    use glam::DMat3;
 
     /// Points every 0.05 m along the segment `a`-`b` at flight height.
     fn segment(a: (f64, f64), b: (f64, f64)) -> Vec<DVec3> {
@@ -505,6 +606,75 @@ mod tests {
             out = e.step(t, &facing, goal, 5.0, &point, DVec3::ZERO).unwrap();
         }
         assert_eq!(out.mode, EscapeMode::FollowLeft);
+    }
+
+    #[test]
+    fn a_wall_ahead_turns_the_way_round_toward_the_goal_where_that_way_is_clear() {
+        // A hall's corner: the south wall (y = 0) and the east wall (x = 5). The robot,
+        // 0.45 m off the south wall and 0.6 m short of the east one, faces east, stalled;
+        // the goal lies back to the north-west, so it follows the south wall eastward with
+        // the wall on its right (highbay seed 87, route D-B, touched the east wall so).
+        let mut config = EscapeConfig::default();
+        config.enabled = true;
+        let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
+        let mut walls = segment((0.0, 0.0), (5.0, 0.0));
+        walls.extend(segment((5.0, 0.0), (5.0, 4.0)));
+        let goal = DVec3::new(3.0, 2.0, 1.0);
+        let at = |x: f64, y: f64| Isometry3 { rotation: DMat3::IDENTITY, translation: DVec3::new(x, y, 1.0) };
+        let mut t = 0.0;
+        let mut out = e.step(t, &at(4.4, 0.45), goal, 2.1, &walls, DVec3::ZERO).unwrap();
+        while out.mode == EscapeMode::Goal {
+            t += 0.1;
+            assert!(t < 2.0 * config.stall_s);
+            out = e.step(t, &at(4.4, 0.45), goal, 2.1, &walls, DVec3::ZERO).unwrap();
+        }
+        assert_eq!(out.mode, EscapeMode::FollowRight);
+        // The tangent with the pull toward the standoff points east-north-east, into the
+        // east wall within 0.5 m; the look-ahead turns it north until it keeps clear.
+        let u = horizontal(out.goal_body).normalize();
+        assert!(u.y > 0.9, "turned along the east wall: {u}");
+        for k in 1..=5 {
+            let p = DVec3::new(4.4, 0.45, 1.0) + u * (0.1 * f64::from(k));
+            let clear = walls.iter().map(|w| horizontal(*w - p).length()).fold(f64::INFINITY, f64::min);
+            assert!(clear >= 0.45 - 1e-9, "{clear} m from a wall at {p}");
+        }
+        // Deeper in the corner, the east wall now the nearest (its tangent square to the
+        // heading): a turn toward the goal, not back along the south wall, nor south.
+        let out = e.step(t + 0.1, &at(4.6, 0.5), goal, 2.1, &walls, DVec3::ZERO).unwrap();
+        assert_eq!(out.mode, EscapeMode::FollowRight);
+        assert!(horizontal(out.goal_body).normalize().y > 0.9, "{}", out.goal_body);
+        // Round a pole with a wall beyond it (tunnel seed 51): going north past the pole,
+        // the wall ahead becomes the nearest; the way round turns east, toward the goal,
+        // with the wall on the left, not west with it on the right.
+        let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
+        let mut points = pole(0.6, 0.0, 0.1);
+        points.extend(segment((-3.0, 1.3), (3.0, 1.3)));
+        let goal = DVec3::new(5.0, 0.3, 1.0);
+        let north = |x: f64, y: f64| Isometry3 { rotation: DMat3::from_rotation_z(std::f64::consts::FRAC_PI_2), translation: DVec3::new(x, y, 1.0) };
+        let mut t = 0.0;
+        let mut out = e.step(t, &north(0.0, 0.0), goal, 5.0, &points, DVec3::ZERO).unwrap();
+        while out.mode == EscapeMode::Goal {
+            t += 0.1;
+            out = e.step(t, &north(0.0, 0.0), goal, 5.0, &points, DVec3::ZERO).unwrap();
+        }
+        assert_eq!(out.mode, EscapeMode::FollowRight, "north round the pole's west side");
+        let out = e.step(t + 0.1, &north(0.0, 0.7), goal, 5.0, &points, DVec3::ZERO).unwrap();
+        assert_eq!(out.mode, EscapeMode::FollowLeft);
+        let world = north(0.0, 0.7).transform_point(out.goal_body) - DVec3::new(0.0, 0.7, 1.0);
+        assert!(horizontal(world).normalize().x > 0.8, "{world}");
+        // With nothing ahead (a straight wall, no corner) the direction is not turned: the
+        // tangent plus the pull back out to the standoff.
+        let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
+        let south = segment((0.0, 0.0), (9.0, 0.0));
+        let mut t = 0.0;
+        let mut out = e.step(t, &at(4.4, 0.45), goal, 2.1, &south, DVec3::ZERO).unwrap();
+        while out.mode == EscapeMode::Goal {
+            t += 0.1;
+            out = e.step(t, &at(4.4, 0.45), goal, 2.1, &south, DVec3::ZERO).unwrap();
+        }
+        let pull = config.gain_per_m * (config.min_standoff_m - 0.45);
+        let expected = DVec3::new(1.0, pull, 0.0).normalize();
+        assert!((horizontal(out.goal_body).normalize() - expected).length() < 1e-9, "{}", out.goal_body);
     }
 
     #[test]
