@@ -775,3 +775,52 @@ class _SimModule(ModuleType):
     def scenario_names(self) -> list[str]: ...
 
 sim: _SimModule
+
+class OdometryMuxOutput:
+    """What one ``OdometryMux.update`` gives."""
+
+    @property
+    def stamp(self) -> float:
+        """The stamp of the pose [s]: the chosen source's newest sample, or the held pose's."""
+    @property
+    def world_from_body(self) -> npt.NDArray[np.float64] | None:
+        """The body's pose in the mux's world frame, 4x4; None before any source was chosen."""
+    @property
+    def source(self) -> str | None:
+        """The chosen source's name; None when no source is usable (the pose is held)."""
+    @property
+    def confidence(self) -> float:
+        """How far the pose can be trusted, in [0, 1]."""
+    @property
+    def faults(self) -> dict[str, str | None]:
+        """Per source: why it is not used (one line), or None when it is usable."""
+    @property
+    def events(self) -> list[dict[str, Any]]:
+        """The events since the last update (``time_s``, ``event``, ``source``, ``reason``)."""
+
+class OdometryMux:
+    """HeRO, the odometry multiplexer: health checks on several odometry sources (stale,
+    jump, covariance, consistency) and the most trusted usable one passed on as one
+    continuous pose with a confidence (docs/hero.md). ``sources``: ``[(name, rate_hz), ...]``
+    most trusted first, or a dict in that order; ``config``: a dict over
+    ``OdometryMux.default_config()``."""
+
+    def __init__(self, sources: Sequence[tuple[str, float]] | dict[str, float], config: dict[str, Any] | None = None) -> None: ...
+    @staticmethod
+    def default_config() -> dict[str, Any]: ...
+    @property
+    def config(self) -> dict[str, Any]: ...
+    @property
+    def sources(self) -> list[str]: ...
+    def push(
+        self,
+        source: str,
+        stamp: float,
+        world_from_body: npt.ArrayLike,
+        covariance: npt.ArrayLike | None = None,
+        twist: npt.ArrayLike | None = None,
+    ) -> None:
+        """One sample of ``source``: 4x4 pose in its own world frame, 6x6 covariance over
+        (x, y, z, roll, pitch, yaw), body-frame twist ``(vx, vy, vz, wx, wy, wz)``."""
+    def update(self, now: float) -> OdometryMuxOutput:
+        """The checks at time ``now``, the choice and the pose."""

@@ -4,6 +4,7 @@
 
 mod convert;
 mod errors;
+mod hero;
 mod pilot;
 mod plan_astar;
 mod plan_nav;
@@ -910,6 +911,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     plan_nav::register(m)?;
     plan_mpc::register(m)?;
     qmdp::register(m)?;
+    hero::register(m)?;
     pilot::register(m)?;
     Ok(())
 }

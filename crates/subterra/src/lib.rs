@@ -7,6 +7,8 @@
 //! - [`terrain`]: multi-layer terrain risk maps from lidar scans for a ground robot
 //!   (STEP, Fan et al. 2021).
 //! - [`plan`]: planning and control for the ground robot (STEP, Fan et al. 2021).
+//! - [`hero`]: the odometry multiplexer (HeRO): several odometry sources, health checks,
+//!   one continuous pose with a confidence.
 //! - [`camera`], [`frames`], [`config`]: the shared vocabulary.
 //!
 //! No I/O, no printing, no global state: every stage takes arrays and returns values,
@@ -20,6 +22,7 @@ pub mod config;
 pub mod depth;
 pub mod error;
 pub mod frames;
+pub mod hero;
 pub mod plan;
 pub mod terrain;
 
