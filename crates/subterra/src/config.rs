@@ -282,6 +282,11 @@ pub struct EscapeConfig {
     /// While following, the repulsion is capped at this times the attraction's full
     /// strength `ρ_r·ξ` (the boundary term keeps the distance instead).
     pub follow_repulsion_ratio: f64,
+    /// While following, the direction must keep the remembered points at least
+    /// `min(d₀, lookahead_keep_m)` away over the next 0.5 m, `d₀` being the nearest one's
+    /// distance now [m]: a collision margin (the quadrotor's 0.27 m radius and 0.13 m), not
+    /// the standoff, so that the robot still passes between obstacles 1 m apart.
+    pub lookahead_keep_m: f64,
 }
 
 impl Default for EscapeConfig {
@@ -300,6 +305,7 @@ impl Default for EscapeConfig {
             max_detour_m: 3.0,
             max_flips: 1,
             follow_repulsion_ratio: 0.5,
+            lookahead_keep_m: 0.4,
         }
     }
 }
@@ -324,6 +330,13 @@ impl EscapeConfig {
         require_positive("escape.side_timeout_s", self.side_timeout_s)?;
         require_positive("escape.max_detour_m", self.max_detour_m)?;
         require_non_negative("escape.follow_repulsion_ratio", self.follow_repulsion_ratio)?;
+        if !(self.lookahead_keep_m.is_finite() && self.lookahead_keep_m > 0.0 && self.lookahead_keep_m <= self.min_standoff_m) {
+            return Err(Error::config(
+                "escape.lookahead_keep_m",
+                format!("must be in (0, escape.min_standoff_m = {}]", self.min_standoff_m),
+                self.lookahead_keep_m,
+            ));
+        }
         Ok(())
     }
 }

@@ -54,12 +54,14 @@
 //!    (step 5; the side may change), else along it on the same side (out of a U).
 //! 5. **Look ahead.** The capped repulsion cannot stop the robot, so the direction is
 //!    checked against every known point within the z band: along the next 0.5 m it must
-//!    keep each at least `min(d₀, min_standoff_m)` away, `d₀` being the nearest one's
-//!    distance now (the robot may close in on the boundary down to the standoff, never
-//!    past what it already is). If not — a wall ahead in a concave corner, which the
+//!    keep each at least `min(d₀, lookahead_keep_m)` away, `d₀` being the nearest one's
+//!    distance now (a collision margin, not the standoff: never closer than that, nor than
+//!    the robot already is). If not — a wall ahead in a concave corner, which the
 //!    nearest-point tangent does not see until the robot is in the corner — the direction
-//!    turns away from the boundary in 15° steps until it does (at most half a turn; of
-//!    none, the one that keeps the points farthest).
+//!    nearest to it that does is taken, in 15° steps to either side, away from the
+//!    boundary first (of none within half a turn, the one that keeps the points farthest).
+//!    The standoff is too much to ask here: between the poles of a hall, 1.2 m apart, no
+//!    direction keeps 0.55 m from both.
 
 use glam::{DMat3, DVec3};
 
@@ -76,9 +78,9 @@ const TARGET_DISTANCE_M: f64 = 1.0;
 const LOOKAHEAD_M: f64 = 0.5;
 /// Points along it where the clearance is checked (every 0.1 m).
 const LOOKAHEAD_SAMPLES: u32 = 5;
-/// The followed direction turns away from the boundary in steps of this [rad] (15°) ...
+/// The followed direction turns in steps of this [rad] (15°) ...
 const TURN_STEP_RAD: f64 = std::f64::consts::PI / 12.0;
-/// ... at most this many: half a turn.
+/// ... at most this many to either side: half a turn.
 const TURN_STEPS: u32 = 12;
 /// When the nearest point jumps to another obstacle, a new tangent pointing back by more
 /// than 120° (cos 120°) is a reversal (the far wall of a tube): the side flips to keep the
@@ -150,7 +152,7 @@ fn horizontal(v: DVec3) -> DVec3 {
 struct Lookahead {
     /// Horizontal offsets from the robot of the points within the z band and reach.
     near: Vec<DVec3>,
-    /// The clearance a direction must keep: `min(d₀, min_standoff_m)` [m].
+    /// The clearance a direction must keep: `min(d₀, lookahead_keep_m)` [m].
     keep_m: f64,
 }
 
@@ -164,7 +166,7 @@ impl Lookahead {
             .filter(|p| p.length() <= reach)
             .collect();
         let now = near.iter().map(|p| p.length()).fold(f64::INFINITY, f64::min);
-        Self { near, keep_m: now.min(config.min_standoff_m) }
+        Self { near, keep_m: now.min(config.lookahead_keep_m) }
     }
 
     /// The closest any point comes along the next [`LOOKAHEAD_M`] in the unit direction `u`.
@@ -184,22 +186,27 @@ impl Lookahead {
         self.closest(u) >= self.keep_m
     }
 
-    /// `direction`, or the first direction turned from it by `turn`·k·[`TURN_STEP_RAD`]
-    /// (`turn` = +1: counter-clockwise) that keeps the clearance; of none, the one that
-    /// keeps the points farthest.
-    fn turn_clear(&self, direction: DVec3, turn: f64) -> DVec3 {
+    /// `direction`, or the direction nearest to it, in steps of [`TURN_STEP_RAD`] to either
+    /// side (`away` first on a tie: +1 counter-clockwise), that keeps the clearance; of none,
+    /// the one that keeps the points farthest.
+    fn turn_clear(&self, direction: DVec3, away: f64) -> DVec3 {
         if self.near.is_empty() || direction.length() < TINY_M {
             return direction;
         }
         let mut best = (f64::NEG_INFINITY, direction);
         for k in 0..=TURN_STEPS {
-            let u = DMat3::from_rotation_z(turn * TURN_STEP_RAD * f64::from(k)) * direction;
-            let least = self.closest(u);
-            if least >= self.keep_m {
-                return u;
-            }
-            if least > best.0 {
-                best = (least, u);
+            for sign in [away, -away] {
+                if sign != away && (k == 0 || k == TURN_STEPS) {
+                    continue;
+                }
+                let u = DMat3::from_rotation_z(sign * TURN_STEP_RAD * f64::from(k)) * direction;
+                let least = self.closest(u);
+                if least >= self.keep_m {
+                    return u;
+                }
+                if least > best.0 {
+                    best = (least, u);
+                }
             }
         }
         best.1
