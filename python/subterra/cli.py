@@ -100,6 +100,26 @@ def finite_floats(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
 _goal = finite_floats(3, "x,y,z in metres")
 
 
+def add_fault_options(p: argparse.ArgumentParser, unit: str) -> None:
+    """``--faults`` and ``--faults-config`` (subterra.sim.faults)."""
+    from subterra.sim.faults import FAULT_NAMES
+
+    p.add_argument("--faults", default=None,
+                   help=f"inject faults, comma-separated, or 'all' (a batch gives each {unit} the next in turn): " + ", ".join(FAULT_NAMES))
+    p.add_argument("--faults-config", default=None, help="TOML file with a [faults.<name>] table per fault's settings")
+
+
+def fault_options(args: argparse.Namespace) -> tuple[list[str], dict | None]:
+    """The faults and their settings of ``--faults`` and ``--faults-config``."""
+    from subterra.sim.faults import load_faults_config, parse_faults
+
+    faults = parse_faults(args.faults)
+    config = load_faults_config(args.faults_config) if args.faults_config else None
+    if config and not faults:
+        raise InputError("argument --faults-config: give --faults too (which faults to inject)")
+    return faults, config
+
+
 def _flight_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="highbay", help="built-in scenario with routes: highbay (default), tunnel or warehouse")
     p.add_argument("--preset", default="flight-escape",
@@ -109,6 +129,7 @@ def _flight_options(p: argparse.ArgumentParser) -> None:
                         "fly-batch takes a comma-separated list")
     p.add_argument("--config", default=None, help="perception config TOML, instead of --preset")
     p.add_argument("--rate", type=positive_rate, default=15.0, help="camera and control rate [Hz] (default 15)")
+    add_fault_options(p, "flight")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -296,7 +317,8 @@ def _fly(args: argparse.Namespace) -> int:
     rerun = None if args.no_rerun or not rerun_available() else out / "flight.rrd"
     if rerun is not None:
         out.mkdir(parents=True, exist_ok=True)
-    result = fly(args.scenario, route, controller=args.controller, noise=args.noise, preset=args.preset, config=config,
+    faults, faults_config = fault_options(args)
+    result = fly(args.scenario, route, faults=faults, faults_config=faults_config, controller=args.controller, noise=args.noise, preset=args.preset, config=config,
                  seed=args.seed, world=world, rate_hz=args.rate, time_limit_s=args.time_limit, progress=True, rerun_path=rerun)
     paths = result.save(out, plots=not args.no_plots)
     m = result.summary()
@@ -321,7 +343,8 @@ def _fly_batch(args: argparse.Namespace) -> int:
         raise InputError(f"argument --seeds must be >= 1, got {args.seeds}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     out = out_dir(args, f"fly-batch-{args.scenario}")
-    result = fly_batch(args.scenario, args.routes, seeds, controllers=[c.strip() for c in args.controllers.split(",") if c.strip()],
+    faults, faults_config = fault_options(args)
+    result = fly_batch(args.scenario, args.routes, seeds, faults=faults, faults_config=faults_config, controllers=[c.strip() for c in args.controllers.split(",") if c.strip()],
                        noises=[n.strip() for n in args.noise.split(",") if n.strip()], preset=args.preset, rate_hz=args.rate,
                        keep_records=not args.no_plots, log_path=out / "flights.jsonl", **engine_options(args))
     return save_and_report(result, out, args, "flight")

@@ -157,3 +157,31 @@ def test_hazard_memory_keeps_a_lethal_box_that_left_the_fused_window(memory):
         assert nav.plan_grid[iy, ix] >= 0.9
     else:
         assert np.isnan(nav.plan_grid[iy, ix])
+
+
+def test_a_stale_lidar_or_lost_odometry_stops_the_robot_with_the_reason():
+    from subterra.terrain import translation
+
+    mount = translation(z=0.7)
+    nav = subterra.Navigator(goal=(6.0, 0.0))
+    assert nav.config["navigator"]["scan_timeout_s"] == 0.5
+    floor = _ground_scan((0.5, 8.0), (-3.0, 3.0))
+    out = nav.step(floor, stamp=0.0, world_from_body=np.eye(4), body_from_sensor=mount)
+    moving = [nav.step(floor if k % 2 else None, stamp=0.1 * k, world_from_body=np.eye(4), body_from_sensor=mount)
+              for k in range(1, 8)]
+    assert any(o.command[0] > 0 for o in moving), "a flat floor: it drives"
+    assert all(o.safety is None or not o.safety.startswith("stale") for o in moving)
+    # The lidar stops publishing: the robot drives on the last map for scan_timeout_s, then stops.
+    last = 0.7
+    outs = [(t, nav.step(None, stamp=t, world_from_body=np.eye(4), body_from_sensor=mount)) for t in np.arange(0.8, 2.0, 0.1)]
+    for t, o in outs:
+        if t - last > 0.5 + 1e-9:
+            assert o.command == (0.0, 0.0) and o.safety.startswith("stale scan"), (t, o.command, o.safety)
+    # Scans again: it goes on.
+    out = nav.step(floor, stamp=2.0, world_from_body=np.eye(4), body_from_sensor=mount)
+    assert out.safety is None or not out.safety.startswith("stale")
+    # No usable odometry (confidence 0): it stops, with the reason.
+    out = nav.step(floor, stamp=2.1, world_from_body=np.eye(4), body_from_sensor=mount, confidence=0.0)
+    assert out.command == (0.0, 0.0) and out.safety == "no odometry: confidence 0"
+    with pytest.raises(ConfigError, match="scan_timeout_s"):
+        subterra.Navigator(goal=(6.0, 0.0), config={"navigator": {"scan_timeout_s": 0.0}})

@@ -54,7 +54,7 @@ def test_a_jumping_source_is_left_without_a_jump_in_the_pose():
     events = out[40].events
     assert {e["event"] for e in events} >= {"unhealthy", "switch"}
     jump = next(e for e in events if e["event"] == "unhealthy")
-    assert jump["source"] == "vio" and jump["reason"].startswith("jump: 1.5")
+    assert jump["source"] == "vio" and jump["reason"].startswith("jump: 1.500 m and 0.0° off the step its twist predicts")
     assert out[40].faults["vio"].startswith("jump")
     assert out[-1].source == "vio"  # back after recover_s, re-anchored
     assert off_truth(out) < 1e-6

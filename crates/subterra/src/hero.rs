@@ -191,10 +191,14 @@ pub enum Fault {
     },
     /// A step off the predicted one.
     Jump {
-        /// Translation off the prediction [m].
+        /// Translation off the twist's prediction, or the step itself without a twist [m].
         translation_m: f64,
-        /// Yaw off the prediction [rad].
+        /// Yaw off the twist's prediction, or the step's yaw without a twist [rad].
         yaw_rad: f64,
+        /// The step's interval [s].
+        dt_s: f64,
+        /// Whether a twist predicted the step.
+        predicted: bool,
     },
     /// A covariance above the bounds.
     Covariance {
@@ -229,7 +233,12 @@ impl Fault {
     pub fn describe(&self) -> String {
         match *self {
             Self::Stale { age_s } => format!("stale: no sample for {age_s:.3} s"),
-            Self::Jump { translation_m, yaw_rad } => format!("jump: {translation_m:.3} m and {:.1}° off the predicted step", yaw_rad.to_degrees()),
+            Self::Jump { translation_m, yaw_rad, dt_s, predicted: true } => {
+                format!("jump: {translation_m:.3} m and {:.1}° off the step its twist predicts over {dt_s:.3} s", yaw_rad.to_degrees())
+            }
+            Self::Jump { translation_m, yaw_rad, dt_s, predicted: false } => {
+                format!("jump: a step of {translation_m:.3} m and {:.1}° in {dt_s:.3} s", yaw_rad.to_degrees())
+            }
             Self::Covariance { position_std_m, yaw_std_rad } => {
                 format!("covariance: position std {position_std_m:.3} m, yaw std {:.1}°", yaw_std_rad.to_degrees())
             }
@@ -462,16 +471,23 @@ impl OdometryMux {
             let stale_gap = dt > config.stale_periods / s.spec.rate_hz;
             let delta = pose.translation - prev.world_from_body.translation;
             let dyaw = wrap(yaw_of(&pose.rotation) - yaw_of(&prev.world_from_body.rotation));
-            let (off_m, off_yaw, predicted) = match prev.twist {
+            // (translation, yaw) of the step or off its prediction, their bounds, the prediction.
+            let (off_m, off_yaw, bound_m, bound_yaw, predicted) = match prev.twist {
                 Some(t) if !stale_gap => {
                     let step = prev.world_from_body.rotation * (t.linear * dt);
                     let turn = t.angular.z * dt;
-                    ((delta - step).length() - config.jump_m, (wrap(dyaw - turn)).abs() - config.jump_yaw_rad, Some((step, turn)))
+                    ((delta - step).length(), wrap(dyaw - turn).abs(), config.jump_m, config.jump_yaw_rad, Some((step, turn)))
                 }
-                _ => (delta.length() - config.max_speed_m_s * dt - config.jump_m, dyaw.abs() - config.max_yaw_rate_rad_s * dt - config.jump_yaw_rad, None),
+                _ => (
+                    delta.length(),
+                    dyaw.abs(),
+                    config.max_speed_m_s * dt + config.jump_m,
+                    config.max_yaw_rate_rad_s * dt + config.jump_yaw_rad,
+                    None,
+                ),
             };
-            if off_m > 0.0 || off_yaw > 0.0 {
-                let fault = Fault::Jump { translation_m: off_m + config.jump_m, yaw_rad: off_yaw + config.jump_yaw_rad };
+            if off_m > bound_m || off_yaw > bound_yaw {
+                let fault = Fault::Jump { translation_m: off_m, yaw_rad: off_yaw, dt_s: dt, predicted: predicted.is_some() };
                 s.jump = Some((sample.stamp_s, fault));
                 // The source's own stream stays continuous across its jump: the anchor
                 // takes the jump (the predicted step is kept).

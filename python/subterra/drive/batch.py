@@ -59,28 +59,41 @@ class DriveBatchResult(BatchReport):
 
 
 def summarise_drives(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Groups drive rows by planner; counts successes and failures by cause."""
+    """Groups drive rows by planner (and by injected fault, the planner column then reading
+    ``planner, fault``, before each planner's total); counts successes and failures by cause."""
     table = []
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        if r.get("faults"):
+            groups.setdefault(f"{r['planner']}, {','.join(r['faults'])}", []).append(r)
     for planner in dict.fromkeys(r["planner"] for r in rows):
-        rs = [r for r in rows if r["planner"] == planner]
-        failures = [r["failure"] for r in rs if not r["success"]]
-        risks = [r["accumulated_true_risk"] for r in rs]
-        times = [r["time_s"] for r in rs if r["success"]]
-        compute = [r["compute_ms_median"] for r in rs if r["compute_ms_median"] is not None]
-        n = len(rs)
-        successes = sum(bool(r["success"]) for r in rs)
-        table.append({
-            "planner": planner, "drives": n, "successes": successes, "success_rate": successes / n if n else 0.0,
-            **{cause: failures.count(cause) for cause in FAILURE_CAUSES},
-            "other_failures": sum(1 for f in failures if f not in FAILURE_CAUSES),
-            "median_true_risk": float(np.median(risks)) if risks else None,
-            "max_true_risk": float(np.max(risks)) if risks else None,
-            "median_time_s": float(np.median(times)) if times else None,
-            "recoveries": int(sum(r["recoveries"] for r in rs)),
-            "compute_ms_median": float(np.median(compute)) if compute else None,
-            "failed_drives": [f"seed {r['seed']}: {r['failure']}" for r in rs if not r["success"]],
-        })
+        for label, rs in groups.items():
+            if label.startswith(f"{planner}, "):
+                table.append(_line(label, rs))
+        table.append(_line(planner, [r for r in rows if r["planner"] == planner]))
     return table
+
+
+def _line(planner: str, rs: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """One line of the table over the drives ``rs``."""
+    failures = [r["failure"] for r in rs if not r["success"]]
+    risks = [r["accumulated_true_risk"] for r in rs]
+    times = [r["time_s"] for r in rs if r["success"]]
+    compute = [r["compute_ms_median"] for r in rs if r["compute_ms_median"] is not None]
+    n = len(rs)
+    successes = sum(bool(r["success"]) for r in rs)
+    return {
+        "planner": planner, "drives": n, "successes": successes, "success_rate": successes / n if n else 0.0,
+        **{cause: failures.count(cause) for cause in FAILURE_CAUSES},
+        "other_failures": sum(1 for f in failures if f not in FAILURE_CAUSES),
+        "median_true_risk": float(np.median(risks)) if risks else None,
+        "max_true_risk": float(np.max(risks)) if risks else None,
+        "median_time_s": float(np.median(times)) if times else None,
+        "recoveries": int(sum(r["recoveries"] for r in rs)),
+        "compute_ms_median": float(np.median(compute)) if compute else None,
+        "failed_drives": [f"seed {r['seed']}: {r['failure']}" for r in rs if not r["success"]],
+        "odometry_switches": int(sum(r.get("odometry_switches") or 0 for r in rs)),
+    }
 
 
 def drive_batch(
@@ -96,13 +109,21 @@ def drive_batch(
     engine: str | Engine = "threads",
     address: str | None = None,
     resume: bool = False,
+    faults: str | Sequence[str] | None = None,
+    faults_config: dict[str, Any] | None = None,
 ) -> DriveBatchResult:
     """Drives every (seed, planner) and summarises. ``seeds``: a count (``0..n-1``) or
     explicit seeds. ``log_path``: the JSON-lines log, a row per drive as it lands (a fresh
     file; ``resume``: continue it and drive only what it does not hold). ``engine``:
     ``"threads"`` or ``"ray"`` (``address``: an existing Ray cluster); ``workers``: parallel
     drives (default: the CPU count). The first seed's full records are kept for the maps
-    (``keep_records=False``: rows only, so every drive may run on a remote engine)."""
+    (``keep_records=False``: rows only, so every drive may run on a remote engine).
+    ``faults``: fault names (:data:`subterra.sim.faults.FAULT_NAMES`, ``"all"`` for every one):
+    the seeds take them in turn, one each (both planners the same), and the table has a line
+    per planner and fault; ``faults_config``: their settings."""
+    from subterra.sim.faults import parse_faults
+
+    fault_list = parse_faults(faults)
     seed_values = seed_list(seeds)
     if not planners or any(p not in PLANNERS for p in planners):
         raise InputError(f"argument `planners` must name some of {', '.join(PLANNERS)}, got {list(planners)!r}")
@@ -110,6 +131,9 @@ def drive_batch(
     jobs = [Job(DRIVE_JOB, {"scenario": scenario, "planner": planner, "seed": seed, "time_limit_s": time_limit_s},
                 keep=keep_records and seed == seed_values[0])
             for seed in seed_values for planner in planners]
+    if fault_list:
+        jobs = [Job(DRIVE_JOB, {**job.params, "faults": [fault_list[(k // len(planners)) % len(fault_list)]],
+                                "faults_config": faults_config}, keep=job.keep) for k, job in enumerate(jobs)]
 
     def status(rows: list[dict[str, Any]]) -> str:
         r = rows[-1]
@@ -119,6 +143,6 @@ def drive_batch(
                     desc=f"drive-batch {scenario}", unit="drive", status=status, log_path=log_path, resume=resume)
     kept = [run.records[job.id] for job in jobs if job.id in run.records]
     settings = {"seeds": seed_values, "planners": list(planners), "time_limit_s": time_limit_s, "engine": run.engine,
-                "resumed": run.resumed}
+                "resumed": run.resumed, "faults": fault_list}
     return DriveBatchResult(scenario=scenario, rows=run.rows, table=summarise_drives(run.rows), kept=kept,
                             wall_s=run.wall_s, settings=settings)

@@ -47,7 +47,7 @@ def _merged(base: dict[str, Any], over: dict[str, Any] | None) -> dict[str, Any]
 def register_cli(subparsers: argparse._SubParsersAction) -> None:
     """Adds ``drive`` and ``drive-batch`` to ``subparsers``; their handlers are ``args.handler``."""
     from subterra.batch.cli import add_engine_options
-    from subterra.cli import finite_floats, positive_rate, seed_int, sim_seconds
+    from subterra.cli import add_fault_options, finite_floats, positive_rate, seed_int, sim_seconds
     from subterra.drive.run import GROUND_SCENARIOS, PLANNERS
     from subterra.scenarios.ground import RECOVERY_SCENARIOS
     from subterra.sim import LIDAR_NOISE_PRESETS
@@ -67,6 +67,7 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-rerun", action="store_true", help="do not write drive.rrd even if rerun-sdk is installed")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--out", default=None, help="run folder (default runs/drive-<scenario>-<planner>-s<seed>)")
+    add_fault_options(p, "drive")
     p.set_defaults(handler=_drive)
 
     b = subparsers.add_parser("drive-batch", help="many randomized drives, risk-aware planner and additive baseline side by side")
@@ -77,11 +78,13 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     b.add_argument("--planners", default=",".join(PLANNERS), help=f"comma-separated (default {','.join(PLANNERS)})")
     b.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time per drive (default as drive)")
     b.add_argument("--no-plots", action="store_true", help="skip the maps of the first seed")
+    add_fault_options(b, "drive")
     add_engine_options(b, unit="drive")
     b.set_defaults(handler=_drive_batch)
 
 
 def _drive(args: argparse.Namespace) -> int:
+    from subterra.cli import fault_options
     from subterra.drive.run import drive
     from subterra.scenarios.ground import RECOVERY_SCENARIOS, recovery_scenario
     from subterra.sim import load_world
@@ -103,11 +106,12 @@ def _drive(args: argparse.Namespace) -> int:
         kwargs["start"], kwargs["yaw"] = args.start, None
     if args.goal is not None:
         kwargs["goal"] = args.goal
+    faults, faults_config = fault_options(args)
     out = Path(args.out or f"runs/drive-{name}-{args.planner}-s{args.seed}")
     rerun = None if args.no_rerun or not rerun_available() else out / "drive.rrd"
     result = drive(name, planner=args.planner, seed=args.seed, world=world, noise=args.noise,
                    navigator_config=_merged(scenario_config, _navigator_config(args.config)), rate_hz=args.rate,
-                   time_limit_s=args.time_limit,
+                   time_limit_s=args.time_limit, faults=faults, faults_config=faults_config,
                    progress=True, rerun_path=rerun, **kwargs)
     paths = result.save(out, plots=not args.no_plots)
     m = result.summary()
@@ -124,6 +128,7 @@ def _drive(args: argparse.Namespace) -> int:
 
 
 def _drive_batch(args: argparse.Namespace) -> int:
+    from subterra.cli import fault_options
     from subterra.batch.cli import engine_options, out_dir, save_and_report
     from subterra.drive.batch import drive_batch
 
@@ -134,6 +139,7 @@ def _drive_batch(args: argparse.Namespace) -> int:
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
     out = out_dir(args, f"drive-batch-{args.scenario}")
-    result = drive_batch(args.scenario, seeds, planners=planners, time_limit_s=args.time_limit,
+    faults, faults_config = fault_options(args)
+    result = drive_batch(args.scenario, seeds, planners=planners, time_limit_s=args.time_limit, faults=faults, faults_config=faults_config,
                          keep_records=not args.no_plots, log_path=out / "drives.jsonl", **engine_options(args))
     return save_and_report(result, out, args, "drive")

@@ -23,7 +23,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,7 +31,10 @@ from typing import Any
 import numpy as np
 
 from subterra.errors import InputError
+from subterra._core import OdometryMux
+from subterra.watchdog import SensorWatchdog
 from subterra.sim import LIDAR_NOISE_PRESETS, Lidar, Simulation, World
+from subterra.sim.faults import ODOMETRY_SOURCES, FaultInjector, parse_faults
 
 __all__ = ["GROUND_SCENARIOS", "PLANNERS", "DriveResult", "drive", "true_risk", "true_terrain_risk"]
 
@@ -252,6 +255,8 @@ def drive(
     time_limit_s: float | None = None,
     progress: bool | Callable[[dict[str, Any]], None] = False,
     rerun_path: str | os.PathLike[str] | None = None,
+    faults: str | Sequence[str] | None = None,
+    faults_config: dict[str, Any] | None = None,
 ) -> DriveResult:
     """Drives the ground robot across ``scenario`` (or ``world``) once and returns the record.
 
@@ -266,6 +271,11 @@ def drive(
     settings, laid over the drive's, which turn void detection on). ``time_limit_s``: default 4x the
     straight-line time at half the robot's top speed, at least 90 s. ``progress``: True for a
     live line on stderr, or a callback receiving a dict per step.
+    ``faults``: names of :data:`subterra.sim.faults.FAULT_NAMES` to inject (``faults_config``:
+    their settings); with any, the pose and its confidence come from a
+    :class:`subterra.OdometryMux` over the vehicle's three odometry sources, and a scan that
+    is lost, frozen or blank reaches the navigator as no scan (it stops after
+    ``navigator.scan_timeout_s``; with no usable odometry it stops at once).
     """
     from subterra import Navigator
     from subterra.terrain import translation
@@ -343,6 +353,13 @@ def drive(
                    bar_format="{desc}: {n:.0f}/{total:.0f} s sim {postfix}")
     last_plan = np.zeros((0, 2))
     last_safety = None
+    injector = mux = watchdog = None
+    fault_events: list[dict[str, Any]] = []
+    if parse_faults(faults):
+        injector = FaultInjector(parse_faults(faults), seed=seed, config=faults_config)
+        mux = OdometryMux([(name, float(rate_hz)) for name in ODOMETRY_SOURCES])
+        watchdog = SensorWatchdog(min_points=100)
+    pose_held = None
     try:
         while sim.status == "running":
             obs = sim.observe()
@@ -350,8 +367,23 @@ def drive(
             odom = obs["odometry"]
             # Signed forward speed, as wheel odometry gives it.
             speed = float(np.dot(np.asarray(obs["velocity_world"], dtype=np.float64)[:2], odom[:2, 0]))
-            out = nav.step(obs["scans"]["lidar"], stamp=obs["time_s"], world_from_body=odom,
-                           body_from_sensor=body_from_sensor, speed=speed)
+            scan = obs["scans"]["lidar"]
+            confidence = 1.0
+            if injector is not None:
+                t_obs = obs["time_s"]
+                scan = injector.sensor(t_obs, "lidar", scan)
+                fresh, _, _ = watchdog.check(t_obs, scan)
+                scan = scan if fresh else None
+                for name, pose in injector.odometry(t_obs, odom, truth):
+                    mux.push(name, t_obs, pose)
+                mux_out = mux.update(t_obs)
+                for e in mux_out.events:
+                    fault_events.append({"time_s": e["time_s"], "event": f"odometry-{e['event']}", "source": e["source"], "reason": e["reason"]})
+                confidence = mux_out.confidence
+                odom = mux_out.world_from_body if mux_out.world_from_body is not None else (pose_held if pose_held is not None else odom)
+                pose_held = odom
+            out = nav.step(scan, stamp=obs["time_s"], world_from_body=odom,
+                           body_from_sensor=body_from_sensor, speed=speed, confidence=confidence)
             v, w = out.command
             step = sim.step([v, 0.0, 0.0, w], dt, compute_time_s=out.timings["total_s"])
             events.extend(out.transitions)
@@ -421,6 +453,17 @@ def drive(
     metrics["accumulated_true_risk"] = accumulated_risk(steps["true_risk"], steps["position"])
     metrics["max_true_risk"] = float(steps["true_risk"].max()) if steps["true_risk"].size else 0.0
     metrics["max_tilt_deg"] = float(np.degrees(np.max(np.hypot(steps["roll"], steps["pitch"])))) if steps["roll"].size else 0.0
+    if injector is not None:
+        # Faults and odometry events in the behaviour log's columns (from = to = the behaviour then).
+        behaviour_at = lambda t: str(steps["behaviour"][max(0, int(np.searchsorted(steps["time_s"], t, side="right")) - 1)]) if steps["time_s"].size else ""  # noqa: E731
+        for e in injector.events + fault_events:
+            b = behaviour_at(e["time_s"])
+            label = e["event"] if not e.get("source") else f"{e['event']} {e['source']}"
+            events.append({"time_s": e["time_s"], "from": b, "to": b, "reason": f"{label}: {e['reason']}",
+                           "r_inst": math.nan, "r_total": math.nan})
+        events.sort(key=lambda e: e["time_s"])
+        metrics["faults"] = injector.names
+        metrics["odometry_switches"] = sum(1 for e in fault_events if e["event"] == "odometry-switch" and "from none" not in e["reason"])
     result = DriveResult(
         scenario=scenario, planner=planner, seed=seed, world=world, start=start_xy, goal=goal_xy, home=home_xy,
         rate_hz=float(rate_hz), steps=steps, events=events, metrics=metrics, path=path, last_plan=last_plan,

@@ -103,7 +103,9 @@ def summarise_rows(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     groups: dict[tuple[str, str, str, str], list[dict[str, Any]]] = {}
     for r in rows:
         preset = r.get("preset", "flight")
-        groups.setdefault((r["controller"], preset, r["noise"], r["route"]), []).append(r)
+        # With faults injected, a line per fault (the route column names it).
+        group = ",".join(r["faults"]) if r.get("faults") else r["route"]
+        groups.setdefault((r["controller"], preset, r["noise"], group), []).append(r)
         groups.setdefault((r["controller"], preset, r["noise"], "all"), []).append(r)
     table = []
     order = lambda kv: (kv[0][2], kv[0][0], kv[0][1], kv[0][3] == "all", kv[0][3])  # noqa: E731
@@ -127,6 +129,8 @@ def summarise_rows(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
             "compute_ms_median": float(np.median(compute)) if compute else None,
             "compute_ms_p99": float(np.max(p99)) if p99 else None,
             "failed_flights": [f"{r['route']} seed {r['seed']}: {r['failure']}" for r in rs if not r["success"]],
+            "hovers": sum(int(r.get("hovers") or 0) for r in rs),
+            "odometry_switches": sum(int(r.get("odometry_switches") or 0) for r in rs),
         })
     return table
 
@@ -163,8 +167,14 @@ def fly_batch(
     engine: str | Engine = "threads",
     address: str | None = None,
     resume: bool = False,
+    faults: str | Sequence[str] | None = None,
+    faults_config: dict[str, Any] | None = None,
 ) -> BatchResult:
     """Flies every (preset, noise, seed, route, controller) combination and summarises them.
+
+    ``faults``: fault names (:data:`subterra.sim.faults.FAULT_NAMES`, ``"all"`` for every one):
+    the flights take them in turn, one each (seeded by the flight's seed), and the table has a
+    line per fault instead of per route; ``faults_config``: their settings.
 
     ``preset``: a perception preset name, a comma-separated list or a sequence of names
     (e.g. ``"flight,flight-memory"``: the paper's and the obstacle memory's side by side).
@@ -184,6 +194,9 @@ def fly_batch(
     """
     seed_values = seed_list(seeds)
     from subterra._core import preset_names
+    from subterra.sim.faults import parse_faults
+
+    fault_list = parse_faults(faults)
 
     pinned: list[tuple[str, str | None]] = []
     for c in controllers:
@@ -218,6 +231,11 @@ def fly_batch(
     jobs = [Job(FLY_JOB, {"scenario": scenario, "route": route, "controller": controller, "noise": noise, "preset": p,
                           "seed": seed, "rate_hz": rate_hz, "time_limit_s": time_limit_s}, keep=seed == keep)
             for noise in noises for seed in seed_values for route in route_list for controller, p in pairs]
+    if fault_list:
+        # One fault per flight, in turn (the same fault for every controller of a flight).
+        per_flight = len(pairs)
+        jobs = [Job(FLY_JOB, {**job.params, "faults": [fault_list[(k // per_flight) % len(fault_list)]],
+                              "faults_config": faults_config}, keep=job.keep) for k, job in enumerate(jobs)]
     several = len({p for _, p in pairs}) > 1
     label = (lambda c, p: f"{c}@{p}") if several else (lambda c, p: c)
 

@@ -20,16 +20,18 @@ import json
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from subterra._core import PerceptionConfig, Pilot
+from subterra._core import OdometryMux, PerceptionConfig, Pilot
 from subterra.errors import ConfigError, InputError
+from subterra.watchdog import SensorWatchdog
 from subterra.sim import DEPTH_NOISE_PRESETS, DepthCamera, Simulation, World
+from subterra.sim.faults import ODOMETRY_SOURCES, FaultInjector, parse_faults
 
 __all__ = ["CONTROLLERS", "FlightResult", "fly", "resolve_path", "resolve_route"]
 
@@ -89,6 +91,9 @@ class FlightResult:
     path: np.ndarray
     wall_s: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
+    #: What happened besides the frames: injected faults, odometry switches, hovers, each a
+    #: dict with ``time_s``, ``event``, ``source`` and ``reason`` (``events.csv``).
+    events: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def success(self) -> bool:
@@ -118,6 +123,9 @@ class FlightResult:
             "compute_ms_median": float(np.median(compute)) if compute.size else None,
             "compute_ms_p99": float(np.percentile(compute, 99)) if compute.size else None,
             "obstacle_in_view_fraction": float(in_view.mean()) if in_view.size else 0.0,
+            "faults": sorted({e["fault"] for e in self.events if e.get("event") == "fault-start"}),
+            "hovers": sum(1 for e in self.events if e.get("event") == "hover"),
+            "odometry_switches": sum(1 for e in self.events if e.get("event") == "odometry-switch" and "from none" not in (e.get("reason") or "")),
             "wall_s": round(self.wall_s, 3),
         }
 
@@ -130,8 +138,14 @@ class FlightResult:
         written = {
             "trajectory": _write_trajectory(self, out / "trajectory.csv"),
             "frames": _write_frames(self, out / "frames.csv"),
+            "events": out / "events.csv",
             "metrics": out / "metrics.json",
         }
+        with written["events"].open("w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(["time_s", "event", "source", "reason"])
+            for e in self.events:
+                w.writerow([f"{e['time_s']:.3f}", e["event"], e.get("source") or "", e.get("reason") or ""])
         written["metrics"].write_text(json.dumps(self.summary(), indent=2) + "\n", encoding="utf-8")
         if plots:
             from subterra.viz.flight import plot_compute_time, plot_flight_path, plot_flight_trace
@@ -250,6 +264,21 @@ def _yaw_of(world_from_body: np.ndarray) -> float:
     return math.atan2(world_from_body[1, 0], world_from_body[0, 0])
 
 
+class _IdlePerception:
+    most_probable = None
+    p_free = math.nan
+    closest_depth_m = None
+
+
+class _IdlePilotOutput:
+    perceptions = (_IdlePerception(),)
+    repulsive_body = np.zeros(3)
+    memory_repulsive_body = np.zeros(3)
+    memory_cells = 0
+    escape_active = False
+    target_world = np.full(3, math.nan)
+
+
 def fly(
     scenario: str = "highbay",
     route: str | None = None,
@@ -269,6 +298,8 @@ def fly(
     rerun_depth_every: int = 5,
     path: Any = "auto",
     lookahead_m: float = 1.5,
+    faults: str | Sequence[str] | None = None,
+    faults_config: dict[str, Any] | None = None,
 ) -> FlightResult:
     """Flies ``route`` of ``scenario`` (or of ``world``; default: its first route, e.g.
     highbay's ``A-B``, tunnel's ``start-goal``) once and returns the record.
@@ -289,6 +320,12 @@ def fly(
     by default the world's waypoint regions, e.g. the tunnel's ``wp1`` ... ``wp7``).
     The preset's obstacle memory (``memory.enabled``) and escape from local minima
     (``escape.enabled``) run when the preset turns them on.
+    ``faults``: names of :data:`subterra.sim.faults.FAULT_NAMES` to inject (``faults_config``:
+    their settings, ``{name: {field: value}}``); with any, the pose comes from a
+    :class:`subterra.OdometryMux` over the vehicle's three odometry sources, and a
+    :class:`subterra.watchdog.SensorWatchdog` slows the drone while the depth camera
+    gives nothing new (lost, frozen or blank frames) and hovers it after its timeout, as it
+    hovers while no odometry source is usable. Events go to ``events``.
     """
     if controller not in CONTROLLERS:
         raise InputError(f"argument `controller` must be one of {', '.join(CONTROLLERS)}, got {controller!r}")
@@ -348,6 +385,18 @@ def fly(
         recorder = RerunRecorder(rerun_path, application_id=f"subterra-fly-{route_name}", depth_every=rerun_depth_every)
         recorder.log_world(world)
 
+    injector = mux = watchdog = None
+    events: list[dict[str, Any]] = []
+    if parse_faults(faults):
+        injector = FaultInjector(parse_faults(faults), seed=seed, config=faults_config)
+        mux = OdometryMux([(name, float(rate_hz)) for name in ODOMETRY_SOURCES])
+        watchdog = SensorWatchdog()
+    last_command = np.zeros(4)
+    hovering: str | None = None
+    step_out = None
+    # What the frames record before the pilot's first step, if the run starts halted.
+    pilot_idle = _IdlePilotOutput()
+
     dt = 1.0 / float(rate_hz)
     stall_steps = max(1, round(stall_window_s * rate_hz))
     rows: dict[str, list[Any]] = {k: [] for k in FRAME_FIELDS}
@@ -363,15 +412,51 @@ def fly(
             obs = sim.observe(depth_dtype="uint16")
             truth_body = obs["world_from_body"]
             odom = obs["odometry"]
+            t_obs = obs["time_s"]
+            depth = obs["depth"]["front"]
+            samples = []
+            if injector is not None:  # the simulated sensors' faults: not the stack's time
+                depth = injector.sensor(t_obs, "front", depth, no_return=0)
+                samples = injector.odometry(t_obs, odom, truth_body)
             tick = time.perf_counter()
-            step_out = pilot.step(obs["depth"]["front"], stamp=obs["time_s"], world_from_body=odom)
-            out = step_out.perceptions[0]
-            cmd = step_out.command
+            halt = None
+            if injector is not None:
+                for name, pose in samples:
+                    mux.push(name, t_obs, pose)
+                mux_out = mux.update(t_obs)
+                events.extend({"time_s": e["time_s"], "event": f"odometry-{e['event']}", "source": e["source"], "reason": e["reason"]}
+                              for e in mux_out.events)
+                if mux_out.source is None or mux_out.world_from_body is None:
+                    halt = "no odometry"
+                else:
+                    odom = mux_out.world_from_body
+                fresh, age_s, reason = watchdog.check(t_obs, depth)
+                if halt is None and not fresh:
+                    halt = reason
+            if halt is None:
+                step_out = pilot.step(depth, stamp=t_obs, world_from_body=odom)
+                out = step_out.perceptions[0]
+                cmd = step_out.command
+                command = cmd.as_array()
+                last_command = command
+                if hovering is not None:
+                    events.append({"time_s": t_obs, "event": "resume", "source": None, "reason": f"after: {hovering}"})
+                    hovering = None
+            else:
+                # No new depth (or no pose): slow down, and hover after the watchdog's timeout.
+                scale = 0.0 if halt == "no odometry" else watchdog.scale(t_obs)
+                command = last_command * scale
+                if scale == 0.0 and hovering is None:
+                    hovering = halt
+                    events.append({"time_s": t_obs, "event": "hover", "source": None, "reason": halt})
             compute_s = time.perf_counter() - tick
-            step = sim.step(cmd, dt, compute_time_s=compute_s)
+            step = sim.step(command, dt, compute_time_s=compute_s)
 
             position = truth_body[:3, 3].copy()
             positions.append(position)
+            if step_out is None:  # halted from the first tick: nothing perceived yet
+                step_out = pilot_idle
+                out = step_out.perceptions[0]
             mp = out.most_probable
             truth_min = obs["depth_truth_min"]["front"]
             rows["time_s"].append(obs["time_s"])
@@ -392,7 +477,7 @@ def fly(
             rows["memory_cells"].append(step_out.memory_cells)
             rows["escape_active"].append(step_out.escape_active)
             rows["carrot"].append(step_out.target_world)
-            rows["command"].append(cmd.as_array())
+            rows["command"].append(command)
             rows["compute_ms"].append(compute_s * 1e3)
             rows["clearance_m"].append(step["clearance_m"])
 
@@ -453,6 +538,7 @@ def fly(
         world=world, start=start, goal=goal, goal_radius_m=goal_radius, rate_hz=float(rate_hz),
         horizon_m=horizon_m, rho_0_m=float(cfg["apf"]["rho_0_m"]), frames=frames, metrics=dict(sim.metrics()),
         path=path, wall_s=time.perf_counter() - started,
+        events=sorted((injector.events if injector is not None else []) + events, key=lambda e: e["time_s"]),
     )
     result.metrics["time_limit_s"] = time_limit_s
     result.metrics["escape_frames"] = int(frames["escape_active"].sum())

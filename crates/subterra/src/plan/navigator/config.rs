@@ -118,6 +118,12 @@ pub struct NavigatorSettings {
     /// part of them overhangs the drop. Without the rim the A*'s inflation and the tracker's
     /// footprint check keep the robot clear of the rated void, not of the real edge.
     pub void_rim_m: f64,
+    /// **Stale sensor** (step 1): once a map exists, with no scan for longer than this the
+    /// robot stops, whatever the plan, until scans come again [s] (`safety` says why). A
+    /// tracker with no new scans drives on a map that no longer shows what is ahead: a lidar
+    /// that stopped publishing, or a driver that hangs. Odometry confidence 0 (no usable
+    /// odometry source: `subterra.OdometryMux`) stops the robot the same way.
+    pub scan_timeout_s: f64,
     /// **Footprint-checked plans** (step 3): the A*'s path is checked with the tracker's own
     /// footprint test (the rectangle along the path's tangent against lethal cells and the
     /// unknown beside them); where it fails, the cells within the difference between the
@@ -179,6 +185,7 @@ impl Default for NavigatorSettings {
             driven_memory_m: 15.0,
             unseen_near_lethal: true,
             void_rim_m: 0.2,
+            scan_timeout_s: 0.5,
             footprint_replans: 4,
             plan_hysteresis: 0.2,
             leave_by_any_border: true,
@@ -219,6 +226,9 @@ impl NavigatorSettings {
         require_non_negative("navigator.near_memory_m", self.near_memory_m)?;
         require_non_negative("navigator.driven_memory_m", self.driven_memory_m)?;
         require_non_negative("navigator.void_rim_m", self.void_rim_m)?;
+        if !(self.scan_timeout_s.is_finite() && self.scan_timeout_s > 0.0 && self.scan_timeout_s <= 3600.0) {
+            return Err(Error::config("navigator.scan_timeout_s", "must be in (0, 3600] s", self.scan_timeout_s));
+        }
         // Bounds on the work and memory a setting implies: a disc per lethal cell for the
         // morphology radii, a search or a memory over the area of the others.
         let limited = [

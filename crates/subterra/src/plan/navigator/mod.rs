@@ -11,7 +11,9 @@
 //! # One step, exactly
 //! 1. **Map.** With a scan, [`TerrainMapper::update`] at the odometry pose; the coarse map is
 //!    kept (the navigator plans and tracks on it: the mapper's fine map is not computed).
-//!    Without a scan, the last map stands.
+//!    Without a scan, the last map stands; once a map exists, no scan for longer than
+//!    `scan_timeout_s`, or an odometry confidence of 0 (no usable odometry source), stops the
+//!    robot here, with the reason in `safety` (steps 2-5 wait for the sensor).
 //! 2. **Grids.** The navigator's grid is the coarse map's `risk` layer, or with
 //!    `navigator.cvar_alpha` its `CVaR_α`, where the map observed the cell (holes and
 //!    drop-offs rated by ray reasoning are observed and lethal: a cell whose ground is missing
@@ -224,6 +226,8 @@ pub struct Navigator {
     last_plan_ok: bool,
     planned_for: Option<(f64, f64, Target)>,
     last_stamp_s: Option<f64>,
+    /// The stamp of the last scan mapped [s].
+    last_scan_s: Option<f64>,
     transitions_seen: usize,
     home_pending: bool,
     terrain_stats: (TerrainStats, TerrainTimings),
@@ -274,6 +278,7 @@ impl Navigator {
             last_plan_ok: false,
             planned_for: None,
             last_stamp_s: None,
+            last_scan_s: None,
             transitions_seen: 0,
             home_pending: home.is_none(),
             terrain_stats: (TerrainStats::default(), TerrainTimings::default()),
@@ -347,6 +352,7 @@ impl Navigator {
             let out = self.mapper.update(points, input.stamp_s, &input.world_from_body, &input.body_from_sensor, input.confidence)?;
             self.terrain_stats = (out.stats, out.timings);
             self.grids(out.coarse, position)?;
+            self.last_scan_s = Some(input.stamp_s);
         }
         self.last_stamp_s = Some(input.stamp_s);
         if let Some(map) = &self.map {
@@ -367,6 +373,23 @@ impl Navigator {
             timings.total_s = started.elapsed().as_secs_f64();
             return Ok(self.output(0.0, 0.0, None, None, unknown, timings));
         };
+        // A stale sensor or no odometry: stop where the robot is, and say why.
+        let stale = self.last_scan_s.map_or(0.0, |t| input.stamp_s - t);
+        let halt = if stale > self.config.navigator.scan_timeout_s {
+            Some(format!("stale scan: none for over navigator.scan_timeout_s = {} s", self.config.navigator.scan_timeout_s))
+        } else if input.confidence <= 0.0 {
+            Some("no odometry: confidence 0".to_string())
+        } else {
+            None
+        };
+        if let Some(reason) = halt {
+            self.tracker.reset();
+            timings.total_s = started.elapsed().as_secs_f64();
+            let unknown = self.config.planner.unknown_risk;
+            let mut output = self.output(0.0, 0.0, None, None, unknown, timings);
+            output.safety = Some(reason);
+            return Ok(output);
+        }
         let g = *map.geometry();
         let lethal = map.lethal_risk;
         // The grid is read by every stage below while the planner and the memories change:
