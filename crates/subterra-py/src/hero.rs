@@ -32,7 +32,7 @@ fn matrix<'py>(py: Python<'py>, p: &Isometry3) -> PyResult<Bound<'py, PyArray2<f
         r.x_axis.z, r.y_axis.z, r.z_axis.z, t.z, //
         0.0, 0.0, 0.0, 1.0,
     ];
-    Ok(rows.into_pyarray(py).reshape([4, 4])?)
+    rows.into_pyarray(py).reshape([4, 4])
 }
 
 /// What one `OdometryMux.update` gives.
