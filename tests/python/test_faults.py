@@ -67,6 +67,51 @@ def test_odometry_sources_and_their_faults():
     assert names(4.5) == ["vio", "lidar", "wheels"]
 
 
+def _yawed(x: float, y: float, yaw: float) -> np.ndarray:
+    m = np.eye(4)
+    m[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    m[:2, 3] = [x, y]
+    return m
+
+
+def test_a_drift_builds_up_sideways_and_stays_fixed_in_the_world_after_its_window():
+    f = FaultInjector(["odom-drift"], seed=0, config={"odom-drift": {"start_s": 1.0, "duration_s": 2.0, "rate_m_s": 0.2}})
+    offset = lambda t, pose: dict(f.odometry(t, pose, pose))["vio"][:3, 3] - pose[:3, 3]  # noqa: E731
+    for k in range(11):  # heading +x: the drift goes to +y (the body's left)
+        t = k * 0.1
+        assert offset(t, _yawed(t, 0.0, 0.0)) == pytest.approx([0.0, 0.0, 0.0], abs=1e-12)
+    for k in range(11, 31):
+        t = k * 0.1
+        got = offset(t, _yawed(t, 0.0, 0.0))
+    assert got == pytest.approx([0.0, 0.4, 0.0], abs=1e-9)  # 2 s at 0.2 m/s
+    # After the window the robot turns a quarter: the error stays where it was in the world.
+    for k in range(31, 40):
+        t = k * 0.1
+        assert offset(t, _yawed(3.0, 0.0, (k - 30) * np.pi / 18)) == pytest.approx([0.0, 0.4, 0.0], abs=1e-9)
+
+
+def test_the_mux_takes_a_drift_back_out_when_the_vote_catches_it():
+    from subterra import OdometryMux
+
+    f = FaultInjector(["odom-drift"], seed=0, config={"odom-drift": {"start_s": 2.0, "duration_s": 6.0, "rate_m_s": 0.3}})
+    mux = OdometryMux([("vio", 10.0), ("lidar", 10.0), ("wheels", 10.0)])
+    caught = None
+    for k in range(80):
+        t = k * 0.1
+        truth = _yawed(0.8 * t, 0.0, 0.0)
+        for name, pose in f.odometry(t, truth, truth):
+            mux.push(name, t, pose)
+        out = mux.update(t)
+        for e in out.events:
+            if e["event"] == "switch" and e["source"] == "lidar":
+                caught = (t, e["reason"])
+    assert caught is not None and 2.0 < caught[0] < 5.0
+    assert "taken back" in caught[1]
+    # vio would be 0.3 m/s x (8 - 2) s = 1.8 m off by now; the output follows the truth.
+    end = out.world_from_body[:3, 3]
+    assert abs(end[1]) < 0.1 and end[0] == pytest.approx(0.8 * 7.9, abs=0.15)
+
+
 def test_the_watchdog_tells_lost_frozen_and_blind_frames_and_scales_the_command():
     w = SensorWatchdog(timeout_s=0.5)
     frame = np.random.default_rng(0).integers(1, 5000, (48, 64)).astype(np.uint16)

@@ -89,9 +89,12 @@ impl PyMuxOutput {
             let (t, kind, source, reason) = match e {
                 MuxEvent::Unhealthy { stamp_s, source, fault } => (*stamp_s, "unhealthy", self.name(Some(*source)), fault.describe()),
                 MuxEvent::Recovered { stamp_s, source } => (*stamp_s, "recovered", self.name(Some(*source)), "passed every check for recover_s".to_string()),
-                MuxEvent::Switch { stamp_s, from, to } => {
+                MuxEvent::Switch { stamp_s, from, to, corrected_m } => {
                     let from_name = self.name(*from).unwrap_or_else(|| "none".into());
                     let reason = match to {
+                        Some(_) if *corrected_m > 0.0 => {
+                            format!("from {from_name}, the pose taken back {corrected_m:.3} m to the window's start (the drift it had put in)")
+                        }
                         Some(_) => format!("from {from_name}"),
                         None => format!("from {from_name}: no usable source, pose held"),
                     };

@@ -18,7 +18,8 @@ Faults (``--faults NAME[,NAME...]`` on ``fly``, ``fly-batch``, ``drive``, ``driv
 ``noise-burst``           range noise of ``sigma_m`` (0.05 m) on every return, and
                           ``dropout`` (0.1) of the returns lost
 ``blinded``               no returns at all (a lens covered, a lidar in dense dust)
-``odom-drift``            ``source`` (``vio``) drifts sideways at ``rate_m_s`` (0.15 m/s)
+``odom-drift``            ``source`` (``vio``) drifts sideways at ``rate_m_s`` (0.15 m/s);
+                          the error it built up stays after the window (fixed in the world)
 ``odom-jump``             ``source`` (``vio``) jumps ``distance_m`` (1.0 m) and ``yaw_deg`` (10°)
                           at the window's start and stays so
 ``odom-loss``             ``source`` (``vio``) gives no samples
@@ -240,17 +241,24 @@ class FaultInjector:
         lost_all = bool(self._active(t, {"odom-loss-all"}))
         out: list[tuple[str, np.ndarray]] = []
         for name in ODOMETRY_SOURCES:
-            state = self._sources.setdefault(name, {"origin": None, "last_truth": None, "pose": None, "drift": 0.0, "jump": None})
+            state = self._sources.setdefault(name, {"origin": None, "last_truth": None, "pose": None, "drift": np.zeros(3), "drift_t": None, "jump": None})
             if name == "vio":
                 pose = np.array(vehicle_odometry, dtype=np.float64)
             else:
                 pose = self._estimate(name, state, truth)
-            for w in self._active(t, {"odom-drift"}):
-                if w.params["source"] == name:
-                    state["drift"] = w.params["rate_m_s"] * (t - w.start_s)
-            if state["drift"]:
+            # The drift builds up sideways (the body's y at each moment) as an offset in the
+            # source's world frame, which stays when the window ends (the estimator's error
+            # is not undone); a body-frame offset would swing with every turn.
+            for w in self.windows:
+                if w.name == "odom-drift" and w.params["source"] == name:
+                    since = w.start_s if state["drift_t"] is None else max(w.start_s, state["drift_t"])
+                    span = min(t, w.end_s) - since
+                    if span > 0.0:
+                        state["drift"] = state["drift"] + pose[:3, 1] * (w.params["rate_m_s"] * span)
+            state["drift_t"] = t
+            if np.any(state["drift"]):
                 pose = pose.copy()
-                pose[:3, 3] += pose[:3, 1] * state["drift"]  # sideways, in the body's y
+                pose[:3, 3] += state["drift"]
             for w in self.windows:
                 if w.name == "odom-jump" and w.params["source"] == name and t >= w.start_s:
                     a = math.radians(w.params["yaw_deg"])
