@@ -211,6 +211,7 @@ class Pilot:
         stamp: float,
         world_from_body: npt.ArrayLike,
         scale: float | None = None,
+        confidence: float = 1.0,
     ) -> PilotOutput: ...
     def reset(self) -> None: ...
     @property
@@ -796,7 +797,8 @@ class OdometryMuxOutput:
         """Per source: why it is not used (one line), or None when it is usable."""
     @property
     def events(self) -> list[dict[str, Any]]:
-        """The events since the last update (``time_s``, ``event``, ``source``, ``reason``)."""
+        """The events since the last update (``time_s``, ``event``, ``source``, ``reason``,
+        ``corrected_m``: how far a switch took the pose back, 0 for the rest)."""
 
 class OdometryMux:
     """HeRO, the odometry multiplexer: health checks on several odometry sources (stale,

@@ -172,6 +172,16 @@ def test_the_drone_switches_odometry_on_a_jump_and_hovers_with_none():
     assert r.metrics["collisions"] == 0
 
 
+def test_the_drone_takes_a_drift_out_of_its_pose_and_its_memory():
+    from subterra.flight import fly
+
+    r = fly("highbay", "A-B", seed=3, time_limit_s=10.0, faults="odom-drift",
+            faults_config={"odom-drift": {"start_s": 1.0, "rate_m_s": 0.4}})
+    switches = [e for e in r.events if e["event"] == "odometry-switch" and e["source"] == "lidar"]
+    assert switches and "taken back" in switches[0]["reason"]
+    assert r.metrics["collisions"] == 0
+
+
 def test_the_ground_robot_stops_without_scans_and_with_no_odometry(tmp_path):
     from subterra.drive import drive
 

@@ -132,6 +132,23 @@ def test_bad_arguments_name_themselves() -> None:
         pilot.set_goal([np.nan, 0, 0])
 
 
+def test_odometry_confidence_shortens_the_memory() -> None:
+    """At confidence 0 the memory keeps only the newest frame's cells; a frame with nothing
+    in it then leaves it empty, where at confidence 1 the box is still remembered."""
+    cam = PinholeCamera.d435()
+    kept = {}
+    for confidence in (1.0, 0.0):
+        pilot = Pilot(cam, "flight-memory")
+        pilot.set_goal([5, 0, 1])
+        for i in range(10):
+            pilot.step(canonical_frame(i), stamp=0.1 * i, world_from_body=pose(0.0), confidence=confidence)
+        kept[confidence] = pilot.step(np.zeros((480, 640), np.uint16), stamp=1.0, world_from_body=pose(0.0),
+                                      confidence=confidence).memory_cells
+    assert kept[1.0] > 0 and kept[0.0] == 0
+    with pytest.raises(errors.InputError, match="argument `confidence`"):
+        pilot.step(canonical_frame(0), stamp=2.0, world_from_body=pose(0.0), confidence=1.5)
+
+
 def box_sequence(n: int = 24):
     for i in range(n):
         yield f"{i}", canonical_frame(i), 0.001

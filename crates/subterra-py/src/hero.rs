@@ -80,12 +80,15 @@ impl PyMuxOutput {
         Ok(d)
     }
     /// The events since the last update: dicts with `time_s`, `event` (`unhealthy`,
-    /// `recovered`, `switch`, `dispute`, `agreement`), `source` and `reason`.
+    /// `recovered`, `switch`, `dispute`, `agreement`), `source`, `reason` and
+    /// `corrected_m` (how far a switch took the pose back: the drift of a source the vote
+    /// found inconsistent; 0 otherwise).
     #[getter]
     fn events<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         let list = PyList::empty(py);
         for e in &self.inner.events {
             let d = PyDict::new(py);
+            let corrected = if let MuxEvent::Switch { corrected_m, .. } = e { *corrected_m } else { 0.0 };
             let (t, kind, source, reason) = match e {
                 MuxEvent::Unhealthy { stamp_s, source, fault } => (*stamp_s, "unhealthy", self.name(Some(*source)), fault.describe()),
                 MuxEvent::Recovered { stamp_s, source } => (*stamp_s, "recovered", self.name(Some(*source)), "passed every check for recover_s".to_string()),
@@ -112,6 +115,7 @@ impl PyMuxOutput {
             d.set_item("event", kind)?;
             d.set_item("source", source)?;
             d.set_item("reason", reason)?;
+            d.set_item("corrected_m", corrected)?;
             list.append(d)?;
         }
         Ok(list)

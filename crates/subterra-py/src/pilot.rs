@@ -226,9 +226,10 @@ impl PyPilot {
 
     /// One control step: `frames` is one `(H, W)` depth image (`uint16` with `scale`
     /// metres per unit, default 0.001, or `float32` metres) or a list with one per camera,
-    /// taken at `stamp` [s] with the odometry pose `world_from_body` (4x4). Releases the
-    /// GIL while it runs.
-    #[pyo3(signature = (frames, *, stamp, world_from_body, scale = None))]
+    /// taken at `stamp` [s] with the odometry pose `world_from_body` (4x4) and its
+    /// `confidence` in [0, 1] (an `OdometryMux`'s: the obstacle memories' timeouts are
+    /// scaled by it, at 0 they keep only this frame). Releases the GIL while it runs.
+    #[pyo3(signature = (frames, *, stamp, world_from_body, scale = None, confidence = 1.0))]
     fn step(
         &self,
         py: Python<'_>,
@@ -236,8 +237,10 @@ impl PyPilot {
         #[pyo3(from_py_with = arg::stamp)] stamp: f64,
         world_from_body: &Bound<'_, PyAny>,
         #[pyo3(from_py_with = arg::opt_scale)] scale: Option<f64>,
+        confidence: f64,
     ) -> PyResult<PyPilotOutput> {
         let pose = isometry(py, "world_from_body", world_from_body)?;
+        self.inner.lock().set_odometry_confidence(confidence).py_err(py)?;
         let list: Vec<Bound<'_, PyAny>> = match frames.cast::<PyList>() {
             Ok(l) => l.iter().collect(),
             Err(_) => vec![frames.clone()],

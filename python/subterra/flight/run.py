@@ -310,8 +310,9 @@ def fly(
     of :data:`subterra.sim.DEPTH_NOISE_PRESETS`. ``seed`` seeds the world's layout (built-in
     scenarios), the sensor noise and the particle filter. The run ends at the goal region,
     on a collision, after ``time_limit_s`` (default: 4x the straight-line time at the
-    preset's top speed, at least 60 s), or as ``local_minimum`` when the robot has moved
-    less than ``stall_distance_m`` over the last ``stall_window_s`` seconds.
+    preset's top speed, at least 60 s), or as ``local_minimum`` when the robot has stayed
+    within ``stall_distance_m`` of where it was ``stall_window_s`` seconds ago for all that
+    time.
     ``progress``: True for a live line on stderr, or a callback receiving a dict per step.
     ``rerun_path``: also record a Rerun ``.rrd`` (needs ``subterra[viz]``) with the depth
     image of every ``rerun_depth_every``-th frame (a D435 frame is ~0.5 MB in the file)
@@ -420,10 +421,16 @@ def fly(
                 samples = injector.odometry(t_obs, odom, truth_body)
             tick = time.perf_counter()
             halt = None
+            confidence = 1.0
             if injector is not None:
                 for name, pose in samples:
                     mux.push(name, t_obs, pose)
                 mux_out = mux.update(t_obs)
+                confidence = mux_out.confidence
+                if any(e["corrected_m"] > 0.0 for e in mux_out.events):
+                    # The pose was taken back (a drift found by the vote): what the memory
+                    # recorded during the drift lies elsewhere in the corrected frame.
+                    pilot.reset()
                 events.extend({"time_s": e["time_s"], "event": f"odometry-{e['event']}", "source": e["source"], "reason": e["reason"]}
                               for e in mux_out.events)
                 if mux_out.source is None or mux_out.world_from_body is None:
@@ -434,7 +441,7 @@ def fly(
                 if halt is None and not fresh:
                     halt = reason
             if halt is None:
-                step_out = pilot.step(depth, stamp=t_obs, world_from_body=odom)
+                step_out = pilot.step(depth, stamp=t_obs, world_from_body=odom, confidence=confidence)
                 out = step_out.perceptions[0]
                 cmd = step_out.command
                 command = cmd.as_array()
@@ -500,8 +507,10 @@ def fly(
                 progress({"time_s": step["time_s"], "position": position, "status": step["status"],
                           "clearance_m": step["clearance_m"], "compute_ms": compute_s * 1e3})
             if sim.status == "running" and len(positions) > stall_steps:
-                moved = float(np.linalg.norm(positions[-1] - positions[-1 - stall_steps]))
-                if moved < stall_distance_m:
+                # Stalled: never farther than stall_distance_m from where it was a window ago
+                # (a robot that follows a boundary away and comes back has not stalled).
+                window = np.asarray(positions[-1 - stall_steps:])
+                if float(np.max(np.linalg.norm(window - window[0], axis=1))) < stall_distance_m:
                     sim.abort("local_minimum")
     finally:
         if bar is not None:

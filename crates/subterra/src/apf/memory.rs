@@ -23,7 +23,9 @@
 //!    (inside the image and between `grid.depth_min_m` and `grid.depth_max_m` along the
 //!    optical axis): there the filter sees the place, and its belief is the better word
 //!    (occlusion is not modelled, and a belief that moved to another obstacle in view also
-//!    lets a cell go after that second). Past `max_cells` the oldest cells go first.
+//!    lets a cell go after that second). Past `max_cells` the oldest cells go first. Both
+//!    timeouts are multiplied by the odometry confidence in [0, 1]
+//!    ([`ObstacleMemory::set_confidence`], 1 by default): at 0 only this frame's cells stay.
 //! 4. **Repel.** `F = Σ_c w_c·F_rep(p_c) / max(1, Σ_{c: |p_c| < ρ_m} w_c)`: the potential
 //!    of [`repulsive_force`] with the memory's own cut-off `ρ_m = rho_0_m` (the belief's
 //!    `η` and `min_distance_m`), over the cells' points `p_c` in the body frame, weighted
@@ -99,6 +101,8 @@ pub struct ObstacleMemory {
     frames: u64,
     /// The perception whose outputs it takes.
     fingerprint: u64,
+    /// Odometry confidence in [0, 1] that scales the timeouts (step 3).
+    confidence: f64,
 }
 
 impl ObstacleMemory {
@@ -129,7 +133,20 @@ impl ObstacleMemory {
             last_stamp_s: None,
             frames: 0,
             fingerprint: perception.fingerprint(),
+            confidence: 1.0,
         })
+    }
+
+    /// Sets the odometry confidence `c` in [0, 1] (an [`crate::hero::OdometryMux`]'s) that
+    /// the next updates forget with: both timeouts of step 3 are multiplied by `c`, so at 0
+    /// only what the newest frame recorded is kept (a memory kept in a frame the odometry no
+    /// longer vouches for drags obstacles across the world). 1 (the default) leaves them.
+    pub fn set_confidence(&mut self, confidence: f64) -> Result<()> {
+        if !(confidence.is_finite() && (0.0..=1.0).contains(&confidence)) {
+            return Err(Error::input("confidence", format!("must be in [0, 1], got {confidence}")));
+        }
+        self.confidence = confidence;
+        Ok(())
     }
 
     /// The settings.
@@ -216,9 +233,10 @@ impl ObstacleMemory {
         let body_from_world = world_from_body.inverse();
         let camera_from_world = self.camera_from_body.compose(&body_from_world);
         let (camera, grid) = (self.camera, self.grid);
+        let (timeout_s, in_view_timeout_s) = (self.confidence * c.timeout_s, self.confidence * c.in_view_timeout_s);
         self.cells.retain(|_, cell| {
             let age = stamp_s - cell.seen_s;
-            age <= c.timeout_s && !(age > c.in_view_timeout_s && in_view(&camera, &grid, camera_from_world.transform_point(cell.point_world)))
+            age <= timeout_s && !(age > in_view_timeout_s && in_view(&camera, &grid, camera_from_world.transform_point(cell.point_world)))
         });
         if self.cells.len() > c.max_cells as usize {
             let mut by_age: Vec<((i64, i64, i64), f64)> = self.cells.iter().map(|(k, v)| (*k, v.seen_s)).collect();
@@ -371,6 +389,31 @@ mod tests {
             let out = m.update(&output(&p, v, 0.9), None, 2.0 + 0.1 * f64::from(n), &pose(0.0, 0.0, 0.0)).unwrap();
             assert_eq!(out.cells, 1, "frame {n}");
         }
+    }
+
+    #[test]
+    fn odometry_confidence_shortens_the_memory_and_at_zero_keeps_only_the_newest_frame() {
+        let p = perception();
+        let mut m = ObstacleMemory::new(&p).unwrap();
+        let (n_w, n_h, _) = p.grid().shape();
+        let v = ((n_w / 2) as u32, (n_h / 2) as u32, 3);
+        m.update(&output(&p, v, 0.9), None, 0.0, &pose(0.0, 0.0, 0.0)).unwrap();
+        let half = 0.5 * m.config().timeout_s;
+        let out_of_view = pose(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        // At confidence 1 a cell out of view is kept for timeout_s; at 0.5 for half of it.
+        assert_eq!(m.update(&free(&p), None, half - 0.01, &out_of_view).unwrap().cells, 1);
+        m.set_confidence(0.5).unwrap();
+        assert_eq!(m.update(&free(&p), None, half + 0.01, &out_of_view).unwrap().cells, 0);
+        // At 0 a cell recorded now is kept, the one before is not.
+        m.set_confidence(1.0).unwrap();
+        m.update(&output(&p, v, 0.9), None, 6.0, &pose(0.0, 0.0, 0.0)).unwrap();
+        let other = output(&p, ((n_w / 2) as u32 + 1, (n_h / 2) as u32, 5), 0.9);
+        let mut trusting = m.clone();
+        assert_eq!(trusting.update(&other, None, 6.1, &pose(0.0, 0.0, 0.0)).unwrap().cells, 2);
+        m.set_confidence(0.0).unwrap();
+        assert_eq!(m.update(&other, None, 6.1, &pose(0.0, 0.0, 0.0)).unwrap().cells, 1);
+        assert!(m.set_confidence(1.5).unwrap_err().to_string().contains("confidence"));
+        assert!(m.set_confidence(f64::NAN).is_err());
     }
 
     #[test]

@@ -237,6 +237,20 @@ impl Pilot {
         }
     }
 
+    /// Sets the odometry confidence in [0, 1] the obstacle memories forget with from the
+    /// next step on ([`ObstacleMemory::set_confidence`]; 1 by default).
+    pub fn set_odometry_confidence(&mut self, confidence: f64) -> Result<()> {
+        if !(confidence.is_finite() && (0.0..=1.0).contains(&confidence)) {
+            return Err(Error::input("confidence", format!("must be in [0, 1], got {confidence}")));
+        }
+        for c in &mut self.cameras {
+            if let Some(m) = c.memory.as_mut() {
+                m.set_confidence(confidence)?;
+            }
+        }
+        Ok(())
+    }
+
     /// One control step (module docs): `frames[n]` is camera `n`'s image of its size,
     /// taken at `stamp_s` [s] with the odometry pose `world_from_body`.
     pub fn step(&mut self, frames: &[DepthImage<'_>], stamp_s: f64, world_from_body: &Isometry3) -> Result<PilotOutput> {
