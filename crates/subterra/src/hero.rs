@@ -39,7 +39,8 @@
 //! when the source does. A jumped source's own anchor absorbs its jump (the motion its twist
 //! predicts is kept), so re-choosing it later is continuous too. One exception: leaving a
 //! source the vote found inconsistent, the output is taken back to where it was at the start
-//! of the consistency window and the new source's motion since then is put on it — the
+//! of the consistency window (the outputs of the last two windows are kept; before them, no
+//! correction) and the new source's motion since then is put on it — the
 //! drift that the vote measured is taken out of the pose instead of carried on (the switch
 //! event's `corrected_m` says by how much). A map kept in the output frame then lines up
 //! with the world again; without it, a ground robot whose pose had drifted 0.6 m sideways
@@ -340,6 +341,8 @@ pub struct OdometryMux {
     chosen: Option<usize>,
     /// The last output pose and its stamp.
     held: Option<(f64, Isometry3)>,
+    /// The output poses `(stamp, pose)` back to about twice the consistency window.
+    outputs: VecDeque<(f64, Isometry3)>,
     disputed: bool,
     last_update_s: Option<f64>,
 }
@@ -411,7 +414,7 @@ impl OdometryMux {
                 usable: false,
             })
             .collect();
-        Ok(Self { config, sources, chosen: None, held: None, disputed: false, last_update_s: None })
+        Ok(Self { config, sources, chosen: None, held: None, outputs: VecDeque::new(), disputed: false, last_update_s: None })
     }
 
     /// The settings.
@@ -641,10 +644,9 @@ impl OdometryMux {
                 // wrong, so the output is taken back to where it was at the window's start and
                 // the new source's motion since then is put on it.
                 let rebase = self.chosen.filter(|&j| matches!(found[j], Some(Fault::Inconsistent { .. }))).and_then(|j| {
-                    let old = &self.sources[j];
-                    let last = old.last?;
+                    let last = self.sources[j].last?;
                     let t1 = last.stamp_s - window;
-                    Some((t1, compose(&old.anchor, &pose_at(&old.history, t1)?), last.stamp_s, compose(&old.anchor, &last.world_from_body)))
+                    Some((t1, pose_at(&self.outputs, t1)?, last.stamp_s, compose(&self.sources[j].anchor, &last.world_from_body)))
                 });
                 let s = &mut self.sources[k];
                 if let (Some((t_ref, reference)), Some(last)) = (rebase.map(|(t, p, _, _)| (t, p)).or(self.held), s.last) {
@@ -671,6 +673,13 @@ impl OdometryMux {
         };
         let pose = compose(&s.anchor, &last.world_from_body);
         self.held = Some((last.stamp_s, pose));
+        if self.outputs.back().is_none_or(|(t, _)| last.stamp_s > *t) {
+            self.outputs.push_back((last.stamp_s, pose));
+        }
+        let keep_from = last.stamp_s - 2.0 * c.consistency_window_s;
+        while self.outputs.len() > MAX_HISTORY || self.outputs.front().is_some_and(|(t, _)| *t < keep_from) {
+            self.outputs.pop_front();
+        }
         let sigma = last.covariance.map_or(0.0, |cov| cov[0].max(cov[7]).max(cov[14]).sqrt());
         let mut confidence = (1.0 - (sigma / c.max_position_std_m).powi(2)).clamp(0.0, 1.0);
         if self.disputed {
