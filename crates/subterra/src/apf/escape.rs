@@ -20,7 +20,10 @@
 //!
 //! # One step, exactly
 //! 1. **Progress.** When the remaining distance falls `progress_m` below its reference,
-//!    the reference becomes the remaining distance and its time the step's time.
+//!    the reference becomes the remaining distance and its time the step's time. A gap of
+//!    more than 0.5 s since the last step (the robot was not stepped: it hovered without
+//!    depth or odometry) moves the reference's time on by the gap: time not flown is not a
+//!    stall.
 //! 2. **Engage** (following off): when the reference is `stall_s` old and an obstacle is
 //!    known — a remembered point within `follow_range_m` horizontally and `z_band_m`
 //!    vertically, or a repulsive force — following starts: the hit distance is the
@@ -76,6 +79,9 @@ const TARGET_DISTANCE_M: f64 = 1.0;
 /// How far ahead the followed direction must keep clear of the known points (step 5)
 /// [m]: a little under a second of flight at the 0.6 m/s speed limit.
 const LOOKAHEAD_M: f64 = 0.5;
+/// Longest gap between two steps that counts toward a stall [s]: a longer one (the pilot
+/// was not stepped, a hover without depth or odometry) moves the progress reference on.
+const MAX_STEP_GAP_S: f64 = 0.5;
 /// Points along it where the clearance is checked (every 0.1 m).
 const LOOKAHEAD_SAMPLES: u32 = 5;
 /// The followed direction turns in steps of this [rad] (15°) ...
@@ -305,6 +311,14 @@ impl Escape {
         }
         if let Some(p) = obstacles_world.iter().find(|p| !p.is_finite()) {
             return Err(Error::input("obstacles_world", format!("must be finite, got {p}")));
+        }
+        // Time the robot was not stepped (a hover without depth or odometry) is not time it
+        // failed to progress: the reference moves on by the gap.
+        if let (Some(last), Some((r, t))) = (self.last_stamp_s, self.reference) {
+            let gap = stamp_s - last;
+            if gap > MAX_STEP_GAP_S {
+                self.reference = Some((r, t + gap));
+            }
         }
         self.last_stamp_s = Some(stamp_s);
         let c = self.config;
@@ -582,6 +596,25 @@ mod tests {
             assert_eq!(out.mode, EscapeMode::Goal);
             assert_eq!(out.goal_body, DVec3::new(-3.0, 0.0, 0.0));
         }
+    }
+
+    #[test]
+    fn time_not_stepped_is_not_a_stall() {
+        let mut config = EscapeConfig::default();
+        config.enabled = true;
+        let pose = Isometry3 { rotation: DMat3::IDENTITY, translation: DVec3::new(0.0, 0.0, 1.0) };
+        let point = [DVec3::new(0.5, 0.0, 1.0)];
+        let goal = DVec3::new(5.0, 0.0, 1.0);
+        // Stepped every 0.1 s without progress: engages after stall_s.
+        let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
+        let engaged_at = (0..100).map(|k| f64::from(k) * 0.1).find(|&t| e.step(t, &pose, goal, 5.0, &point, DVec3::ZERO).unwrap().mode != EscapeMode::Goal);
+        assert!(engaged_at.is_some_and(|t| (t - config.stall_s).abs() < 0.15), "{engaged_at:?}");
+        // One step, a 4 s hover without steps, then steps again: the stall counts from the
+        // end of the gap, not from before it.
+        let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
+        e.step(0.0, &pose, goal, 5.0, &point, DVec3::ZERO).unwrap();
+        let engaged_at = (40..200).map(|k| f64::from(k) * 0.1).find(|&t| e.step(t, &pose, goal, 5.0, &point, DVec3::ZERO).unwrap().mode != EscapeMode::Goal);
+        assert!(engaged_at.is_some_and(|t| (t - 4.0 - config.stall_s).abs() < 0.15), "{engaged_at:?}");
     }
 
     #[test]
