@@ -282,10 +282,11 @@ pub struct EscapeConfig {
     /// While following, the repulsion is capped at this times the attraction's full
     /// strength `ρ_r·ξ` (the boundary term keeps the distance instead).
     pub follow_repulsion_ratio: f64,
-    /// While following, the direction must keep the remembered points at least
-    /// `min(d₀, lookahead_keep_m)` away over the next 0.5 m, `d₀` being the nearest one's
-    /// distance now [m]: a collision margin (the quadrotor's 0.27 m radius and 0.13 m), not
-    /// the standoff, so that the robot still passes between obstacles 1 m apart.
+    /// A way round a wall ahead is turned toward the goal only when, over the next 0.5 m,
+    /// it keeps the remembered points at least `min(d₀, lookahead_keep_m)` away, `d₀` being
+    /// the nearest one's distance now [m]: a collision margin (the quadrotor's 0.27 m
+    /// radius and 0.13 m), not the standoff, so that a way between obstacles 1 m apart is
+    /// still clear (`escape.rs`, steps 4-5).
     pub lookahead_keep_m: f64,
 }
 
