@@ -137,26 +137,31 @@ pub fn slopes(seed: u64) -> WorldSpec {
     ground_world("slopes", TRADEOFF_SIZE_M, heights, vec![wall], start, goal)
 }
 
-/// `rough`: a rubble field across the way: 150-220 rounded rocks 4-10 cm high (below the
-/// Husky's 0.13 m clearance; steps and roughness rate it 0.2-0.6), 0.15-0.3 m across,
-/// packed into the band. Crossing it is 6 m of rubble; going round it ~8 m longer.
+/// `rough`: a boulder field across the way: 60-80 rounded mounds (cosine caps 0.5-0.8 m in
+/// radius, 0.10-0.15 m high, about the Husky's 0.13 m clearance) strewn over the band. A
+/// robot crossing it rocks from mound to mound (settled tilt up to about 10°, steps and
+/// roughness on top) and must thread between the highest tops, which stand above the
+/// body's clearance less its margin; between the mounds lie lanes of flat floor that wind.
+/// Crossing it is 6 m of boulders; going round it ~8 m longer.
 pub fn rough(seed: u64) -> WorldSpec {
     let mut rng = Rng::seed_from_u64(seed);
     let layout = Layout::draw(&mut rng);
     let noise = floor_noise(&mut rng, TRADEOFF_SIZE_M, 0.01);
-    let rocks: Vec<([f64; 2], f64, f64)> = (0..uni_count(&mut rng, 150, 220))
+    let mounds: Vec<([f64; 2], f64, f64)> = (0..uni_count(&mut rng, 60, 80))
         .map(|_| {
-            let w = uni(&mut rng, 0.0, layout.band_end);
+            let w = uni(&mut rng, 0.3, layout.band_end - 0.3);
             let y = if layout.side > 0.0 { w } else { TRADEOFF_SIZE_M[1] - w };
-            ([uni(&mut rng, BAND_X_M.0, BAND_X_M.1), y], uni(&mut rng, 0.04, 0.10), uni(&mut rng, 0.075, 0.15))
+            ([uni(&mut rng, BAND_X_M.0 + 0.3, BAND_X_M.1 - 0.3), y], uni(&mut rng, 0.5, 0.8), uni(&mut rng, 0.1, 0.15))
         })
         .collect();
     let heights = sample(TRADEOFF_SIZE_M, GROUND_RESOLUTION_M, |x, y| {
-        // The highest rock over the sample (rocks do not stack above their own height).
-        let rock = rocks
+        // The highest mound over the sample (mounds do not stack).
+        let rock = mounds
             .iter()
-            .filter(|(c, _, r)| (x - c[0]).abs() < 3.0 * r && (y - c[1]).abs() < 3.0 * r)
-            .map(|&(c, h, r)| h * (-((x - c[0]).powi(2) + (y - c[1]).powi(2)) / (2.0 * r * r)).exp())
+            .map(|&(c, r, h)| {
+                let d = (x - c[0]).hypot(y - c[1]);
+                if d < r { 0.5 * h * (1.0 + (PI * d / r).cos()) } else { 0.0 }
+            })
             .fold(0.0, f64::max);
         rock + noise(x, y)
     });
@@ -207,14 +212,16 @@ pub const CAVE_SIZE_M: [f64; 2] = [24.0, 12.0];
 pub const CAVE_START_CLEAR_M: f64 = 3.5;
 
 /// `cave`: a winding passage 2.6-3.2 m wide from x = 2 to x = 22 (centreline `y = 6 + a·sin(2π
-/// x / L + φ)`, a = 1.5-2.5 m, L = 10-14 m), walled by rock (boxes 2 m high along both sides),
+/// x / L + φ)`, a = 1.2-2.0 m, L = 12-16 m: the tightest bend's radius, at least 1.8 m,
+/// exceeds half the width, so the walls never pinch the passage), walled by rock without
+/// gaps (chains of boxes 2 m high along both sides),
 /// its floor a few centimetres rough with 3-5 holes (NaN, radius 0.25-0.45 m) in it, each
 /// off the centreline so that at least 1.2 m stays passable beside it.
 pub fn cave(seed: u64) -> WorldSpec {
     let mut rng = Rng::seed_from_u64(seed);
     let [sx, sy] = CAVE_SIZE_M;
     let width = uni(&mut rng, 2.6, 3.2);
-    let (amp, wavelength, phase) = (uni(&mut rng, 1.5, 2.5), uni(&mut rng, 10.0, 14.0), uni(&mut rng, 0.0, 2.0 * PI));
+    let (amp, wavelength, phase) = (uni(&mut rng, 1.2, 2.0), uni(&mut rng, 12.0, 16.0), uni(&mut rng, 0.0, 2.0 * PI));
     let centre_y = move |x: f64| 0.5 * sy + amp * (2.0 * PI * x / wavelength + phase).sin();
     let slope = move |x: f64| amp * 2.0 * PI / wavelength * (2.0 * PI * x / wavelength + phase).cos();
     let (x0, x1) = (2.0, sx - 2.0);
@@ -244,16 +251,37 @@ pub fn cave(seed: u64) -> WorldSpec {
             noise(x, y)
         }
     });
-    // Walls: one box per 1 m of centreline on each side, overlapping their neighbours.
+    // Walls: on each side a chain of boxes 0.5 m thick whose inner faces follow the
+    // passage's edge (the centreline offset by half the width) in chords of about 0.6 m,
+    // each overlapping its neighbours by 0.25 m at both ends, so that no gap opens on the
+    // outside of a bend (a rock wall, not a fence the lidar sees through).
     let mut walls = Vec::new();
-    let steps = ((x1 - x0) / 1.0).ceil() as usize;
-    for k in 0..=steps {
-        let x = x0 + (x1 - x0) * k as f64 / steps as f64;
-        let yaw = slope(x).atan();
-        let (nx, ny) = (-yaw.sin(), yaw.cos());
-        for side in [-1.0, 1.0] {
-            let off = side * (0.5 * width + 0.25);
-            walls.push(boxed([x + off * nx, centre_y(x) + off * ny, 0.75], [1.4, 0.5, 2.5], yaw, "wall"));
+    for side in [-1.0, 1.0] {
+        let edge = |x: f64| {
+            let n = (1.0 + slope(x).powi(2)).sqrt();
+            let off = side * 0.5 * width;
+            [x - off * slope(x) / n, centre_y(x) + off / n]
+        };
+        let mut corners = vec![edge(x0 - 0.5)];
+        let mut x = x0 - 0.5;
+        while x < x1 + 0.5 {
+            x = (x + 0.01).min(x1 + 0.5);
+            let (p, q) = (edge(x), *corners.last().expect("one corner at least"));
+            if (p[0] - q[0]).hypot(p[1] - q[1]) >= 0.6 || x >= x1 + 0.5 {
+                corners.push(p);
+            }
+        }
+        for pair in corners.windows(2) {
+            let (a, b) = (pair[0], pair[1]);
+            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+            let len = dx.hypot(dy);
+            // The chord's normal away from the passage (the side's offset direction).
+            let (mut nx, mut ny) = (-dy / len, dx / len);
+            if ny * side < 0.0 {
+                (nx, ny) = (-nx, -ny);
+            }
+            let c = [0.5 * (a[0] + b[0]) + 0.25 * nx, 0.5 * (a[1] + b[1]) + 0.25 * ny, 0.75];
+            walls.push(boxed(c, [len + 0.5, 0.5, 2.5], dy.atan2(dx), "wall"));
         }
     }
     // End caps behind start and goal.
@@ -334,11 +362,71 @@ mod tests {
     }
 
     #[test]
-    fn the_rubble_stays_below_the_clearance() {
+    fn the_boulder_field_crosses_the_straight_line_and_stays_low() {
         for seed in 0..5 {
             let s = rough(seed);
             let top = grid(&s).iter().flatten().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
-            assert!(top < 0.12, "seed {seed}: {top}");
+            assert!(top < 0.165, "seed {seed}: {top}");
+            // Across the band's middle (x = 8-12 m), within 1 m of the straight line, mounds
+            // (10 cm and more) stand in most 1 m stretches: no flat lane runs through.
+            let y = s.regions[0].centre[1];
+            let mut stretches = 0;
+            for x in [8.0, 9.0, 10.0, 11.0] {
+                let high = (0..=10).flat_map(|i| (0..=20).map(move |j| (x + 0.1 * f64::from(i), y - 1.0 + 0.1 * f64::from(j))));
+                stretches += usize::from(high.map(|p| height(&s, [p.0, p.1])).fold(0.0, f64::max) > 0.08);
+            }
+            assert!(stretches >= 3, "seed {seed}: mounds in {stretches} of 4 stretches");
+            // And the detour beyond the band's end is flat.
+            let gap = if y < 8.0 { (13.5, 15.5) } else { (0.5, 2.5) };
+            assert!(max_slope_deg(&s, (7.0, 13.0), gap) < 3.0, "seed {seed}");
+        }
+    }
+
+    /// Whether `p` lies inside one of `spec`'s boxes (in the xy plane).
+    fn in_a_box(spec: &WorldSpec, p: [f64; 2]) -> bool {
+        spec.boxes.iter().any(|b| {
+            let (dx, dy) = (p[0] - b.centre[0], p[1] - b.centre[1]);
+            let (c, s) = (b.yaw.cos(), b.yaw.sin());
+            (c * dx + s * dy).abs() <= 0.5 * b.size[0] && (-s * dx + c * dy).abs() <= 0.5 * b.size[1]
+        })
+    }
+
+    #[test]
+    fn the_cave_walls_have_no_gap() {
+        // Flood the floor from the start on a 5 cm grid, through every point no box covers:
+        // the flood stays in the passage (which never comes within 1.9 m of the world's
+        // long sides) instead of leaking through a gap between wall boxes.
+        let h = 0.05;
+        let (nx, ny) = ((CAVE_SIZE_M[0] / h) as usize, (CAVE_SIZE_M[1] / h) as usize);
+        for seed in 0..4 {
+            let s = cave(seed);
+            let start = s.regions[0].centre;
+            let free: Vec<bool> = (0..nx * ny).map(|k| !in_a_box(&s, [(k % nx) as f64 * h + 0.5 * h, (k / nx) as f64 * h + 0.5 * h])).collect();
+            let mut seen = vec![false; nx * ny];
+            let first = ((start[1] / h) as usize) * nx + (start[0] / h) as usize;
+            assert!(free[first], "seed {seed}: the start is inside a wall");
+            let (mut stack, mut reached) = (vec![first], 0usize);
+            seen[first] = true;
+            while let Some(k) = stack.pop() {
+                reached += 1;
+                let (i, j) = (k % nx, k / nx);
+                let y = j as f64 * h;
+                assert!((1.0..CAVE_SIZE_M[1] - 1.0).contains(&y), "seed {seed}: the floor leaks out at ({}, {y})", i as f64 * h);
+                for (di, dj) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                    let (a, b) = (i as i64 + di, j as i64 + dj);
+                    if a < 0 || b < 0 || a >= nx as i64 || b >= ny as i64 {
+                        continue;
+                    }
+                    let n = b as usize * nx + a as usize;
+                    if free[n] && !seen[n] {
+                        seen[n] = true;
+                        stack.push(n);
+                    }
+                }
+            }
+            // The passage itself is open: 21 m of it between the end caps, 2.6-3.2 m wide.
+            let area = reached as f64 * h * h;
+            assert!((50.0..95.0).contains(&area), "seed {seed}: {area} m²");
         }
     }
 
