@@ -182,6 +182,69 @@ def test_the_drone_takes_a_drift_out_of_its_pose_and_its_memory():
     assert r.metrics["collisions"] == 0
 
 
+#: An empty room 8 x 4 m, start S at x = 1, goal G at x = 7 (radius 0.5).
+ROOM = """
+name = "room"
+[[plane]]
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 0.0, 1.0]
+[[plane]]
+point = [0.0, 0.0, 3.0]
+normal = [0.0, 0.0, -1.0]
+[[box]]
+centre = [4.0, -0.1, 1.5]
+size = [8.4, 0.2, 3.0]
+[[box]]
+centre = [4.0, 4.1, 1.5]
+size = [8.4, 0.2, 3.0]
+[[box]]
+centre = [-0.1, 2.0, 1.5]
+size = [0.2, 4.0, 3.0]
+[[box]]
+centre = [8.1, 2.0, 1.5]
+size = [0.2, 4.0, 3.0]
+[[region]]
+name = "S"
+centre = [1.0, 2.0, 1.25]
+radius = 0.5
+[[region]]
+name = "G"
+centre = [7.0, 2.0, 1.25]
+radius = 0.5
+[[route]]
+name = "S-G"
+from = "S"
+to = "G"
+"""
+
+
+def test_a_pose_error_every_source_shares_ends_as_odometry_error_not_a_local_minimum(monkeypatch):
+    """Every source 1 m ahead of the truth (no vote can catch an error they share): the drone
+    stops 1 m short of the goal, where its pose says the goal is, and the flight says so."""
+    from subterra import sim
+    from subterra.flight import fly
+
+    real = FaultInjector.odometry
+
+    def ahead(self, t, vehicle_odometry, truth):
+        out = []
+        for name, pose in real(self, t, vehicle_odometry, truth):
+            pose = pose.copy()
+            pose[0, 3] += 1.0
+            out.append((name, pose))
+        return out
+
+    monkeypatch.setattr(FaultInjector, "odometry", ahead)
+    # A fault window that never opens within the flight: the injector (and the mux) run.
+    r = fly(world=sim.World.from_toml(ROOM), route="S-G", seed=3, time_limit_s=40.0, faults="odom-loss-all",
+            faults_config={"odom-loss-all": {"start_s": 500.0}})
+    assert r.failure == "odometry_error", r.summary()
+    assert abs(r.path[-1][0] - 6.0) < 0.35, r.path[-1]
+    stop = [e for e in r.events if e["event"] == "stop"]
+    assert len(stop) == 1 and "at the goal by its odometry" in stop[0]["reason"], stop
+    assert r.metrics["collisions"] == 0
+
+
 def test_the_ground_robot_stops_without_scans_and_with_no_odometry(tmp_path):
     from subterra.drive import drive
 
@@ -198,3 +261,26 @@ def test_the_ground_robot_stops_without_scans_and_with_no_odometry(tmp_path):
     assert any(x.startswith("fault-start") for x in reasons)
     assert r.metrics["collisions"] == 0 and r.metrics["failure"] not in ("fall", "rollover", "collision")
     r.save(tmp_path / "d", plots=False)
+
+
+def test_the_ground_robot_at_the_goal_by_a_shared_pose_error_stops_as_odometry_error(monkeypatch):
+    """Every source 2 m ahead of the truth: the navigator reaches the goal by its pose 2 m
+    short of it (the goal region is 1 m across); the drive ends there and says why."""
+    from subterra.drive import drive
+
+    real = FaultInjector.odometry
+
+    def ahead(self, t, vehicle_odometry, truth):
+        out = []
+        for name, pose in real(self, t, vehicle_odometry, truth):
+            pose = pose.copy()
+            pose[0, 3] += 2.0
+            out.append((name, pose))
+        return out
+
+    monkeypatch.setattr(FaultInjector, "odometry", ahead)
+    r = drive("rough", seed=0, time_limit_s=40.0, faults="odom-loss-all", faults_config={"odom-loss-all": {"start_s": 500.0}})
+    assert r.metrics["failure"] == "odometry_error", r.metrics
+    stop = [e for e in r.events if e["reason"].startswith("stop: at the goal by its odometry")]
+    assert len(stop) == 1, r.events
+    assert 1.5 < float(np.linalg.norm(r.steps["position"][-1][:2] - r.goal[:2])) < 2.6

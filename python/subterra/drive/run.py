@@ -7,8 +7,9 @@ simulator ray-casts the lidar at the true pose (with the chosen noise); the
 replans when due, solves the MPC and answers with a command ``(v, ω)`` and its behaviour;
 the robot drives one step on the simulator's terrain, which settles it and fails it on a
 collision, a rollover or a fall. The run ends at the goal, on a failure, at the time
-limit, or when the navigator gives up (``gave_up``) or has returned home
-(``returned_home``).
+limit, or when the navigator gives up (``gave_up``), has returned home
+(``returned_home``) or stops at the goal by its pose while in truth it is not there
+(``odometry_error``, after an odometry fault).
 
 >>> from subterra.drive import drive
 >>> result = drive("mine", seed=0)
@@ -431,6 +432,14 @@ def drive(
                     sim.abort("returned_home")
                 elif out.behaviour == "failed":
                     sim.abort("gave_up")
+                elif out.behaviour == "goal_reached":
+                    # At the goal by its pose, not in truth: the odometry's error (a fault's).
+                    believed = float(np.linalg.norm(goal_xy - np.asarray(odom, dtype=np.float64)[:2, 3]))
+                    events.append({"time_s": obs["time_s"], "from": out.behaviour, "to": out.behaviour,
+                                   "reason": f"stop: at the goal by its odometry ({believed:.2f} m from it), "
+                                             f"{float(np.linalg.norm(goal_xy - truth[:2, 3])):.2f} m from it in truth",
+                                   "r_inst": out.thresholds[0], "r_total": out.thresholds[1]})
+                    sim.abort("odometry_error")
     finally:
         if bar is not None:
             bar.close()

@@ -65,7 +65,7 @@ class BatchResult(BatchReport):
     def markdown(self) -> str:
         """The results table (one line per controller x preset x noise x route, then the totals)."""
         head = ("controller", "preset", "noise", "route", "flights", "success", "collisions", "local minima", "timeouts",
-                "min clearance [m] (worst / median)", "time to goal [s] (median)", "compute [ms] (median / p99)")
+                "other failures", "min clearance [m] (worst / median)", "time to goal [s] (median)", "compute [ms] (median / p99)")
         lines = []
         for r in self.table:
             clear = "-" if r["min_clearance_m"] is None else f"{r['min_clearance_m']:.3f} / {r['median_min_clearance_m']:.3f}"
@@ -73,7 +73,7 @@ class BatchResult(BatchReport):
             c = "-" if r["compute_ms_median"] is None else f"{r['compute_ms_median']:.2f} / {r['compute_ms_p99']:.2f}"
             lines.append((r["controller"], r["preset"], r["noise"], r["route"], r["flights"],
                           f"{r['successes']} ({100 * r['success_rate']:.0f}%)", r["collisions"], r["local_minima"],
-                          r["timeouts"], clear, t, c))
+                          r["timeouts"], r["other_failures"], clear, t, c))
         return markdown_table(head, lines)
 
     def figures(self, out: Path) -> dict[str, Path]:

@@ -312,7 +312,8 @@ def fly(
     on a collision, after ``time_limit_s`` (default: 4x the straight-line time at the
     preset's top speed, at least 60 s), or as ``local_minimum`` when the robot has stayed
     within ``stall_distance_m`` of where it was ``stall_window_s`` seconds ago for all that
-    time.
+    time; as ``odometry_error`` (with a ``stop`` event giving both distances) when it stayed
+    so because its pose put it at the goal while in truth it is not (a fault's pose error).
     ``progress``: True for a live line on stderr, or a callback receiving a dict per step.
     ``rerun_path``: also record a Rerun ``.rrd`` (needs ``subterra[viz]``) with the depth
     image of every ``rerun_depth_every``-th frame (a D435 frame is ~0.5 MB in the file)
@@ -511,7 +512,16 @@ def fly(
                 # (a robot that follows a boundary away and comes back has not stalled).
                 window = np.asarray(positions[-1 - stall_steps:])
                 if float(np.max(np.linalg.norm(window - window[0], axis=1))) < stall_distance_m:
-                    sim.abort("local_minimum")
+                    if step_out.command.reached:
+                        # It stopped because its pose says it is at the goal: not a local
+                        # minimum but the odometry's error (after a fault) at the goal.
+                        believed = float(np.linalg.norm(goal - np.asarray(odom, dtype=np.float64)[:3, 3]))
+                        events.append({"time_s": t_obs, "event": "stop", "source": None,
+                                       "reason": f"at the goal by its odometry ({believed:.2f} m from it), "
+                                                 f"{float(np.linalg.norm(goal - position)):.2f} m from it in truth"})
+                        sim.abort("odometry_error")
+                    else:
+                        sim.abort("local_minimum")
     finally:
         if bar is not None:
             bar.close()

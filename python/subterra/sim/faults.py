@@ -234,7 +234,8 @@ class FaultInjector:
 
     def odometry(self, t: float, vehicle_odometry: np.ndarray, truth: np.ndarray) -> list[tuple[str, np.ndarray]]:
         """The odometry samples at time ``t``: ``(source, world_from_body)`` for every source
-        that gives one. ``vio`` is the vehicle's own odometry (the simulator's, with its drift);
+        that gives one. ``vio`` is the vehicle's own odometry (the simulator's, with its drift),
+        chained from its increments (:meth:`_integrate`);
         ``lidar`` and ``wheels`` are estimators of the true pose with their own noise (the
         wheels' distance 1 % long), each in its own world frame (where it started)."""
         self._log(t)
@@ -243,7 +244,7 @@ class FaultInjector:
         for name in ODOMETRY_SOURCES:
             state = self._sources.setdefault(name, {"origin": None, "last_truth": None, "pose": None, "drift": np.zeros(3), "drift_t": None, "jump": None})
             if name == "vio":
-                pose = np.array(vehicle_odometry, dtype=np.float64)
+                pose = self._integrate(state, vehicle_odometry)
             else:
                 pose = self._estimate(name, state, truth)
             # The drift builds up sideways (the body's y at each moment) as an offset in the
@@ -270,6 +271,21 @@ class FaultInjector:
             if not lost:
                 out.append((name, pose))
         return out
+
+    @staticmethod
+    def _integrate(state: dict[str, Any], odometry: np.ndarray) -> np.ndarray:
+        """The vehicle's odometry as a dead reckoning: its increments, each in the body frame,
+        chained from its first pose. The simulator's odometry adds a heading bias that does
+        not turn the position it reports; chained, the bias turns the motion that follows, as
+        a real estimator's heading error does, so that the pose a switch re-anchors on holds
+        the heading the source moves along."""
+        odometry = np.asarray(odometry, dtype=np.float64)
+        if state["pose"] is None:
+            state["pose"] = odometry.copy()
+        else:
+            state["pose"] = state["pose"] @ (np.linalg.inv(state["last_truth"]) @ odometry)
+        state["last_truth"] = odometry.copy()
+        return state["pose"].copy()
 
     def _estimate(self, name: str, state: dict[str, Any], truth: np.ndarray) -> np.ndarray:
         """Dead reckoning of ``truth``'s increments with the source's noise (and the wheels'
