@@ -12,6 +12,7 @@ import pytest
 from subterra.errors import ConfigError, InputError
 from subterra.sim.faults import FAULT_NAMES, FaultInjector, load_faults_config, parse_faults
 from subterra.watchdog import SensorWatchdog
+from worlds import EASY_ROOM
 
 
 def test_fault_names_parse_and_bad_ones_are_named():
@@ -182,41 +183,6 @@ def test_the_drone_takes_a_drift_out_of_its_pose_and_its_memory():
     assert r.metrics["collisions"] == 0
 
 
-#: An empty room 8 x 4 m, start S at x = 1, goal G at x = 7 (radius 0.5).
-ROOM = """
-name = "room"
-[[plane]]
-point = [0.0, 0.0, 0.0]
-normal = [0.0, 0.0, 1.0]
-[[plane]]
-point = [0.0, 0.0, 3.0]
-normal = [0.0, 0.0, -1.0]
-[[box]]
-centre = [4.0, -0.1, 1.5]
-size = [8.4, 0.2, 3.0]
-[[box]]
-centre = [4.0, 4.1, 1.5]
-size = [8.4, 0.2, 3.0]
-[[box]]
-centre = [-0.1, 2.0, 1.5]
-size = [0.2, 4.0, 3.0]
-[[box]]
-centre = [8.1, 2.0, 1.5]
-size = [0.2, 4.0, 3.0]
-[[region]]
-name = "S"
-centre = [1.0, 2.0, 1.25]
-radius = 0.5
-[[region]]
-name = "G"
-centre = [7.0, 2.0, 1.25]
-radius = 0.5
-[[route]]
-name = "S-G"
-from = "S"
-to = "G"
-"""
-
 
 def test_a_pose_error_every_source_shares_ends_as_odometry_error_not_a_local_minimum(monkeypatch):
     """Every source 1 m ahead of the truth (no vote can catch an error they share): the drone
@@ -236,7 +202,7 @@ def test_a_pose_error_every_source_shares_ends_as_odometry_error_not_a_local_min
 
     monkeypatch.setattr(FaultInjector, "odometry", ahead)
     # A fault window that never opens within the flight: the injector (and the mux) run.
-    r = fly(world=sim.World.from_toml(ROOM), route="S-G", seed=3, time_limit_s=40.0, faults="odom-loss-all",
+    r = fly(world=sim.World.from_toml(EASY_ROOM), route="S-G", seed=3, time_limit_s=40.0, faults="odom-loss-all",
             faults_config={"odom-loss-all": {"start_s": 500.0}})
     assert r.failure == "odometry_error", r.summary()
     assert abs(r.path[-1][0] - 6.0) < 0.35, r.path[-1]

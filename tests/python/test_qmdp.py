@@ -12,6 +12,7 @@ import pytest
 import subterra
 from subterra import flight, sim
 from subterra.errors import ConfigError, InputError
+from worlds import EASY_ROOM
 
 
 def _box_frame(depth_mm: int = 450) -> np.ndarray:
@@ -91,52 +92,6 @@ def test_outputs_of_another_perception_and_bad_settings_are_refused(qmdp):
     assert len(q.actions()) == 3 * 3 * 3 and (q.actions() == 0).all(axis=1).any()
 
 
-
-#: An 8 x 4 m room (floor, ceiling, walls) with one 90 mm pole just off the line from S to G.
-EASY_ROOM = """
-name = "easy-room"
-[[plane]]
-point = [0.0, 0.0, 0.0]
-normal = [0.0, 0.0, 1.0]
-tag = "floor"
-[[plane]]
-point = [0.0, 0.0, 3.0]
-normal = [0.0, 0.0, -1.0]
-tag = "ceiling"
-[[box]]
-centre = [4.0, -0.1, 1.5]
-size = [8.4, 0.2, 3.0]
-tag = "wall"
-[[box]]
-centre = [4.0, 4.1, 1.5]
-size = [8.4, 0.2, 3.0]
-tag = "wall"
-[[box]]
-centre = [-0.1, 2.0, 1.5]
-size = [0.2, 4.0, 3.0]
-tag = "wall"
-[[box]]
-centre = [8.1, 2.0, 1.5]
-size = [0.2, 4.0, 3.0]
-tag = "wall"
-[[cylinder]]
-a = [4.0, 2.35, 0.0]
-b = [4.0, 2.35, 3.0]
-radius = 0.045
-tag = "pole"
-[[region]]
-name = "S"
-centre = [1.0, 2.0, 1.25]
-radius = 0.5
-[[region]]
-name = "G"
-centre = [7.0, 2.0, 1.25]
-radius = 0.5
-[[route]]
-name = "S-G"
-from = "S"
-to = "G"
-"""
 
 
 def test_a_qmdp_flight_passes_a_pole_and_is_the_same_bits_twice():
