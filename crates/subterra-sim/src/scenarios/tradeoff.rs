@@ -257,13 +257,15 @@ pub fn cave(seed: u64) -> WorldSpec {
             let off = side * 0.5 * width;
             [x - off * slope(x) / n, centre_y(x) + off / n]
         };
-        let mut corners = vec![edge(x0 - 0.5)];
+        let mut last = edge(x0 - 0.5);
+        let mut corners = vec![last];
         let mut x = x0 - 0.5;
         while x < x1 + 0.5 {
             x = (x + 0.01).min(x1 + 0.5);
-            let (p, q) = (edge(x), *corners.last().expect("one corner at least"));
-            if (p[0] - q[0]).hypot(p[1] - q[1]) >= 0.6 || x >= x1 + 0.5 {
+            let p = edge(x);
+            if (p[0] - last[0]).hypot(p[1] - last[1]) >= 0.6 || x >= x1 + 0.5 {
                 corners.push(p);
+                last = p;
             }
         }
         for pair in corners.windows(2) {
