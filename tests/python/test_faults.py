@@ -184,23 +184,28 @@ def test_the_drone_takes_a_drift_out_of_its_pose_and_its_memory():
 
 
 
-def test_a_pose_error_every_source_shares_ends_as_odometry_error_not_a_local_minimum(monkeypatch):
-    """Every source 1 m ahead of the truth (no vote can catch an error they share): the drone
-    stops 1 m short of the goal, where its pose says the goal is, and the flight says so."""
-    from subterra import sim
-    from subterra.flight import fly
-
+def _every_source_ahead(monkeypatch, dx_m):
+    """Every odometry source the injector gives reads ``dx_m`` ahead in world x."""
     real = FaultInjector.odometry
 
     def ahead(self, t, vehicle_odometry, truth):
         out = []
         for name, pose in real(self, t, vehicle_odometry, truth):
             pose = pose.copy()
-            pose[0, 3] += 1.0
+            pose[0, 3] += dx_m
             out.append((name, pose))
         return out
 
     monkeypatch.setattr(FaultInjector, "odometry", ahead)
+
+
+def test_a_pose_error_every_source_shares_ends_as_odometry_error_not_a_local_minimum(monkeypatch):
+    """Every source 1 m ahead of the truth (no vote can catch an error they share): the drone
+    stops 1 m short of the goal, where its pose says the goal is, and the flight says so."""
+    from subterra import sim
+    from subterra.flight import fly
+
+    _every_source_ahead(monkeypatch, 1.0)
     # A fault window that never opens within the flight: the injector (and the mux) run.
     r = fly(world=sim.World.from_toml(EASY_ROOM), route="S-G", seed=3, time_limit_s=40.0, faults="odom-loss-all",
             faults_config={"odom-loss-all": {"start_s": 500.0}})
@@ -234,17 +239,7 @@ def test_the_ground_robot_at_the_goal_by_a_shared_pose_error_stops_as_odometry_e
     short of it (the goal region is 1 m across); the drive ends there and says why."""
     from subterra.drive import drive
 
-    real = FaultInjector.odometry
-
-    def ahead(self, t, vehicle_odometry, truth):
-        out = []
-        for name, pose in real(self, t, vehicle_odometry, truth):
-            pose = pose.copy()
-            pose[0, 3] += 2.0
-            out.append((name, pose))
-        return out
-
-    monkeypatch.setattr(FaultInjector, "odometry", ahead)
+    _every_source_ahead(monkeypatch, 2.0)
     r = drive("rough", seed=0, time_limit_s=40.0, faults="odom-loss-all", faults_config={"odom-loss-all": {"start_s": 500.0}})
     assert r.metrics["failure"] == "odometry_error", r.metrics
     stop = [e for e in r.events if e["reason"].startswith("stop: at the goal by its odometry")]
