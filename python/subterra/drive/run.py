@@ -432,7 +432,7 @@ def drive(
                     sim.abort("returned_home")
                 elif out.behaviour == "failed":
                     sim.abort("gave_up")
-                elif out.behaviour == "goal_reached":
+                elif out.behaviour == "goal_reached" and float(np.linalg.norm(goal_xy - truth[:2, 3])) > goal_radius:
                     # At the goal by its pose, not in truth: the odometry's error (a fault's).
                     believed = float(np.linalg.norm(goal_xy - np.asarray(odom, dtype=np.float64)[:2, 3]))
                     events.append({"time_s": obs["time_s"], "from": out.behaviour, "to": out.behaviour,
