@@ -60,12 +60,10 @@
 //!    lookahead_keep_m)` away, `d₀` being the nearest one's distance now — a collision
 //!    margin, not the standoff (between the poles of a hall, 1.2 m apart, no direction
 //!    keeps 0.55 m from both). The followed direction itself is not turned by this check:
-//!    a version that turned it away from every point it would close in on (in 15° steps)
-//!    kept turning the robot about in a tunnel's tight places (held-out tunnel seeds
-//!    200-249: 45 of 50 flights reached the goal with it, against 49 without; highbay
-//!    seeds 200-249, every route: 245 of 250 against 249), and the corner contact it was
-//!    written for (highbay seed 87, route D-B) is avoided by the turn toward the goal in
-//!    step 4 alone.
+//!    turning it away from every point it would close in on makes it turn the robot about
+//!    wherever points stand on both sides (a tunnel's tight places), and the wall ahead in
+//!    a concave corner that such a turn was meant for is already avoided by not turning
+//!    toward the goal into it (step 4). docs/flight.md has the measured comparison.
 
 use glam::DVec3;
 
