@@ -135,6 +135,31 @@ def _ground_scan(x_range, y_range, *, box=None, spacing=0.05, sensor_height=0.7)
     return np.concatenate(pts).astype(np.float32)
 
 
+def test_turn_room_price_keeps_the_plan_off_a_wall_where_there_is_room():
+    from subterra.terrain import translation
+
+    mount = translation(z=0.7)
+    # A wall 0.45 m beside the straight line to the goal: the robot fits there (inscribed
+    # radius 0.335 m) but could not turn in place (circumscribed 0.60 m).
+    scan = _ground_scan((0.5, 9.0), (-3.0, 3.0), box=(1.5, 6.5, 0.45, 0.85, 0.5))
+    paths = {}
+    for price in (0.0, 1.0):
+        nav = subterra.Navigator(goal=(8.0, 0.0), config={"navigator": {"turn_room_price": price}})
+        assert nav.config["navigator"]["turn_room_price"] == price
+        out = nav.step(scan, stamp=0.0, world_from_body=np.eye(4), body_from_sensor=mount)
+        path = np.asarray(out.path_world)
+        assert len(path) > 10, price
+        paths[price] = path[(path[:, 0] > 2.5) & (path[:, 0] < 5.5)]
+    # Without the price the plan runs straight past the wall; with it, it keeps ~0.6 m off.
+    assert np.abs(paths[0.0][:, 1]).max() < 0.06
+    assert (0.45 - paths[1.0][:, 1]).min() > 0.5
+    # Off by default; out of range is an error naming the field.
+    assert subterra.Navigator(goal=(8.0, 0.0)).config["navigator"]["turn_room_price"] == 0.0
+    for bad in (-0.1, float("nan"), 1e3):
+        with pytest.raises(ConfigError, match="navigator.turn_room_price"):
+            subterra.Navigator(goal=(8.0, 0.0), config={"navigator": {"turn_room_price": bad}})
+
+
 @pytest.mark.parametrize("memory", [True, False])
 def test_hazard_memory_keeps_a_lethal_box_that_left_the_fused_window(memory):
     from subterra.terrain import translation

@@ -166,13 +166,13 @@ pub fn rough(seed: u64) -> WorldSpec {
 
 /// `ledge`: across the way a rock mass (1.2 m high, near-vertical) on the closed side and a
 /// trench (0.7-1.0 m deep, vertical sides: a drop) on the open side, with between them, on
-/// the straight line, a ledge 1.5-1.9 m wide tilted 13-16° down toward the trench (tilt risk
+/// the straight line, a ledge 2.0-2.4 m wide tilted 13-16° down toward the trench (tilt risk
 /// 0.2-0.4), joined to the floor at both ends over 1 m. Beyond the trench 4-5 m of flat floor.
 /// Crossing on the ledge is 6 m beside the drop; going round the trench ~8 m longer.
 pub fn ledge(seed: u64) -> WorldSpec {
     let mut rng = Rng::seed_from_u64(seed);
     let layout = Layout::draw(&mut rng);
-    let width = uni(&mut rng, 1.5, 1.9);
+    let width = uni(&mut rng, 2.0, 2.4);
     let tan = uni(&mut rng, 13.0_f64.to_radians(), 16.0_f64.to_radians()).tan();
     let depth = uni(&mut rng, 0.7, 1.0);
     let noise = floor_noise(&mut rng, TRADEOFF_SIZE_M, 0.01);
@@ -349,11 +349,11 @@ mod tests {
         for seed in 0..10 {
             let s = ledge(seed);
             let y = s.regions[0].centre[1];
-            // Along the ledge's middle the floor is there; 1.2 m off to each side, a drop
+            // Along the ledge's middle the floor is there; 1.5 m off to each side, a drop
             // deeper than 0.6 m and a wall higher than 1 m.
             let at = |dy: f64| height(&s, [10.0, y + dy]);
             assert!(at(0.0).abs() < 0.1, "seed {seed}: {}", at(0.0));
-            let (lo, hi) = (at(-1.2).min(at(1.2)), at(-1.2).max(at(1.2)));
+            let (lo, hi) = (at(-1.5).min(at(1.5)), at(-1.5).max(at(1.5)));
             assert!(lo < -0.6 && hi > 1.0, "seed {seed}: {lo} {hi}");
         }
     }

@@ -30,8 +30,14 @@
 //!    cell the sensor will not have seen on the way ([`crate::plan::coverage`]) adds
 //!    `d·(c(unseen_risk) - c(unknown_risk))` to the cost and `d·(ρ(unseen_risk) -
 //!    ρ(unknown_risk))` to `S`.
+//! 7. Clearance prices (optional, [`EntryPrices::clearance`]): cell `i`'s cost gains
+//!    `k_i·c_min`, with `c_min` the least cell cost ([`RiskAStarConfig::min_cell_cost`]: `λ`,
+//!    or 1 with the additive model) and `k_i >= 0` given per cell. The navigator can price
+//!    the ground where the robot could not turn in place without touching an obstacle this
+//!    way (`navigator.turn_room_price`); it adds to the cost only, never to `S`: it is about
+//!    room, not risk.
 //!
-//! A path's cost is therefore `λ·L + S`, with `L = Σ d` its length [m] and
+//! Without clearance prices a path's cost is therefore `λ·L + S`, with `L = Σ d` its length [m] and
 //! `S = Σ d·(ρ(a) + ρ(b))/2` its risk integral; its **accumulated risk** is `1 - exp(-S)`
 //! (computed as `-expm1(-S)`), STEP's `1 - exp(-Σ d·(-ln(1 - r̄)))` with the same
 //! cell averaging as the cost.
@@ -234,11 +240,12 @@ impl RiskAStarConfig {
     /// this is the path's `cost` and `risk_integral`; the navigator uses it to price the path
     /// it follows and a new one alike (plan hysteresis).
     pub fn polyline_cost(&self, grid: &RiskGrid<'_>, points_world: &[DVec2]) -> Option<(f64, f64)> {
-        self.polyline_cost_with(grid, points_world, Entry { unseen: &[], cost_extra: 0.0, hazard_extra: 0.0 })
+        self.polyline_cost_with(grid, points_world, Entry::NONE)
     }
 
     /// [`Self::polyline_cost`] with the search's entry prices: a segment between 8-neighbour
-    /// cells whose move enters its cell unseen pays the extra, as in the search.
+    /// cells whose move enters its cell unseen pays the extra, and a cell's clearance price
+    /// adds to its cost, as in the search.
     fn polyline_cost_with(&self, grid: &RiskGrid<'_>, points_world: &[DVec2], entry: Entry<'_>) -> Option<(f64, f64)> {
         let mut prev: Option<(CellIndex, f64, f64, DVec2)> = None;
         let (mut cost, mut integral) = (0.0, 0.0);
@@ -246,7 +253,7 @@ impl RiskAStarConfig {
             let cell = grid.cell_of(p)?;
             let flat = grid.flat(cell);
             let risk = grid.risk[flat];
-            let (c, rho) = (self.cell_cost(risk), self.hazard(risk)?);
+            let (c, rho) = (self.cell_cost(risk) + entry.clearance_cost(flat), self.hazard(risk)?);
             if !c.is_finite() {
                 return None;
             }
@@ -498,6 +505,9 @@ struct Search<'a> {
     unseen: &'a [u8],
     /// What such an entry adds to a cell's cost [1/m].
     unseen_extra: f64,
+    /// The clearance prices (empty: none) and what one unit costs [1/m].
+    clearance: &'a [f32],
+    clearance_unit: f64,
 }
 
 impl Search<'_> {
@@ -506,7 +516,8 @@ impl Search<'_> {
     fn touch(&mut self, i: usize) -> &mut Node {
         let node = &mut self.nodes[i];
         if node.stamp != self.stamp {
-            *node = Node { g: f64::INFINITY, cost: self.config.cell_cost(self.risk[i]), stamp: self.stamp, parent: NO_PARENT };
+            let extra = if self.clearance.is_empty() { 0.0 } else { f64::from(self.clearance[i]) * self.clearance_unit };
+            *node = Node { g: f64::INFINITY, cost: self.config.cell_cost(self.risk[i]) + extra, stamp: self.stamp, parent: NO_PARENT };
         }
         node
     }
@@ -658,6 +669,14 @@ pub struct EntryPrices<'a> {
     pub unseen: &'a [u8],
     /// The risk of an unknown cell entered unseen, in [0, 1] [1/m].
     pub unseen_risk: f64,
+    /// Per cell, row-major, the clearance price `k >= 0` (finite): the cell's cost grows by `k`
+    /// times the least cell cost (module docs, step 7). Empty: none.
+    pub clearance: &'a [f32],
+}
+
+impl EntryPrices<'_> {
+    /// No prices: no unseen entries, no clearance prices.
+    pub const NONE: EntryPrices<'static> = EntryPrices { unseen: &[], unseen_risk: 0.0, clearance: &[] };
 }
 
 /// [`EntryPrices`] checked against a grid and turned into per-metre additions.
@@ -666,6 +685,19 @@ struct Entry<'a> {
     unseen: &'a [u8],
     cost_extra: f64,
     hazard_extra: f64,
+    /// Clearance prices per cell (empty: none) and what one unit of price costs [1/m].
+    clearance: &'a [f32],
+    clearance_unit: f64,
+}
+
+impl Entry<'_> {
+    const NONE: Entry<'static> = Entry { unseen: &[], cost_extra: 0.0, hazard_extra: 0.0, clearance: &[], clearance_unit: 0.0 };
+
+    /// What cell `i`'s clearance price adds to its cost [1/m].
+    #[inline(always)]
+    fn clearance_cost(&self, i: usize) -> f64 {
+        if self.clearance.is_empty() { 0.0 } else { f64::from(self.clearance[i]) * self.clearance_unit }
+    }
 }
 
 /// The risk-aware A* planner (see the module docs for the exact algorithm).
@@ -796,12 +828,19 @@ impl RiskAStar {
     /// A* from `start` to `goal` (flat indices). Returns `Found` (the goal's `g` and parents are
     /// set; the budget is checked by the caller), `StartBlocked`, `GoalBlocked` or `NoPath`, and
     /// the number of expanded cells.
-    /// The entry mask and what an unseen entry adds to the cost and to the hazard [1/m]; an
-    /// empty mask without prices.
+    /// The entry mask and what an unseen entry adds to the cost and to the hazard [1/m], and
+    /// the clearance prices, checked against the grid; empty without prices.
     fn checked_entry<'e>(&self, grid: &RiskGrid<'_>, entry: Option<&EntryPrices<'e>>) -> Result<Entry<'e>> {
-        let Some(e) = entry else { return Ok(Entry { unseen: &[], cost_extra: 0.0, hazard_extra: 0.0 }) };
-        if e.unseen.len() != grid.nx * grid.ny {
-            return Err(Error::input("unseen", format!("has {} values, the grid {} cells", e.unseen.len(), grid.nx * grid.ny)));
+        let Some(e) = entry else { return Ok(Entry::NONE) };
+        let cells = grid.nx * grid.ny;
+        if !e.unseen.is_empty() && e.unseen.len() != cells {
+            return Err(Error::input("unseen", format!("has {} values, the grid {cells} cells", e.unseen.len())));
+        }
+        if !e.clearance.is_empty() && e.clearance.len() != cells {
+            return Err(Error::input("clearance", format!("has {} values, the grid {cells} cells", e.clearance.len())));
+        }
+        if let Some(bad) = e.clearance.iter().find(|k| !(k.is_finite() && **k >= 0.0)) {
+            return Err(Error::input("clearance", format!("prices must be finite and >= 0, got {bad}")));
         }
         if !(0.0..=1.0).contains(&e.unseen_risk) {
             return Err(Error::input("unseen_risk", format!("must be in [0, 1], got {}", e.unseen_risk)));
@@ -810,7 +849,7 @@ impl RiskAStar {
         let cost_extra = (self.config.cell_cost(unseen) - self.config.cell_cost(f32::NAN)).max(0.0);
         let hazard = |r: f32| self.config.hazard(r).unwrap_or(f64::INFINITY);
         let hazard_extra = (hazard(unseen) - hazard(f32::NAN)).max(0.0);
-        Ok(Entry { unseen: e.unseen, cost_extra, hazard_extra })
+        Ok(Entry { unseen: e.unseen, cost_extra, hazard_extra, clearance: e.clearance, clearance_unit: self.config.min_cell_cost() })
     }
 
     fn search(&mut self, grid: &RiskGrid<'_>, start: usize, goal: usize, exit: Option<(f64, f64)>, entry: Entry<'_>) -> (PlanStatus, usize) {
@@ -831,6 +870,8 @@ impl RiskAStar {
             h_scale: self.config.min_cell_cost() * res,
             unseen: entry.unseen,
             unseen_extra: entry.cost_extra,
+            clearance: entry.clearance,
+            clearance_unit: entry.clearance_unit,
         };
         if search.touch(start).cost.is_infinite() {
             return (PlanStatus::StartBlocked, 0);
@@ -1021,13 +1062,44 @@ mod tests {
         // unseen pays the search's extra, as the search would.
         let mut unseen = vec![0u8; 6];
         unseen[5] = 1 << 0;
-        let entry = EntryPrices { unseen: &unseen, unseen_risk: 0.5 };
+        let entry = EntryPrices { unseen: &unseen, unseen_risk: 0.5, clearance: &[] };
         let (priced, _) = p.price_polyline(&grid, &path.points_world, Some(&entry)).unwrap().unwrap();
         let extra = p.config().cell_cost(0.5) - p.config().cell_cost(f32::NAN);
         assert!((priced - (path.cost + 0.5 * extra)).abs() < 1e-9, "{priced} vs {}", path.cost + 0.5 * extra);
         let searched = p.plan_cells_with(&grid, cell(0, 0), cell(2, 1), Some(&entry)).unwrap();
         if searched.path.as_ref().map(|q| &q.cells) == Some(&path.cells) {
             assert!((searched.path.unwrap().cost - priced).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn clearance_prices_move_a_path_off_a_wall_without_adding_risk() {
+        // A 30 x 8 grid of 0.1 m cells, row 0 a wall, the start and goal next to it (row 1):
+        // without prices the path runs straight along row 1; with a price of 4
+        // on rows 1-2 and 2 on row 3 it moves to row 4 and back (a detour of a few cells is
+        // cheaper than 2.5 m at up to 5x the cost), its risk unchanged (0), its cost the
+        // prices' search cost, and `price_polyline` prices it alike.
+        let (nx, ny) = (30, 8);
+        let risk: Vec<f32> = (0..nx * ny).map(|i| if i < nx { 1.0 } else { 0.0 }).collect();
+        let grid = RiskGrid::new(&risk, nx, ny, 0.1, DVec2::ZERO).unwrap();
+        for model in [CostModel::Risk, CostModel::Additive] {
+            let mut p = planner(|c| c.cost_model = model);
+            let plain = p.plan_cells(&grid, cell(1, 1), cell(28, 1)).unwrap().path.unwrap();
+            assert!(plain.cells.iter().all(|c| c.iy == 1), "{model:?}");
+            let clearance: Vec<f32> = (0..nx * ny).map(|i| match i / nx { 1 | 2 => 4.0, 3 => 2.0, _ => 0.0 }).collect();
+            let entry = EntryPrices { clearance: &clearance, ..EntryPrices::NONE };
+            let priced = p.plan_cells_with(&grid, cell(1, 1), cell(28, 1), Some(&entry)).unwrap().path.unwrap();
+            assert!(priced.cells.iter().any(|c| c.iy >= 4), "{model:?}: {:?}", priced.cells);
+            assert_eq!(priced.risk_integral, 0.0);
+            assert!(priced.length_m > plain.length_m);
+            let (again, _) = p.price_polyline(&grid, &priced.points_world, Some(&entry)).unwrap().unwrap();
+            assert!((again - priced.cost).abs() < 1e-9, "{model:?}: {again} vs {}", priced.cost);
+            // A price that is not finite and >= 0, or of the wrong length, is refused by name.
+            for bad in [vec![-1.0f32; nx * ny], vec![f32::NAN; nx * ny], vec![0.0f32; 3]] {
+                let e = EntryPrices { clearance: &bad, ..EntryPrices::NONE };
+                let err = p.plan_cells_with(&grid, cell(1, 1), cell(28, 1), Some(&e)).unwrap_err().to_string();
+                assert!(err.contains("clearance"), "{err}");
+            }
         }
     }
 

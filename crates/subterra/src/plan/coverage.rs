@@ -233,7 +233,7 @@ mod tests {
         let mut planner = RiskAStar::new(RiskAStarConfig { r_total: 1.0, unknown_risk: 0.03, ..RiskAStarConfig::default() }).unwrap();
         let (s, g) = (CellIndex { ix: 5, iy: 10 }, CellIndex { ix: 30, iy: 10 });
         let plain = planner.plan_cells(&grid, s, g).unwrap();
-        let prices = EntryPrices { unseen: &mask, unseen_risk: 0.15 };
+        let prices = EntryPrices { unseen: &mask, unseen_risk: 0.15, clearance: &[] };
         let aware = planner.plan_cells_with(&grid, s, g, Some(&prices)).unwrap();
         assert_eq!((plain.status, aware.status), (PlanStatus::Found, PlanStatus::Found));
         let (plain, aware) = (plain.path.unwrap(), aware.path.unwrap());

@@ -61,6 +61,19 @@ pub struct NavigatorSettings {
     /// Added to half the robot's width for the inflation and for where the robot fits [m].
     /// 0: the inscribed radius exactly; a margin narrows every passage by twice as much.
     pub inflation_margin_m: f64,
+    /// Price of planning the robot's centre where it could not turn in place without its
+    /// footprint touching a lethal cell (step 3), as a multiple of the least cost of a metre
+    /// (λ, or 1 with the additive model) [1]; 0: off. A cell nearer a lethal patch than the
+    /// footprint's circumscribed radius (plus `inflation_margin_m`) costs up to this much more
+    /// per metre, falling linearly from the inscribed radius, where the cell becomes
+    /// untraversable, to the circumscribed one. The price is about room, not risk: it never
+    /// adds to a path's accumulated risk. Without it the cheapest path through a bend hugs
+    /// the inner wall at exactly the inscribed radius, where a rectangle cannot swing its
+    /// corners round; with it the path keeps the room to turn wherever the passage has it,
+    /// and still squeezes through where it does not. Off by default: at 1 it helps in narrow
+    /// winding passages, and in the mine it turned more drives into stops than it saved
+    /// (docs/drive.md measures both).
+    pub turn_room_price: f64,
     /// Unobserved cells within this distance of a lethal patch are taken as part of it on
     /// the A*'s grid (step 2) [m]; 0: off. A hazard's far side and corners lie in its own
     /// shadow (a pit's tip beyond its near rim gets no return): what the lidar could not see
@@ -174,6 +187,7 @@ impl Default for NavigatorSettings {
             lethal_min_neighbours: 2,
             inflate_lethal: true,
             inflation_margin_m: 0.0,
+            turn_room_price: 0.0,
             unseen_growth_m: 0.3,
             unseen_growth_min_range_m: 0.5,
             hazard_memory_keep_m: 3.0,
@@ -202,6 +216,10 @@ pub const MAX_RANGE_SETTING_M: f64 = 100.0;
 /// this radius; metres of margin close every passage of a mine anyway.
 pub const MAX_MORPHOLOGY_M: f64 = 2.0;
 
+/// Largest `turn_room_price` accepted [1]: at 100 a metre hugging a wall costs as much as
+/// 100 m in the open; anything above that is a wall of its own.
+pub const MAX_TURN_ROOM_PRICE: f64 = 100.0;
+
 /// Most footprint replans accepted (`footprint_replans`): each is a whole A* search.
 pub const MAX_FOOTPRINT_REPLANS: u32 = 16;
 
@@ -221,6 +239,9 @@ impl NavigatorSettings {
         require_positive("navigator.hazard_memory_range_m", self.hazard_memory_range_m)?;
         require_non_negative("navigator.hazard_memory_keep_m", self.hazard_memory_keep_m)?;
         require_non_negative("navigator.inflation_margin_m", self.inflation_margin_m)?;
+        if !(self.turn_room_price.is_finite() && (0.0..=MAX_TURN_ROOM_PRICE).contains(&self.turn_room_price)) {
+            return Err(Error::config("navigator.turn_room_price", format!("must be in [0, {MAX_TURN_ROOM_PRICE}]"), self.turn_room_price));
+        }
         require_non_negative("navigator.unseen_growth_m", self.unseen_growth_m)?;
         require_non_negative("navigator.unseen_growth_min_range_m", self.unseen_growth_min_range_m)?;
         require_non_negative("navigator.near_memory_m", self.near_memory_m)?;

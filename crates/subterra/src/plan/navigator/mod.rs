@@ -103,7 +103,7 @@ pub use config::{NavigatorConfig, NavigatorSettings, MAX_MORPHOLOGY_M, MAX_RANGE
 pub use memory::WorldCell;
 
 use self::memory::{mark_unseen_near, mark_void_rims, DrivenMemory, HazardMemory, HazardRules, NearMemory, UnseenNear};
-use self::morphology::{clustered, grow_into_unseen, inflate_lethal, Growth};
+use self::morphology::{clustered, grow_into_unseen, inflate_lethal, turn_room_prices, Growth};
 use self::reactive::{FootprintReplan, SafetyView};
 use self::target::{nearest_traversable, nearest_traversable_to, on_map, path_length_from, reachable_from, Search};
 use crate::error::{Error, Result};
@@ -195,6 +195,8 @@ struct PlanScratch {
     /// The perception-aware entry mask and its scratch.
     unseen: Vec<u8>,
     run: Vec<u16>,
+    /// The A*'s clearance prices (`turn_room_price`).
+    turn_room: Vec<f32>,
 }
 
 /// The ground robot's navigation stack (see the module docs).
@@ -633,17 +635,26 @@ impl Navigator {
         if self.planner.config().r_inst != key.0 || self.planner.config().r_total != key.1 {
             self.planner = RiskAStar::new(RiskAStarConfig { r_inst: key.0, r_total: key.1, ..self.config.planner })?;
         }
-        let entry = if nav.perception_aware {
+        if nav.perception_aware {
             s.known.clear();
             s.known.extend((0..g.cells()).map(|c| {
                 let cell = WorldCell::of_flat(&g, c);
                 !s.astar[c].is_nan() || self.near.get(cell).is_some() || self.driven.contains(cell)
             }));
             unseen_entries(&astar_grid, &s.known, position, &nav.coverage, lethal, &mut s.unseen, &mut s.run);
-            Some(EntryPrices { unseen: &s.unseen, unseen_risk: self.unseen_risk })
         } else {
-            None
-        };
+            s.unseen.clear();
+        }
+        let turn_room = nav.inflate_lethal && nav.turn_room_price > 0.0;
+        if turn_room {
+            // Room to turn: the ground between the inscribed and the circumscribed radius of
+            // the same lethal cells the inflation grows, priced (it stays traversable).
+            let circumscribed = (0.5 * self.robot.length_m).hypot(0.5 * self.robot.width_m) + nav.inflation_margin_m;
+            turn_room_prices(grid.risk(), &mut s.turn_room, &g, lethal, nav.lethal_min_neighbours, fit_radius, circumscribed, nav.turn_room_price as f32);
+        } else {
+            s.turn_room.clear();
+        }
+        let entry = (nav.perception_aware || turn_room).then(|| EntryPrices { unseen: &s.unseen, unseen_risk: self.unseen_risk, clearance: &s.turn_room });
         // Toward a target beyond the map: leave by whichever border cell makes the whole way
         // cheapest (the A*'s "toward a target off the grid"); when no way out within the
         // thresholds exists (the border walled off or over them), the stand-in still gets

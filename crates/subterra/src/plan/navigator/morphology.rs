@@ -119,9 +119,89 @@ pub(crate) fn inflate_lethal(risk: &[f32], out: &mut Vec<f32>, g: &GridGeometry,
     }
 }
 
+/// The A*'s clearance prices (step 3): per cell, `price·(outer - d)/(outer - inner)` clamped to
+/// `[0, price]`, `d` the distance from the cell's centre to the nearest cell at or above
+/// `lethal` with at least `min_neighbours` such neighbours (those [`inflate_lethal`]
+/// inflates); 0 beyond `outer_m`. With `inner_m` the inscribed radius and `outer_m` the
+/// circumscribed one, it prices the ground where the robot fits but could not turn in place.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn turn_room_prices(risk: &[f32], out: &mut Vec<f32>, g: &GridGeometry, lethal: f32, min_neighbours: u32, inner_m: f64, outer_m: f64, price: f32) {
+    out.clear();
+    out.resize(risk.len(), 0.0);
+    if !(price > 0.0 && outer_m > inner_m) {
+        return;
+    }
+    let res = g.resolution_m;
+    let (nx, ny) = (g.nx as i64, g.ny as i64);
+    let reach = (outer_m / res).floor() as i64;
+    let (inner, outer) = (inner_m / res, outer_m / res);
+    let disc: Vec<(i64, i64, f32)> = (-reach..=reach)
+        .flat_map(|dy| (-reach..=reach).map(move |dx| (dx, dy)))
+        .filter_map(|(dx, dy)| {
+            let d = ((dx * dx + dy * dy) as f64).sqrt();
+            let p = (f64::from(price) * (outer - d) / (outer - inner)).clamp(0.0, f64::from(price)) as f32;
+            (p > 0.0).then_some((dx, dy, p))
+        })
+        .collect();
+    let is_lethal = |ix: i64, iy: i64| ix < 0 || iy < 0 || ix >= nx || iy >= ny || risk[(iy * nx + ix) as usize] >= lethal;
+    for iy in 0..ny {
+        for ix in 0..nx {
+            let r = risk[(iy * nx + ix) as usize];
+            // As in `inflate_lethal`: an interior cell's disc is covered by its neighbours'.
+            let interior = is_lethal(ix - 1, iy) && is_lethal(ix + 1, iy) && is_lethal(ix, iy - 1) && is_lethal(ix, iy + 1);
+            if !(r >= lethal) || interior || !clustered(risk, g.nx, g.ny, (iy * nx + ix) as usize, lethal, min_neighbours) {
+                continue;
+            }
+            for &(dx, dy, p) in &disc {
+                let (jx, jy) = (ix + dx, iy + dy);
+                if jx < 0 || jy < 0 || jx >= nx || jy >= ny {
+                    continue;
+                }
+                let v = &mut out[(jy * nx + jx) as usize];
+                *v = v.max(p);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn turn_room_falls_from_the_inscribed_to_the_circumscribed_radius() {
+        // One 3x3 lethal patch in the middle of a 41x41 grid of 0.1 m cells.
+        let g = GridGeometry { resolution_m: 0.1, nx: 41, ny: 41, origin_cell: (0, 0) };
+        let mut risk = vec![0.0f32; 41 * 41];
+        for iy in 19..=21 {
+            for ix in 19..=21 {
+                risk[iy * 41 + ix] = 1.0;
+            }
+        }
+        let mut out = Vec::new();
+        turn_room_prices(&risk, &mut out, &g, 0.9, 2, 0.3, 0.6, 2.0);
+        let at = |ix: usize, iy: usize| out[iy * 41 + ix];
+        // Along +x from the patch's edge cell (21, 20): 0.3 m away the full price, halfway
+        // between the radii half of it, at 0.6 m and beyond nothing; the lethal cells and
+        // those nearer than the inscribed radius carry the full price too (the A* has them
+        // untraversable anyway).
+        assert_eq!(at(24, 20), 2.0);
+        assert!((at(25, 20) - 4.0 / 3.0).abs() < 1e-6, "{}", at(25, 20));
+        assert!((at(26, 20) - 2.0 / 3.0).abs() < 1e-6, "{}", at(26, 20));
+        assert_eq!(at(27, 20), 0.0);
+        assert_eq!(at(35, 20), 0.0);
+        assert_eq!(at(22, 20), 2.0);
+        // Symmetric round the patch, and the same prices with a lone lethal cell ignored.
+        assert_eq!(at(15, 20), at(25, 20));
+        assert_eq!(at(20, 16), at(20, 24));
+        risk[5 * 41 + 5] = 1.0;
+        let mut lone = Vec::new();
+        turn_room_prices(&risk, &mut lone, &g, 0.9, 2, 0.3, 0.6, 2.0);
+        assert_eq!(lone, out);
+        // Off: all zero.
+        turn_room_prices(&risk, &mut lone, &g, 0.9, 2, 0.3, 0.6, 0.0);
+        assert!(lone.iter().all(|&p| p == 0.0));
+    }
 
     /// `inflate_lethal` without its shortcut: every lethal cell stamps its disc.
     fn inflate_naive(risk: &[f32], g: &GridGeometry, lethal: f32, min: u32, radius_m: f64, robot: DVec2) -> Vec<f32> {
