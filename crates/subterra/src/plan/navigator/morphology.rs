@@ -94,26 +94,34 @@ pub(crate) fn inflate_lethal(risk: &[f32], out: &mut Vec<f32>, g: &GridGeometry,
         (-reach..=reach).flat_map(|dy| (-reach..=reach).map(move |dx| (dx, dy))).filter(|&(dx, dy)| (dx * dx + dy * dy) as f64 <= r2).collect();
     // The robot in cell units, relative to cell centres.
     let rc = (robot - g.origin_m()) / res - 0.5;
+    for_each_patch_edge(risk, g, lethal, min_neighbours, |ix, iy, r| {
+        for &(dx, dy) in &disc {
+            let (jx, jy) = (ix + dx, iy + dy);
+            if jx < 0 || jy < 0 || jx >= nx || jy >= ny || DVec2::new(jx as f64, jy as f64).distance_squared(rc) <= r2 {
+                continue;
+            }
+            let v = &mut out[(jy * nx + jx) as usize];
+            if !(*v >= r) {
+                *v = r;
+            }
+        }
+    });
+}
+
+/// Calls `f(ix, iy, risk)` for every cell at or above `lethal` with at least `min_neighbours`
+/// such neighbours ([`clustered`]) that is not interior to its patch. An interior cell (its
+/// four neighbours lethal or off the grid) is skipped: a disc stamped round it is covered by
+/// its neighbours' (a cell within reach of it is nearer one of its four neighbours), and with
+/// `min_neighbours` <= 2 those neighbours are clustered themselves. NaN is never lethal.
+fn for_each_patch_edge(risk: &[f32], g: &GridGeometry, lethal: f32, min_neighbours: u32, mut f: impl FnMut(i64, i64, f32)) {
+    let (nx, ny) = (g.nx as i64, g.ny as i64);
     let is_lethal = |ix: i64, iy: i64| ix < 0 || iy < 0 || ix >= nx || iy >= ny || risk[(iy * nx + ix) as usize] >= lethal;
     for iy in 0..ny {
         for ix in 0..nx {
             let r = risk[(iy * nx + ix) as usize];
-            // NaN compares false. An interior cell's disc is covered by its neighbours' (a
-            // cell within reach of it is nearer one of its four neighbours).
-            // With `min_neighbours` <= 2 those neighbours are clustered themselves.
             let interior = is_lethal(ix - 1, iy) && is_lethal(ix + 1, iy) && is_lethal(ix, iy - 1) && is_lethal(ix, iy + 1);
-            if !(r >= lethal) || interior || !clustered(risk, g.nx, g.ny, (iy * nx + ix) as usize, lethal, min_neighbours) {
-                continue;
-            }
-            for &(dx, dy) in &disc {
-                let (jx, jy) = (ix + dx, iy + dy);
-                if jx < 0 || jy < 0 || jx >= nx || jy >= ny || DVec2::new(jx as f64, jy as f64).distance_squared(rc) <= r2 {
-                    continue;
-                }
-                let v = &mut out[(jy * nx + jx) as usize];
-                if !(*v >= r) {
-                    *v = r;
-                }
+            if r >= lethal && !interior && clustered(risk, g.nx, g.ny, (iy * nx + ix) as usize, lethal, min_neighbours) {
+                f(ix, iy, r);
             }
         }
     }
@@ -143,25 +151,16 @@ pub(crate) fn turn_room_prices(risk: &[f32], out: &mut Vec<f32>, g: &GridGeometr
             (p > 0.0).then_some((dx, dy, p))
         })
         .collect();
-    let is_lethal = |ix: i64, iy: i64| ix < 0 || iy < 0 || ix >= nx || iy >= ny || risk[(iy * nx + ix) as usize] >= lethal;
-    for iy in 0..ny {
-        for ix in 0..nx {
-            let r = risk[(iy * nx + ix) as usize];
-            // As in `inflate_lethal`: an interior cell's disc is covered by its neighbours'.
-            let interior = is_lethal(ix - 1, iy) && is_lethal(ix + 1, iy) && is_lethal(ix, iy - 1) && is_lethal(ix, iy + 1);
-            if !(r >= lethal) || interior || !clustered(risk, g.nx, g.ny, (iy * nx + ix) as usize, lethal, min_neighbours) {
+    for_each_patch_edge(risk, g, lethal, min_neighbours, |ix, iy, _| {
+        for &(dx, dy, p) in &disc {
+            let (jx, jy) = (ix + dx, iy + dy);
+            if jx < 0 || jy < 0 || jx >= nx || jy >= ny {
                 continue;
             }
-            for &(dx, dy, p) in &disc {
-                let (jx, jy) = (ix + dx, iy + dy);
-                if jx < 0 || jy < 0 || jx >= nx || jy >= ny {
-                    continue;
-                }
-                let v = &mut out[(jy * nx + jx) as usize];
-                *v = v.max(p);
-            }
+            let v = &mut out[(jy * nx + jx) as usize];
+            *v = v.max(p);
         }
-    }
+    });
 }
 
 #[cfg(test)]
