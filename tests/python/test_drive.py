@@ -210,3 +210,26 @@ def test_a_stale_lidar_or_lost_odometry_stops_the_robot_with_the_reason():
     assert out.command == (0.0, 0.0) and out.safety == "no odometry: confidence 0"
     with pytest.raises(ConfigError, match="scan_timeout_s"):
         subterra.Navigator(goal=(6.0, 0.0), config={"navigator": {"scan_timeout_s": 0.0}})
+
+
+def test_drive_batch_gives_every_drive_the_navigator_config(tmp_path, capsys):
+    from subterra.cli import main
+    from subterra.drive.batch import drive_batch
+
+    def batch(config):
+        return drive_batch("mine", [0], planners=("risk-aware",), time_limit_s=3.0, keep_records=False, progress=False,
+                           workers=1, navigator_config=config)
+
+    slow_config = {"tracker": {"limits": {"max_speed_m_s": 0.2}, "tracking": {"desired_speed_m_s": 0.2}}}
+    default, slow = batch(None), batch(slow_config)
+    assert slow.settings["navigator_config"] == slow_config
+    # The setting reached the drive: at 0.2 m/s it covers less ground in the same 3 s.
+    assert slow.rows[0]["path_length_m"] < default.rows[0]["path_length_m"] - 0.2
+    # A bad field fails before any drive, naming it; so does a bad --config file.
+    with pytest.raises(ConfigError, match="navigator.turn_room_price"):
+        batch({"navigator": {"turn_room_price": -1.0}})
+    bad = tmp_path / "nav.toml"
+    bad.write_text("[navigator\n")
+    assert main(["drive-batch", "--seeds", "1", "--config", str(bad), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "argument --config" in err and "Traceback" not in err

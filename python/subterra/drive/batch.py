@@ -111,6 +111,7 @@ def drive_batch(
     resume: bool = False,
     faults: str | Sequence[str] | None = None,
     faults_config: dict[str, Any] | None = None,
+    navigator_config: dict[str, Any] | None = None,
 ) -> DriveBatchResult:
     """Drives every (seed, planner) and summarises. ``seeds``: a count (``0..n-1``) or
     explicit seeds. ``log_path``: the JSON-lines log, a row per drive as it lands (a fresh
@@ -120,7 +121,9 @@ def drive_batch(
     (``keep_records=False``: rows only, so every drive may run on a remote engine).
     ``faults``: fault names (:data:`subterra.sim.faults.FAULT_NAMES`, ``"all"`` for every one):
     the seeds take them in turn, one each (both planners the same), and the table has a line
-    per planner and fault; ``faults_config``: their settings."""
+    per planner and fault; ``faults_config``: their settings. ``navigator_config``: the
+    navigator's settings for every drive (as :func:`subterra.drive.drive` takes them),
+    checked before the first drive."""
     from subterra.sim.faults import parse_faults
 
     fault_list = parse_faults(faults)
@@ -128,7 +131,15 @@ def drive_batch(
     if not planners or any(p not in PLANNERS for p in planners):
         raise InputError(f"argument `planners` must name some of {', '.join(PLANNERS)}, got {list(planners)!r}")
     check_workers(workers)
-    jobs = [Job(DRIVE_JOB, {"scenario": scenario, "planner": planner, "seed": seed, "time_limit_s": time_limit_s},
+    base = {"time_limit_s": time_limit_s}
+    if navigator_config:
+        from subterra import Navigator
+
+        # A bad field fails here, naming it, not once per drive in the workers.
+        Navigator(goal=(1.0, 0.0), config={k: v for k, v in navigator_config.items() if k != "terrain"},
+                  terrain=navigator_config.get("terrain"))
+        base["navigator_config"] = navigator_config
+    jobs = [Job(DRIVE_JOB, {"scenario": scenario, "planner": planner, "seed": seed, **base},
                 keep=keep_records and seed == seed_values[0])
             for seed in seed_values for planner in planners]
     if fault_list:
@@ -143,6 +154,6 @@ def drive_batch(
                     desc=f"drive-batch {scenario}", unit="drive", status=status, log_path=log_path, resume=resume)
     kept = [run.records[job.id] for job in jobs if job.id in run.records]
     settings = {"seeds": seed_values, "planners": list(planners), "time_limit_s": time_limit_s, "engine": run.engine,
-                "resumed": run.resumed, "faults": fault_list}
+                "resumed": run.resumed, "faults": fault_list, "navigator_config": navigator_config or {}}
     return DriveBatchResult(scenario=scenario, rows=run.rows, table=summarise_drives(run.rows), kept=kept,
                             wall_s=run.wall_s, settings=settings)

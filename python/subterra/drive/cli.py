@@ -78,6 +78,7 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     b.add_argument("--planners", default=",".join(PLANNERS), help=f"comma-separated (default {','.join(PLANNERS)})")
     b.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time per drive (default as drive)")
     b.add_argument("--no-plots", action="store_true", help="skip the maps of the first seed")
+    b.add_argument("--config", default=None, help="navigator TOML for every drive: sections [planner], [tracker], [recovery], [navigator]")
     add_fault_options(b, "drive")
     add_engine_options(b, unit="drive")
     b.set_defaults(handler=_drive_batch)
@@ -141,5 +142,6 @@ def _drive_batch(args: argparse.Namespace) -> int:
     out = out_dir(args, f"drive-batch-{args.scenario}")
     faults, faults_config = fault_options(args)
     result = drive_batch(args.scenario, seeds, planners=planners, time_limit_s=args.time_limit, faults=faults, faults_config=faults_config,
-                         keep_records=not args.no_plots, log_path=out / "drives.jsonl", **engine_options(args))
+                         navigator_config=_navigator_config(args.config), keep_records=not args.no_plots,
+                         log_path=out / "drives.jsonl", **engine_options(args))
     return save_and_report(result, out, args, "drive")
