@@ -184,7 +184,18 @@ def read_regular_bytes(
     """
     with open_regular(path, what, allow_empty=allow_empty, max_bytes=max_bytes) as handle:
         try:
-            data = handle.read(max_bytes + 1)
+            # Read what the file holds (one byte more, to see growth), not `max_bytes`: a read
+            # of n bytes reserves n bytes first, and under an address-space limit a 4 GiB
+            # reservation fails for a one-point cloud.
+            size = os.fstat(handle.fileno()).st_size
+            parts, total = [], 0
+            while total <= max_bytes:
+                chunk = handle.read(min(max_bytes + 1 - total, max(size + 1 - total, 1 << 20)))
+                if not chunk:
+                    break
+                parts.append(chunk)
+                total += len(chunk)
+            data = b"".join(parts)
         except OSError as exc:
             raise _os_error(exc, path, what) from exc
     if len(data) > max_bytes:

@@ -123,6 +123,32 @@ def test_a_vehicle_cannot_start_far_off_the_world():
                 subterra.sim.Simulation(world, vehicle, start=start)
 
 
+def test_a_vehicle_starting_in_collision_names_start():
+    # The Rust constructor names its `vehicle`; from Python the place is `start`.
+    world = subterra.sim.World.scenario("highbay", 0)
+    with pytest.raises(InputError, match=r"argument `start`.*starts in collision"):
+        subterra.sim.Simulation(world, "quadrotor", start=[0, 0, 0])
+
+
+def test_a_complex_pose_is_refused_not_made_real():
+    # It was cast to float64 with only a ComplexWarning, the imaginary part dropped.
+    from subterra.io.ros import TransformBuffer
+
+    pose = np.eye(4, dtype=complex)
+    pose[0, 3] = 5j
+    points = np.random.default_rng(0).normal(size=(100, 3))
+    with pytest.raises(InputError, match=r"world_from_body.*real numbers.*complex"):
+        subterra.TerrainMapper().update(points, world_from_body=pose)
+    with pytest.raises(InputError, match=r"world_from_body.*real numbers"):
+        subterra.Navigator([5, 0]).step(points, stamp=0.0, world_from_body=pose)
+    with pytest.raises(InputError, match=r"body_from_sensor.*real numbers"):
+        subterra.Navigator([5, 0]).step(points, stamp=0.0, world_from_body=np.eye(4), body_from_sensor=pose)
+    with pytest.raises(InputError, match="real numbers"):
+        TransformBuffer().add("odom", "base", pose)
+    with pytest.raises(InputError, match="shape"):
+        subterra.TerrainMapper().update(points, world_from_body=np.broadcast_to(np.eye(4)[0], (100000, 4)))
+
+
 def test_risk_outside_0_1_and_complex_arrays_are_refused():
     for bad in (2.0, np.inf, -0.5):
         risk = np.zeros((8, 8), np.float32)

@@ -463,3 +463,22 @@ def _collect(sink: list, fn, *args) -> None:
         fn(*args)
     except BaseException as exc:  # noqa: BLE001 - the test inspects it
         sink.append(exc)
+
+
+def test_a_small_cloud_reads_under_an_address_space_limit(tmp_path: Path) -> None:
+    # Every read reserved its 4 GiB limit first (`read(max_bytes + 1)`): under an
+    # address-space cap a one-point PLY failed with a bare MemoryError.
+    import subprocess
+    import sys
+
+    ply = tmp_path / "one.ply"
+    ply.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n")
+    code = (
+        "import resource, sys\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))\n"
+        "from subterra.io import clouds\n"
+        "print(clouds.read_cloud(sys.argv[1]).points.shape)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code, str(ply)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "(1, 3)" in done.stdout

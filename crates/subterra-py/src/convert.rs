@@ -117,16 +117,17 @@ pub fn vec3(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResul
 
 /// A rigid transform from a 4x4 homogeneous matrix (array or nested sequence).
 pub fn isometry(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<Isometry3> {
-    let np = py.import("numpy")?;
-    let array = np
-        .call_method1("asarray", (value, "float64"))
-        .map_err(|_| input_error(py, format!("argument `{argument}` must be a 4x4 matrix of numbers, got {}", type_name(value))))?;
+    // The dtype (a complex or bool matrix is not a pose: a cast would drop the imaginary
+    // part with only a warning) and the shape are checked on the view, before any copy.
+    let raw = real_array(py, argument, value, "a 4x4 matrix")?;
+    let shape: Vec<usize> = raw.getattr("shape")?.extract()?;
+    if shape != [4, 4] {
+        return Err(input_error(py, format!("argument `{argument}` must have shape (4, 4), got {shape:?}")));
+    }
+    let array = raw.call_method1("astype", ("float64",))?;
     let array = array
         .cast::<PyArray2<f64>>()
         .map_err(|_| input_error(py, format!("argument `{argument}` must be a 4x4 matrix")))?;
-    if array.shape() != [4, 4] {
-        return Err(input_error(py, format!("argument `{argument}` must have shape (4, 4), got {:?}", array.shape())));
-    }
     let view = array.readonly();
     let a = view.as_array();
     let mut rows = [[0.0; 4]; 4];

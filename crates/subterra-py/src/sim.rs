@@ -417,7 +417,13 @@ impl PySimulation {
         }
         .sim_err(py)?;
         let w = world.inner.clone();
-        let sim = Self { inner: Shared::new(Simulation::new(w, v, seed).sim_err(py)?) };
+        // The Rust constructor names its `vehicle` argument when the vehicle cannot start
+        // where it stands; from Python that place is `start` (and `yaw`).
+        let created = Simulation::new(w, v, seed).map_err(|e| match e {
+            SimError::InvalidInput { argument, reason } if argument == "vehicle" => SimError::InvalidInput { argument: "start".into(), reason },
+            other => other,
+        });
+        let sim = Self { inner: Shared::new(created.sim_err(py)?) };
         if let Some(sensors) = sensors {
             for (name, mount) in sensors.iter() {
                 let name: String = name.extract().map_err(|_| input_error(py, "argument `sensors` must map names (str) to sensors"))?;

@@ -639,9 +639,13 @@ def decode_transforms(msg: Any, *, where: str = "") -> list[tuple[str, str, int,
 def _checked_rigid(value: Any, label: str) -> np.ndarray:
     """A copy of ``value`` as a finite rigid 4x4 ``float64`` transform, or an InputError."""
     try:
-        m = np.array(value, dtype=np.float64)
+        raw = np.asarray(value)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{label}: expected a 4x4 matrix of numbers, got {type(value).__name__}") from exc
+    # Checked before the cast: a complex matrix would lose its imaginary part with a warning.
+    if raw.dtype.kind not in "iuf":
+        raise InputError(f"{label}: expected a 4x4 matrix of real numbers, got dtype {raw.dtype}")
+    m = np.array(raw, dtype=np.float64)
     if m.shape != (4, 4):
         raise InputError(f"{label}: expected shape (4, 4), got {m.shape}")
     if not np.isfinite(m).all():
