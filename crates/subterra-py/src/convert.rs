@@ -85,9 +85,11 @@ pub fn real(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResul
     value.extract::<f64>().map_err(|_| input_error(py, format!("argument `{argument}` must be a real number, got {}", type_name(value))))
 }
 
-/// An integer in `lo..=hi`, with an error naming `argument` and the range.
+/// An integer in `lo..=hi`, with an error naming `argument` and the range (no range when it
+/// is all of `i128`: the caller checks the value itself).
 pub fn integer(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, lo: i128, hi: i128) -> PyResult<i128> {
-    let bad = || input_error(py, format!("argument `{argument}` must be an integer in {lo}..={hi}, got {}", short_repr(value)));
+    let range = if lo == i128::MIN && hi == i128::MAX { String::new() } else { format!(" in {lo}..={hi}") };
+    let bad = || input_error(py, format!("argument `{argument}` must be an integer{range}, got {}", short_repr(value)));
     if value.is_instance_of::<pyo3::types::PyBool>() {
         return Err(bad());
     }
