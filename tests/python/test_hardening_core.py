@@ -65,6 +65,13 @@ def test_a_huge_view_is_refused_before_it_is_copied(call):
         call()
 
 
+def test_too_many_points_is_reported_with_the_whole_shape():
+    # The message printed the first axis only ("has shape [1000000000]"), as if 1-D.
+    for dtype in (np.float32, np.float64):
+        with pytest.raises(InputError, match=r"argument `points` has shape \[1000000000, 3\]: more than"):
+            subterra.TerrainMapper().update(np.broadcast_to(np.ones(3, dtype), (10**9, 3)))
+
+
 def test_the_depth_image_must_have_the_camera_shape():
     p = subterra.DepthPerception(subterra.PinholeCamera.d435())
     with pytest.raises(InputError, match=r"must be \(480, 640\)"):
@@ -356,3 +363,14 @@ def test_a_navigator_and_a_mapper_shared_by_threads_work():
             assert "argument `stamp`" in str(exc)
 
     _hammer([nav_step, lambda: nav.risk_map, lambda: mapper.update(points), lambda: mapper.last_coarse], threads=2, rounds=5)
+
+
+def test_a_section_config_names_its_fields_alike_for_nan_and_out_of_range():
+    # NaN was named `length_m` (the dict's own key) while -1 was named `robot.length_m`.
+    from subterra.terrain import segment_ground
+
+    for value in (float("nan"), -1.0):
+        with pytest.raises(ConfigError, match=r"`robot\.length_m`"):
+            subterra.RobotConfig({"length_m": value})
+        with pytest.raises(ConfigError, match=r"`ground\.bin_m`"):
+            segment_ground(np.zeros((10, 3), np.float32), sensor_height=0.7, config={"bin_m": value})

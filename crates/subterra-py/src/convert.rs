@@ -18,6 +18,15 @@ pub const MAX_POINTS: usize = 1 << 25;
 /// Largest path accepted [points].
 pub const MAX_PATH_POINTS: usize = 1 << 20;
 
+/// Errors unless an array of `shape` has at most `max` rows (its first axis: points, poses),
+/// naming the whole shape (checked before any copy, as [`check_elements`]).
+pub fn check_rows(py: Python<'_>, argument: &str, shape: &[usize], max: usize, unit: &str) -> PyResult<()> {
+    match shape.first() {
+        Some(&n) if n > max => Err(input_error(py, format!("argument `{argument}` has shape {shape:?}: more than {max} {unit}, the most accepted"))),
+        _ => Ok(()),
+    }
+}
+
 /// Errors unless an array of `shape` has at most `max` elements (checked before any copy, so
 /// that a broadcast view of 10^10 elements is refused rather than materialised).
 pub fn check_elements(py: Python<'_>, argument: &str, shape: &[usize], max: usize, unit: &str) -> PyResult<()> {

@@ -14,7 +14,7 @@ use subterra::terrain::{segment_ground as core_segment_ground, GroundConfig, Lay
 use subterra::Isometry3;
 
 use crate::shared::Shared;
-use crate::convert::{arg, check_elements, isometry, type_name, MAX_POINTS};
+use crate::convert::{arg, check_rows, isometry, type_name, MAX_POINTS};
 use crate::errors::{config_error, input_error, raise, IntoPyResult};
 
 /// Time between scans when `update` is not given a stamp [s] (a 10 Hz lidar).
@@ -66,9 +66,11 @@ pub(crate) fn from_json_value<T: serde::de::DeserializeOwned>(py: Python<'_>, ar
     })
 }
 
-/// A Python value as JSON through `json.dumps` (numpy scalars become numbers).
-fn to_json_value(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<Value> {
-    check_config_value(py, argument, "", value, 0)?;
+/// A Python value as JSON through `json.dumps` (numpy scalars become numbers); `section`
+/// prefixes the fields an error names (`robot` for `robot.length_m`), as the core's
+/// validation names them.
+fn to_json_value(py: Python<'_>, argument: &str, section: &str, value: &Bound<'_, PyAny>) -> PyResult<Value> {
+    check_config_value(py, argument, section, value, 0)?;
     let text: String = py
         .import("json")?
         .call_method1("dumps", (value,))
@@ -97,8 +99,14 @@ fn merge(base: &mut Value, patch: Value) {
 /// `base` (a config as JSON) with the (partial, nested) dict `d` laid over it; the caller
 /// deserialises the result, so unknown keys are a `ConfigError` naming them.
 pub(crate) fn merged(py: Python<'_>, argument: &str, base: serde_json::Result<Value>, d: &Bound<'_, PyAny>) -> PyResult<Value> {
+    merged_section(py, argument, "", base, d)
+}
+
+/// [`merged`] for a config that is one section of a larger one (`robot`, `ground`): its
+/// errors name `section.field`.
+fn merged_section(py: Python<'_>, argument: &str, section: &str, base: serde_json::Result<Value>, d: &Bound<'_, PyAny>) -> PyResult<Value> {
     let mut base = base.map_err(|e| config_error(py, e.to_string()))?;
-    let patch = to_json_value(py, argument, d)?;
+    let patch = to_json_value(py, argument, section, d)?;
     if !patch.is_object() {
         return Err(config_error(py, format!("argument `{argument}` must be a dict, got {}", type_name(d))));
     }
@@ -169,7 +177,7 @@ impl PyRobotConfig {
     /// Validates a (partial) dict of fields laid over the Husky default.
     #[staticmethod]
     fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
-        let value = merged(py, "robot", serde_json::to_value(RobotConfig::husky()), d)?;
+        let value = merged_section(py, "robot", "robot", serde_json::to_value(RobotConfig::husky()), d)?;
         let inner: RobotConfig = from_json_value(py, "robot", value)?;
         inner.validate().py_err(py)?;
         Ok(Self { inner })
@@ -288,7 +296,7 @@ pub(crate) fn with_points<T>(py: Python<'_>, argument: &str, value: &Bound<'_, P
             if shape.len() != 2 || shape[1] != 3 {
                 return Err(input_error(py, format!("argument `{argument}` must have shape (N, 3), got {shape:?}")));
             }
-            check_elements(py, argument, &shape[..1], MAX_POINTS, "points")?;
+            check_rows(py, argument, &shape, MAX_POINTS, "points")?;
             converted = raw.call_method1("astype", ("float32",))?;
             converted
                 .cast::<PyArray2<f32>>()
@@ -304,7 +312,7 @@ pub(crate) fn with_points<T>(py: Python<'_>, argument: &str, value: &Bound<'_, P
     if shape[0] == 0 {
         return Err(input_error(py, format!("argument `{argument}` is empty (shape {shape:?}); a scan needs at least one point")));
     }
-    check_elements(py, argument, &shape[..1], MAX_POINTS, "points")?;
+    check_rows(py, argument, &shape, MAX_POINTS, "points")?;
     let flat = match view.as_array().to_slice() {
         Some(s) => Cow::Borrowed(s),
         None => Cow::Owned(view.as_array().iter().copied().collect()),
@@ -715,7 +723,7 @@ fn segment_ground<'py>(py: Python<'py>, points: &Bound<'_, PyAny>, #[pyo3(from_p
             if let Ok(t) = c.cast::<PyTerrainConfig>() {
                 t.get().inner.ground
             } else if c.cast::<PyDict>().is_ok() {
-                let value = merged(py, "config", serde_json::to_value(GroundConfig::default()), c)?;
+                let value = merged_section(py, "config", "ground", serde_json::to_value(GroundConfig::default()), c)?;
                 let g: GroundConfig = from_json_value(py, "config", value)?;
                 g.validate().py_err(py)?;
                 g
