@@ -732,6 +732,9 @@ class Navigator:
         """One control tick: ``points`` a new scan ``(N, 3)`` in the sensor frame [m] or None;
         ``stamp`` [s] (default 0.1 s after the previous step); ``world_from_body`` the 4x4
         odometry pose; ``speed`` the measured forward speed [m/s]. Releases the GIL."""
+    def set_goal(self, goal: Sequence[float]) -> None:
+        """Drives to a new ``goal`` (x, y) [m, world] from the next step, keeping the map, the
+        remembered hazards and home; the plan and the recovery ladder start again."""
     @property
     def risk_map(self) -> RiskMap | None:
         """The last coarse risk map (None before the first scan)."""

@@ -230,6 +230,10 @@ def _parser() -> argparse.ArgumentParser:
 
     register_sweep(sub)
 
+    from subterra.live.cli import register_cli as register_live
+
+    register_live(sub)
+
     demo = sub.add_parser("demo", help="the main job: simulated flights, the cable test and a small batch, with a report")
     demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
     demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")

@@ -233,3 +233,31 @@ def test_drive_batch_gives_every_drive_the_navigator_config(tmp_path, capsys):
     assert main(["drive-batch", "--seeds", "1", "--config", str(bad), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "argument --config" in err and "Traceback" not in err
+
+
+def test_navigator_set_goal_keeps_the_map_and_plans_to_the_new_goal():
+    """Navigator.set_goal: the next step plans to the new goal over the map it has (the
+    risk map's cells stay observed), the recovery ladder starts again; a goal that is not
+    two finite numbers is an InputError naming `goal` and changes nothing."""
+    import numpy as np
+
+    from subterra import Navigator
+    from subterra.errors import InputError
+
+    r, a = np.meshgrid(np.arange(1.0, 10.0, 0.1), np.radians(np.arange(0.0, 360.0, 1.0)))
+    scan = np.stack([r * np.cos(a), r * np.sin(a), np.full_like(r, -0.7)], -1).reshape(-1, 3).astype(np.float32)
+    mount = np.eye(4)
+    mount[2, 3] = 0.7
+    nav = Navigator(goal=[4.0, 0.0])
+    out = nav.step(scan, stamp=0.0, world_from_body=np.eye(4), body_from_sensor=mount)
+    assert out.path_world[-1][0] > 3.0
+    observed = int((nav.risk_map.layer("observed") > 0).sum())
+    with pytest.raises(InputError, match="goal"):
+        nav.set_goal([float("nan"), 1.0])
+    assert nav.goal == (4.0, 0.0)
+    nav.set_goal([0.0, -4.0])
+    assert nav.goal == (0.0, -4.0) and nav.transitions == []
+    out = nav.step(None, stamp=0.1, world_from_body=np.eye(4), body_from_sensor=mount)
+    end = np.asarray(out.path_world)[-1]
+    assert abs(end[0]) < 0.5 and end[1] < -3.0, out.path_world
+    assert int((nav.risk_map.layer("observed") > 0).sum()) == observed

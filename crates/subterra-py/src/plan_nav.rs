@@ -308,6 +308,14 @@ impl PyNavigator {
         (goal.x, goal.y)
     }
 
+    /// Drives to a new `goal` (x, y) [m, world] from the next step, keeping the map, the
+    /// remembered hazards and home; the plan and the recovery ladder start again (so
+    /// `transitions` starts empty). A goal that is not 2 finite numbers is an `InputError`.
+    fn set_goal(&self, py: Python<'_>, goal: &Bound<'_, PyAny>) -> PyResult<()> {
+        let goal = xy(py, "goal", goal)?;
+        self.inner.lock().set_goal(goal).py_err(py)
+    }
+
     /// Home (x, y) [m].
     #[getter]
     fn home(&self) -> (f64, f64) {

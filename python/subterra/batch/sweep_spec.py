@@ -37,7 +37,6 @@ from __future__ import annotations
 import difflib
 import itertools
 import os
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,10 +48,7 @@ from subterra._files import read_regular_text
 from subterra.batch.jobs import seed_list, seed_range
 from subterra.errors import ConfigError, InputError, SubterraError
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # Python 3.10
-    import tomli as tomllib
+from subterra._compat import tomllib
 
 __all__ = ["KINDS", "SweepSpec", "load_sweep"]
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import os
 import time
-import tomllib
+from subterra._compat import tomllib
 from typing import Any
 
 import numpy as np

@@ -10,7 +10,7 @@ risk-aware planner and the additive-cost baseline side by side.
 from __future__ import annotations
 
 import argparse
-import tomllib
+from subterra._compat import tomllib
 from pathlib import Path
 from typing import Any
 

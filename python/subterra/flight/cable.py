@@ -39,7 +39,7 @@ import json
 import math
 import os
 import time
-import tomllib
+from subterra._compat import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any

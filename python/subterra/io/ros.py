@@ -75,8 +75,18 @@ __all__ = [
     "pointcloud2_message",
     "quaternion_from_matrix",
     "stamp_ns",
+    "belief_markers_message",
+    "clock_message",
+    "diagnostics_message",
+    "grid_map_message",
+    "occupancy_grid_message",
+    "occupancy_values",
+    "path_message",
+    "pose_stamped_message",
     "tf_message",
     "time_message",
+    "twist_message",
+    "twist_stamped_message",
 ]
 
 #: ``sensor_msgs/Image`` encodings :func:`decode_image` reads -> (NumPy type code, channels).
@@ -700,8 +710,11 @@ class TransformBuffer:
     ``buf.lookup("odom", "base_link", stamp_ns)`` the pose at a stamp.
     """
 
-    def __init__(self, max_extrapolation_ns: int = DEFAULT_EXTRAPOLATION_NS) -> None:
+    def __init__(self, max_extrapolation_ns: int = DEFAULT_EXTRAPOLATION_NS, max_history_ns: int | None = None) -> None:
         self.max_extrapolation_ns = int(max_extrapolation_ns)
+        #: A dynamic edge forgets samples this much older than its newest (None: keeps all;
+        #: a live node keeps a few seconds so that it runs for days in bounded memory).
+        self.max_history_ns = None if max_history_ns is None else int(max_history_ns)
         self._parent: dict[str, str] = {}
         self._static: dict[str, np.ndarray] = {}
         self._stamps: dict[str, list[int]] = {}
@@ -755,6 +768,9 @@ class TransformBuffer:
             return
         stamps.insert(i, int(stamp_ns))
         poses.insert(i, m)
+        if self.max_history_ns is not None and stamps[-1] - stamps[0] > self.max_history_ns:
+            keep = bisect.bisect_left(stamps, stamps[-1] - self.max_history_ns)
+            del stamps[:keep], poses[:keep]
 
     def add_message(self, msg: Any, *, static: bool, where: str = "") -> int:
         """Adds every transform of a ``TFMessage``; returns how many."""
@@ -866,8 +882,8 @@ def interpolate_pose(a: np.ndarray, b: np.ndarray, fraction: float) -> np.ndarra
 class PoseTrack:
     """Poses over time (from odometry), interpolated at a stamp like a tf edge."""
 
-    def __init__(self, max_extrapolation_ns: int = DEFAULT_EXTRAPOLATION_NS) -> None:
-        self._buffer = TransformBuffer(max_extrapolation_ns)
+    def __init__(self, max_extrapolation_ns: int = DEFAULT_EXTRAPOLATION_NS, max_history_ns: int | None = None) -> None:
+        self._buffer = TransformBuffer(max_extrapolation_ns, max_history_ns)
 
     def add(self, stamp: int, world_from_body: np.ndarray) -> None:
         self._buffer.add("world", "body", world_from_body, stamp_ns=stamp)
@@ -884,17 +900,40 @@ class PoseTrack:
         poses = self._buffer._poses.get("body")
         return poses[0] if poses else None
 
+    @property
+    def latest(self) -> tuple[int, np.ndarray] | None:
+        """The newest sample ``(stamp_ns, world_from_body)``, or None."""
+        stamps, poses = self._buffer._stamps.get("body"), self._buffer._poses.get("body")
+        return (stamps[-1], poses[-1]) if stamps else None
+
 
 # --------------------------------------------------------------------------- encoders
 
 
+# grid_map_msgs (ANYbotics/grid_map, its ROS 2 branch): not in the rosbags typestores.
+_GRID_MAP_MSGS = {
+    "grid_map_msgs/msg/GridMapInfo": "float64 resolution\nfloat64 length_x\nfloat64 length_y\ngeometry_msgs/Pose pose\n",
+    "grid_map_msgs/msg/GridMap": (
+        "std_msgs/Header header\ngrid_map_msgs/GridMapInfo info\nstring[] layers\nstring[] basic_layers\n"
+        "std_msgs/Float32MultiArray[] data\nuint16 outer_start_index\nuint16 inner_start_index\n"
+    ),
+}
+
+
+@functools.lru_cache(maxsize=1)
 def default_typestore():
-    """The ``rosbags`` typestore of ROS 2 Humble (the messages' definitions)."""
+    """The ``rosbags`` typestore of ROS 2 Humble (the messages' definitions), with
+    ``grid_map_msgs/msg/GridMap`` added; one shared instance."""
     try:
-        from rosbags.typesys import Stores, get_typestore
-    except ImportError as exc:  # pragma: no cover - rosbags is a dependency
-        raise InputError("writing ROS messages needs the rosbags package: pip install rosbags") from exc
-    return get_typestore(Stores.ROS2_HUMBLE)
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    except ImportError as exc:
+        raise InputError("writing ROS messages needs the rosbags package: pip install 'subterra[io]'") from exc
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    types: dict[str, Any] = {}
+    for name, text in _GRID_MAP_MSGS.items():
+        types.update(get_types_from_msg(text, name))
+    ts.register(types)
+    return ts
 
 
 def _store(typestore: Any):
@@ -1101,3 +1140,194 @@ def tf_message(transforms: Iterable[tuple[str, str, int, np.ndarray]], typestore
 
         ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
     return ts.types["tf2_msgs/msg/TFMessage"](transforms=items)
+
+
+def clock_message(stamp: int, typestore: Any = None):
+    """``rosgraph_msgs/Clock`` of ``stamp`` [ns] (``/clock``, simulated time)."""
+    ts = _store(typestore)
+    return ts.types["rosgraph_msgs/msg/Clock"](clock=time_message(stamp, ts))
+
+
+def twist_message(linear: Sequence[float], angular: Sequence[float], typestore: Any = None):
+    """``geometry_msgs/Twist`` of ``linear`` [m/s] and ``angular`` [rad/s] (3 numbers each)."""
+    ts = _store(typestore)
+    vec = ts.types["geometry_msgs/msg/Vector3"]
+    lx, ly, lz = (float(v) for v in linear)
+    ax, ay, az = (float(v) for v in angular)
+    return ts.types["geometry_msgs/msg/Twist"](linear=vec(x=lx, y=ly, z=lz), angular=vec(x=ax, y=ay, z=az))
+
+
+def twist_stamped_message(linear: Sequence[float], angular: Sequence[float], *, stamp_ns: int, frame_id: str, typestore: Any = None):
+    """``geometry_msgs/TwistStamped`` (see :func:`twist_message`)."""
+    ts = _store(typestore)
+    return ts.types["geometry_msgs/msg/TwistStamped"](header=header(stamp_ns, frame_id, ts), twist=twist_message(linear, angular, ts))
+
+
+def pose_stamped_message(world_from_body: np.ndarray, *, stamp_ns: int, frame_id: str, typestore: Any = None):
+    """``geometry_msgs/PoseStamped`` of a 4x4 pose."""
+    ts = _store(typestore)
+    return ts.types["geometry_msgs/msg/PoseStamped"](header=header(stamp_ns, frame_id, ts), pose=_pose_msg(np.asarray(world_from_body, np.float64), ts))
+
+
+def path_message(poses: Iterable[tuple[int, np.ndarray]] | np.ndarray, *, stamp_ns: int, frame_id: str, typestore: Any = None):
+    """``nav_msgs/Path`` of ``(stamp_ns, 4x4 pose)`` items, or of an ``(N, 2)`` / ``(N, 3)``
+    array of points (each pose then stamped ``stamp_ns`` and heading along the path)."""
+    ts = _store(typestore)
+    if isinstance(poses, np.ndarray):
+        pts = np.asarray(poses, np.float64)
+        if pts.ndim != 2 or pts.shape[1] not in (2, 3):
+            raise InputError(f"argument `poses`: expected (N, 2) or (N, 3) points, got shape {pts.shape}")
+        items = []
+        for i, p in enumerate(pts):
+            d = (pts[min(i + 1, len(pts) - 1)] - pts[max(i - 1, 0)])[:2] if len(pts) > 1 else np.zeros(2)
+            yaw = math.atan2(d[1], d[0]) if np.any(d) else 0.0
+            m = np.eye(4)
+            m[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+            m[: pts.shape[1], 3] = p
+            items.append((stamp_ns, m))
+    else:
+        items = list(poses)
+    stamped = [ts.types["geometry_msgs/msg/PoseStamped"](header=header(s, frame_id, ts), pose=_pose_msg(np.asarray(m, np.float64), ts))
+               for s, m in items]
+    return ts.types["nav_msgs/msg/Path"](header=header(stamp_ns, frame_id, ts), poses=stamped)
+
+
+def occupancy_values(risk: np.ndarray, observed: np.ndarray, lethal_risk: float) -> np.ndarray:
+    """``int8`` occupancy of a risk layer with Nav2's meaning: 100 where the cell is lethal
+    (``risk >= lethal_risk``, observed or not: a lethal cell is never unknown), -1 where it
+    was not observed (or is NaN), else ``round(100 r)`` clipped to 0..99; same shape."""
+    r = np.asarray(risk, dtype=np.float32)
+    out = np.rint(np.clip(np.nan_to_num(r, nan=0.0), 0.0, 0.99) * 100.0).astype(np.int8)
+    out[(np.asarray(observed) <= 0) | np.isnan(r)] = -1
+    out[r >= np.float32(lethal_risk)] = 100
+    return out
+
+
+def _map_origin(risk_map: Any, z: float = 0.0) -> np.ndarray:
+    origin = np.eye(4)
+    origin[0, 3], origin[1, 3], origin[2, 3] = risk_map.extent[0], risk_map.extent[2], z
+    return origin
+
+
+def occupancy_grid_message(risk_map: Any, *, stamp_ns: int, frame_id: str, typestore: Any = None):
+    """The combined risk of a ``subterra.RiskMap`` as a ``nav_msgs/OccupancyGrid`` with Nav2's
+    meaning (:func:`occupancy_values`: lethal 100, unobserved -1); ``info.origin`` is the
+    corner of cell (0, 0), rows along world y."""
+    ts = _store(typestore)
+    risk = risk_map.layer("risk")
+    ny, nx = risk.shape
+    info = ts.types["nav_msgs/msg/MapMetaData"](
+        map_load_time=time_message(stamp_ns, ts), resolution=float(risk_map.resolution),
+        width=nx, height=ny, origin=_pose_msg(_map_origin(risk_map), ts),
+    )
+    values = occupancy_values(risk, risk_map.layer("observed"), risk_map.lethal_risk).reshape(-1)
+    return ts.types["nav_msgs/msg/OccupancyGrid"](header=header(stamp_ns, frame_id, ts), info=info, data=values)
+
+
+def grid_map_message(risk_map: Any, *, stamp_ns: int, frame_id: str, layers: Iterable[str] | None = None, typestore: Any = None):
+    """Every layer of a ``subterra.RiskMap`` (or those named in ``layers``) as a
+    ``grid_map_msgs/GridMap``, as ``grid_map_ros`` writes one: ``info.pose`` the map's centre,
+    ``length_x``/``length_y`` its size [m]; each layer a column-major ``Float32MultiArray``
+    (dimension 0 ``column_index``, dimension 1 ``row_index``) whose index (0, 0) is the cell of
+    the largest x and y, rows toward -x and columns toward -y; NaN where a layer has no value.
+    Needs a typestore with ``grid_map_msgs`` (:func:`default_typestore` has it)."""
+    ts = _store(typestore)
+    if "grid_map_msgs/msg/GridMap" not in ts.types:
+        raise InputError("argument `typestore` has no grid_map_msgs/msg/GridMap: use subterra.io.ros.default_typestore()")
+    names = list(risk_map.layer_names if layers is None else layers)
+    unknown = [n for n in names if n not in risk_map.layer_names]
+    if unknown:
+        raise InputError(f"argument `layers`: no layer {unknown[0]!r}; the map has {', '.join(risk_map.layer_names)}")
+    ny, nx = risk_map.layer("risk").shape
+    res = float(risk_map.resolution)
+    centre = np.eye(4)
+    x0, x1, y0, y1 = (float(v) for v in risk_map.extent[:4])
+    centre[0, 3], centre[1, 3] = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    dim = ts.types["std_msgs/msg/MultiArrayDimension"]
+    arrays = []
+    for name in names:
+        grid = np.asarray(risk_map.layer(name), dtype=np.float32)
+        # grid_map's matrix: row r <-> x index nx-1-r, column c <-> y index ny-1-c; stored column-major.
+        matrix = grid.T[::-1, ::-1]
+        layout = ts.types["std_msgs/msg/MultiArrayLayout"](
+            dim=[dim(label="column_index", size=ny, stride=nx * ny), dim(label="row_index", size=nx, stride=nx)], data_offset=0,
+        )
+        arrays.append(ts.types["std_msgs/msg/Float32MultiArray"](layout=layout, data=np.ascontiguousarray(matrix.T).reshape(-1)))
+    info = ts.types["grid_map_msgs/msg/GridMapInfo"](resolution=res, length_x=nx * res, length_y=ny * res, pose=_pose_msg(centre, ts))
+    return ts.types["grid_map_msgs/msg/GridMap"](
+        header=header(stamp_ns, frame_id, ts), info=info, layers=names, basic_layers=[], data=arrays,
+        outer_start_index=0, inner_start_index=0,
+    )
+
+
+def _marker(ts: Any, stamp: int, frame_id: str, ns: str, marker_id: int, kind: int, scale: Sequence[float], rgba: Sequence[float], *,
+            points: list | None = None, colors: list | None = None, text: str = "", z: float = 0.0) -> Any:
+    t = ts.types
+    pose = _pose_msg(np.eye(4), ts)
+    pose.position.z = float(z)
+    kwargs = dict(
+        header=header(stamp, frame_id, ts), ns=ns, id=marker_id, type=kind,
+        action=0, pose=pose, scale=t["geometry_msgs/msg/Vector3"](x=scale[0], y=scale[1], z=scale[2]),
+        color=t["std_msgs/msg/ColorRGBA"](r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
+        lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), frame_locked=False,
+        points=points or [], colors=colors or [], text=text, mesh_resource="", mesh_use_embedded_materials=False,
+    )
+    fields = t["visualization_msgs/msg/Marker"].__dataclass_fields__
+    if "texture_resource" in fields:  # later than Humble
+        kwargs.update(
+            texture_resource="",
+            texture=t["sensor_msgs/msg/CompressedImage"](header=header(stamp, "", ts), format="", data=np.zeros(0, np.uint8)),
+            uv_coordinates=[],
+            mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
+        )
+    return t["visualization_msgs/msg/Marker"](**{k: v for k, v in kwargs.items() if k in fields})
+
+
+#: Diameter of a belief sphere [m], and the P(free) text's height and offset above the body [m].
+BELIEF_SPHERE_M = 0.05
+BELIEF_TEXT_HEIGHT_M = 0.08
+BELIEF_TEXT_OFFSET_Z_M = 0.4
+
+
+def belief_markers_message(centres: np.ndarray, probabilities: np.ndarray, *, stamp_ns: int, frame_id: str,
+                           p_free: float | None = None, typestore: Any = None):
+    """A ``visualization_msgs/MarkerArray`` of the APF-PF belief: marker 0 a ``SPHERE_LIST`` of
+    the voxel ``centres`` (N, 3) [m, ``frame_id``] with their ``probabilities`` (colour yellow
+    -> red and opacity by belief relative to the largest), marker 1 a ``TEXT_VIEW_FACING`` with
+    ``P(free)`` when given."""
+    ts = _store(typestore)
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    probs = np.asarray(probabilities, dtype=np.float64).reshape(-1)
+    if probs.shape[0] != c.shape[0]:
+        raise InputError(f"argument `probabilities`: expected {c.shape[0]} values, got {probs.shape[0]}")
+    t = ts.types
+    point, colour = t["geometry_msgs/msg/Point"], t["std_msgs/msg/ColorRGBA"]
+    rel = probs / probs.max() if probs.size and probs.max() > 0 else np.ones_like(probs)
+    kinds = t["visualization_msgs/msg/Marker"]
+    markers = [_marker(ts, stamp_ns, frame_id, "subterra/belief", 0, kinds.SPHERE_LIST, (BELIEF_SPHERE_M,) * 3, (1.0, 0.5, 0.0, 1.0),
+                       points=[point(x=float(x), y=float(y), z=float(z)) for x, y, z in c],
+                       colors=[colour(r=1.0, g=float(0.86 * (1 - w)), b=0.0, a=float(0.3 + 0.7 * w)) for w in rel])]
+    if p_free is not None:
+        markers.append(_marker(ts, stamp_ns, frame_id, "subterra/belief", 1, kinds.TEXT_VIEW_FACING, (0.0, 0.0, BELIEF_TEXT_HEIGHT_M),
+                               (1.0, 1.0, 1.0, 1.0), text=f"P(free) = {p_free:.2f}", z=BELIEF_TEXT_OFFSET_Z_M))
+    return t["visualization_msgs/msg/MarkerArray"](markers=markers)
+
+
+#: ``diagnostic_msgs/DiagnosticStatus`` levels by name.
+DIAGNOSTIC_LEVELS = {"ok": 0, "warn": 1, "error": 2, "stale": 3}
+
+
+def diagnostics_message(statuses: Iterable[tuple[str, str, str, Mapping[str, Any]]], *, stamp_ns: int, hardware_id: str = "",
+                        typestore: Any = None):
+    """A ``diagnostic_msgs/DiagnosticArray`` of ``(name, level, message, values)`` items:
+    ``level`` one of :data:`DIAGNOSTIC_LEVELS`, ``values`` a mapping written as key/value strings."""
+    ts = _store(typestore)
+    t = ts.types
+    status = []
+    for name, level, message, values in statuses:
+        if level not in DIAGNOSTIC_LEVELS:
+            raise InputError(f"argument `statuses`: level must be one of {', '.join(DIAGNOSTIC_LEVELS)}, got {level!r}")
+        kv = [t["diagnostic_msgs/msg/KeyValue"](key=str(k), value=str(v)) for k, v in values.items()]
+        status.append(t["diagnostic_msgs/msg/DiagnosticStatus"](level=DIAGNOSTIC_LEVELS[level], name=name, message=message,
+                                                                hardware_id=hardware_id, values=kv))
+    return t["diagnostic_msgs/msg/DiagnosticArray"](header=header(stamp_ns, "", ts), status=status)

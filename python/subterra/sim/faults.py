@@ -98,7 +98,7 @@ def load_faults_config(path: str | os.PathLike[str]) -> dict[str, dict[str, Any]
     """The ``[faults]`` table of a TOML file: ``{name: {field: value}}``. Raises
     :class:`~subterra.errors.FileFormatError` for a file that cannot be read or parsed and
     :class:`ConfigError` for a table that is not one."""
-    import tomllib
+    from subterra._compat import tomllib
 
     from subterra._files import read_regular_text
     from subterra.errors import FileFormatError

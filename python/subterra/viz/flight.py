@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
+from subterra._compat import tomllib
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any

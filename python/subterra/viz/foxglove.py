@@ -40,7 +40,7 @@ recording when both are opened in Foxglove.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -48,6 +48,7 @@ import numpy as np
 from subterra.errors import InputError
 from subterra.io import ros
 from subterra.io.recordings import McapWriter
+from subterra.io.ros import occupancy_values
 
 __all__ = [
     "DEFAULT_BODY_FRAME",
@@ -75,26 +76,10 @@ TOPICS = {
     "tf_static": "/tf_static",
 }
 
-#: Diameter of a belief sphere [m].
-BELIEF_SPHERE_M = 0.05
-#: Height of the P(free) text [m], and where it floats above the body origin [m].
-TEXT_HEIGHT_M = 0.08
-TEXT_OFFSET_Z_M = 0.4
 #: Path: keep a pose when the body moved this far from the last kept one [m].
 DEFAULT_PATH_SPACING_M = 0.05
 #: Path: publish at most once per this much log time [ns].
 DEFAULT_PATH_PERIOD_NS = 1_000_000_000
-
-
-def occupancy_values(risk: np.ndarray, observed: np.ndarray, lethal_risk: float) -> np.ndarray:
-    """``int8`` occupancy of a risk layer with Nav2's meaning: 100 where the cell is lethal
-    (``risk >= lethal_risk``, observed or not: a lethal cell is never unknown), -1 where it
-    was not observed (or is NaN), else ``round(100 r)`` clipped to 0..99; same shape."""
-    r = np.asarray(risk, dtype=np.float32)
-    out = np.rint(np.clip(np.nan_to_num(r, nan=0.0), 0.0, 0.99) * 100.0).astype(np.int8)
-    out[(np.asarray(observed) <= 0) | np.isnan(r)] = -1
-    out[r >= np.float32(lethal_risk)] = 100
-    return out
 
 
 def layer_image(layer: np.ndarray) -> np.ndarray:
@@ -153,9 +138,6 @@ class FoxgloveWriter:
         self._out.write(topic, msg, log_time_ns=log_ns)
         self._last_log_ns = max(self._last_log_ns, int(log_ns))
 
-    def _header(self, stamp: int, frame: str) -> Any:
-        return ros.header(stamp, frame, self._ts)
-
     def close(self) -> None:
         """Publishes the final path and finishes the file; safe to call twice."""
         if self._out.closed:
@@ -176,82 +158,21 @@ class FoxgloveWriter:
 
     def command(self, log_ns: int, stamp: int, v_x: float, v_y: float, v_z: float, yaw_rate: float) -> None:
         """``TwistStamped`` on ``/subterra/cmd`` in the body frame [m/s, rad/s]."""
-        t = self._ts.types
-        vec = t["geometry_msgs/msg/Vector3"]
-        msg = t["geometry_msgs/msg/TwistStamped"](
-            header=self._header(stamp, self.body_frame),
-            twist=t["geometry_msgs/msg/Twist"](linear=vec(x=float(v_x), y=float(v_y), z=float(v_z)), angular=vec(x=0.0, y=0.0, z=float(yaw_rate))),
-        )
+        msg = ros.twist_stamped_message((v_x, v_y, v_z), (0.0, 0.0, yaw_rate), stamp_ns=stamp, frame_id=self.body_frame, typestore=self._ts)
         self._write(TOPICS["cmd"], msg, log_ns)
 
     def belief(self, log_ns: int, stamp: int, centres_body: np.ndarray, probabilities: np.ndarray, p_free: float | None = None) -> None:
         """``MarkerArray`` on ``/subterra/belief``: voxel centres [m, body frame] with their belief."""
-        centres = np.asarray(centres_body, dtype=np.float64).reshape(-1, 3)
-        probs = np.asarray(probabilities, dtype=np.float64).reshape(-1)
-        if probs.shape[0] != centres.shape[0]:
-            raise InputError(f"probabilities: expected {centres.shape[0]} values, got {probs.shape[0]}")
-        t = self._ts.types
-        point, colour = t["geometry_msgs/msg/Point"], t["std_msgs/msg/ColorRGBA"]
-        rel = probs / probs.max() if probs.size and probs.max() > 0 else np.ones_like(probs)
-        markers = [
-            self._marker(
-                stamp, 0, t["visualization_msgs/msg/Marker"].SPHERE_LIST, (BELIEF_SPHERE_M,) * 3, (1.0, 0.5, 0.0, 1.0),
-                points=[point(x=float(x), y=float(y), z=float(z)) for x, y, z in centres],
-                colors=[colour(r=1.0, g=float(0.86 * (1 - w)), b=0.0, a=float(0.3 + 0.7 * w)) for w in rel],
-            )
-        ]
-        if p_free is not None:
-            markers.append(
-                self._marker(
-                    stamp, 1, t["visualization_msgs/msg/Marker"].TEXT_VIEW_FACING, (0.0, 0.0, TEXT_HEIGHT_M), (1.0, 1.0, 1.0, 1.0),
-                    text=f"P(free) = {p_free:.2f}", z=TEXT_OFFSET_Z_M,
-                )
-            )
-        self._write(TOPICS["belief"], t["visualization_msgs/msg/MarkerArray"](markers=markers), log_ns)
-
-    def _marker(
-        self, stamp: int, marker_id: int, kind: int, scale: Sequence[float], rgba: Sequence[float], *,
-        points: list | None = None, colors: list | None = None, text: str = "", z: float = 0.0,
-    ) -> Any:
-        t = self._ts.types
-        pose = ros._pose_msg(np.eye(4), self._ts)
-        pose.position.z = float(z)
-        kwargs = dict(
-            header=self._header(stamp, self.body_frame), ns="subterra/belief", id=marker_id, type=kind,
-            action=0, pose=pose, scale=t["geometry_msgs/msg/Vector3"](x=scale[0], y=scale[1], z=scale[2]),
-            color=t["std_msgs/msg/ColorRGBA"](r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
-            lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), frame_locked=False,
-            points=points or [], colors=colors or [], text=text, mesh_resource="", mesh_use_embedded_materials=False,
-        )
-        fields = t["visualization_msgs/msg/Marker"].__dataclass_fields__
-        if "texture_resource" in fields:  # Humble and later
-            kwargs.update(
-                texture_resource="",
-                texture=t["sensor_msgs/msg/CompressedImage"](header=self._header(stamp, ""), format="", data=np.zeros(0, np.uint8)),
-                uv_coordinates=[],
-                mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
-            )
-        return t["visualization_msgs/msg/Marker"](**{k: v for k, v in kwargs.items() if k in fields})
+        msg = ros.belief_markers_message(centres_body, probabilities, stamp_ns=stamp, frame_id=self.body_frame, p_free=p_free,
+                                         typestore=self._ts)
+        self._write(TOPICS["belief"], msg, log_ns)
 
     # ------------------------------------------------------------------ terrain pipeline
 
     def risk_map(self, log_ns: int, stamp: int, risk_map: Any, *, topic: str | None = None, with_layers: bool = True) -> None:
         """The combined risk of a ``subterra.RiskMap`` as an ``OccupancyGrid`` (``topic``,
         default ``/subterra/risk``) and, with ``with_layers``, its layers as images."""
-        t = self._ts.types
-        risk = risk_map.layer("risk")
-        observed = risk_map.layer("observed")
-        ny, nx = risk.shape
-        origin = np.eye(4)
-        origin[0, 3], origin[1, 3] = risk_map.extent[0], risk_map.extent[2]
-        info = t["nav_msgs/msg/MapMetaData"](
-            map_load_time=ros.time_message(stamp, self._ts), resolution=float(risk_map.resolution),
-            width=nx, height=ny, origin=ros._pose_msg(origin, self._ts),
-        )
-        grid = t["nav_msgs/msg/OccupancyGrid"](
-            header=self._header(stamp, self.world_frame), info=info,
-            data=occupancy_values(risk, observed, risk_map.lethal_risk).reshape(-1),
-        )
+        grid = ros.occupancy_grid_message(risk_map, stamp_ns=stamp, frame_id=self.world_frame, typestore=self._ts)
         self._write(topic or TOPICS["risk"], grid, log_ns)
         if not with_layers:
             return
@@ -281,13 +202,8 @@ class FoxgloveWriter:
             self._publish_path(log_ns)
 
     def _publish_path(self, log_ns: int) -> None:
-        t = self._ts.types
-        poses = [
-            t["geometry_msgs/msg/PoseStamped"](header=self._header(s, self.world_frame), pose=ros._pose_msg(m, self._ts))
-            for s, m in self._path_poses
-        ]
         stamp = self._path_poses[-1][0] if self._path_poses else 0
-        self._write(TOPICS["path"], t["nav_msgs/msg/Path"](header=self._header(stamp, self.world_frame), poses=poses), log_ns)
+        msg = ros.path_message(self._path_poses, stamp_ns=stamp, frame_id=self.world_frame, typestore=self._ts)
+        self._write(TOPICS["path"], msg, log_ns)
         self._path_published_ns = int(log_ns)
         self._path_dirty = False
-

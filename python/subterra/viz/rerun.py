@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
+from subterra._compat import tomllib
 import uuid
 from pathlib import Path
 from types import ModuleType, TracebackType

@@ -29,7 +29,7 @@ The transition matrix is kept dense here, ``(S, S)`` float64: fine for the prese
 from __future__ import annotations
 
 import math
-import tomllib
+from subterra._compat import tomllib
 from functools import lru_cache
 from pathlib import Path
 

@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import math
 import time
-import tomllib
+from subterra._compat import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any

@@ -87,7 +87,7 @@ library.
 from __future__ import annotations
 
 import math
-import tomllib
+from subterra._compat import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from statistics import NormalDist

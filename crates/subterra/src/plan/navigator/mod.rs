@@ -334,6 +334,28 @@ impl Navigator {
         self.goal
     }
 
+    /// Drives to a new `goal` (world frame [m]) from the next step: the map, the remembered
+    /// hazards, the driven cells and home stay; the plan, the tracker's warm start and the
+    /// recovery ladder (behaviour, thresholds, transitions, trail) start again, as for a
+    /// navigator that has just been made. A goal that is not finite is an `InputError`
+    /// naming `goal`, and nothing changes.
+    pub fn set_goal(&mut self, goal: DVec2) -> Result<()> {
+        if !goal.is_finite() {
+            return Err(Error::input("goal", format!("must be finite, got ({}, {})", goal.x, goal.y)));
+        }
+        self.recovery = RecoveryMachine::new(self.config.recovery, self.recovery.home())?;
+        self.tracker.reset();
+        self.goal = goal;
+        self.path.clear();
+        self.remainder_m = 0.0;
+        self.last_distance_m = None;
+        self.last_plan_s = None;
+        self.last_plan_ok = false;
+        self.planned_for = None;
+        self.transitions_seen = 0;
+        Ok(())
+    }
+
     /// One control tick (module docs).
     pub fn step(&mut self, input: &NavigatorInput<'_>) -> Result<NavigatorOutput> {
         let started = Instant::now();

@@ -1,0 +1,586 @@
+"""The live ROS 2 bridge (subterra.live): DDS plumbing, the node's safety rules, the wire
+format of every published type, and software in the loop in two processes.
+
+Everything runs on the loopback interface with Cyclone DDS (the extra subterra[ros]; make
+test installs it). Each test takes its own DDS domain so that tests and runs side by side do
+not hear each other.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cyclonedds", reason="the ROS 2 bridge needs the extra subterra[ros] (cyclonedds)")
+
+from subterra.errors import ConfigError, InputError  # noqa: E402
+from subterra.io import ros  # noqa: E402
+from subterra.live import dds  # noqa: E402
+from subterra.live.config import NodeConfig  # noqa: E402
+from subterra.live.node import DroneNode, GroundNode, make_node  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+NS = 1_000_000_000
+
+
+def _domain(offset: int) -> int:
+    """A domain id of this test process (pytest-xdist workers and other runs differ by pid)."""
+    return 1 + (os.getpid() * 13 + offset) % 200
+
+
+def _flat_ground(height_m: float = 0.7) -> np.ndarray:
+    """A lidar scan of flat open ground ``height_m`` below the sensor: rings every 0.1 m, 1°."""
+    r, a = np.meshgrid(np.arange(1.0, 10.0, 0.1), np.radians(np.arange(0.0, 360.0, 1.0)))
+    return np.stack([r * np.cos(a), r * np.sin(a), np.full_like(r, -height_m)], -1).reshape(-1, 3).astype(np.float32)
+
+
+def _lidar_mount() -> np.ndarray:
+    m = np.eye(4)
+    m[2, 3] = 0.7
+    return m
+
+
+class Driver:
+    """The robot's side of the wire for a node under test: publishes clock, tf, odometry,
+    goals and frames; keeps the raw bytes of everything the node publishes."""
+
+    OUTPUTS = {
+        "/cmd_vel": "geometry_msgs/msg/Twist",
+        "/cmd_vel_stamped": "geometry_msgs/msg/TwistStamped",
+        "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+        "/subterra/path": "nav_msgs/msg/Path",
+        "/subterra/map": "nav_msgs/msg/OccupancyGrid",
+        "/subterra/grid_map": "grid_map_msgs/msg/GridMap",
+        "/subterra/belief": "visualization_msgs/msg/MarkerArray",
+    }
+
+    def __init__(self, domain: int, robot: str) -> None:
+        self.ts = dds.typestore()
+        self.dds = dds.RosParticipant(domain, loopback=True)
+        p = self.dds.publisher
+        self.clock = p("/clock", "rosgraph_msgs/msg/Clock")
+        self.tf_static = p("/tf_static", "tf2_msgs/msg/TFMessage", "transient_local")
+        self.odom = p("/odom", "nav_msgs/msg/Odometry", "reliable_sensor")
+        self.goal = p("/goal_pose", "geometry_msgs/msg/PoseStamped")
+        if robot == "ground":
+            self.points = p("/points", "sensor_msgs/msg/PointCloud2", "reliable_sensor")
+        else:
+            self.depth = p("/camera/depth/image_rect_raw", "sensor_msgs/msg/Image", "reliable_sensor")
+            self.info = p("/camera/depth/camera_info", "sensor_msgs/msg/CameraInfo", "reliable_sensor")
+        self.outputs = {topic: self.dds.subscriber(topic, kind, "reliable_sensor" if topic.startswith("/cmd") else "default")
+                        for topic, kind in self.OUTPUTS.items()}
+        self.raw: dict[str, list[bytes]] = {topic: [] for topic in self.OUTPUTS}
+        self.stamped: dict[int, Any] = {}
+
+    def wait_for(self, node_topics: list, timeout_s: float = 30.0) -> None:
+        assert self.dds.wait_matched(node_topics, timeout_s), "the node did not appear on the domain"
+
+    def poll(self) -> None:
+        for topic, sub in self.outputs.items():
+            for cdr in sub.take_raw():
+                self.raw[topic].append(cdr)
+                if topic == "/cmd_vel_stamped":
+                    msg = self.ts.deserialize_cdr(cdr, self.OUTPUTS[topic])
+                    self.stamped[ros.stamp_ns(msg.header)] = msg.twist
+
+    def reply(self, stamp: int, timeout_s: float = 10.0) -> Any:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.dds.wait(0.02)
+            self.poll()
+            if stamp in self.stamped:
+                return self.stamped[stamp]
+        raise AssertionError(f"no command stamped {stamp}")
+
+    def tick(self, stamp: int, frame_stamp: int | None = None, *, odom_stamp: int | None = None, pose: np.ndarray | None = None,
+             frame: Any = None) -> None:
+        """Clock at ``stamp``, odometry at ``odom_stamp`` (default ``stamp``; None-like -1 skips it),
+        then ``frame`` (a scan or a depth image) stamped ``frame_stamp`` (default ``stamp``)."""
+        ts = self.ts
+        self.clock.publish(ros.clock_message(stamp, ts))
+        o = stamp if odom_stamp is None else odom_stamp
+        if o >= 0:
+            self.odom.publish(ros.odometry_message(np.eye(4) if pose is None else pose, stamp_ns=o, typestore=ts))
+        f = stamp if frame_stamp is None else frame_stamp
+        if hasattr(self, "points"):
+            self.points.publish(ros.pointcloud2_message(_flat_ground() if frame is None else frame, stamp_ns=f, frame_id="lidar", typestore=ts))
+        else:
+            from subterra import PinholeCamera
+
+            cam = PinholeCamera(40.0, 40.0, 31.5, 23.5, 64, 48)
+            self.info.publish(ros.camera_info_message(cam, stamp_ns=f, frame_id="camera", typestore=ts))
+            image = np.full((48, 64), 800, np.uint16) if frame is None else frame  # a wall 0.8 m ahead
+            self.depth.publish(ros.image_message(image, stamp_ns=f, frame_id="camera", encoding="16UC1", typestore=ts))
+
+    def send_goal(self, xyz: tuple[float, float, float], frame_id: str = "odom", stamp: int = 0) -> None:
+        m = np.eye(4)
+        m[:3, 3] = xyz
+        self.goal.publish(ros.pose_stamped_message(m, stamp_ns=stamp, frame_id=frame_id, typestore=self.ts))
+
+    def close(self) -> None:
+        self.dds.close()
+
+
+def _start(node) -> threading.Thread:
+    t = threading.Thread(target=node.run, kwargs={"duration_s": 120.0}, daemon=True)
+    t.start()
+    return t
+
+
+def _config(domain: int, **rates: float) -> NodeConfig:
+    return NodeConfig().replace(
+        node={"domain_id": domain, "use_sim_time": True},
+        qos={"sensors": "reliable_sensor", "odometry": "reliable_sensor", "commands": "reliable_sensor", "maps": "default"},
+        rates={"map_hz": 100.0, "grid_map_hz": 100.0, "diagnostics_hz": 100.0, "belief_hz": 100.0, **rates},
+    )
+
+
+def _typed_equal(cdr: bytes, msgtype: str) -> None:
+    """The bytes decode with rosbags (the ROS 2 typestore) and with Cyclone DDS's own typed CDR
+    code, to the same values, and Cyclone's re-encoding is the same bytes."""
+    ts = dds.typestore()
+    a = ts.deserialize_cdr(cdr, msgtype)
+    typed = dds.typed_idl_type(msgtype)
+    b = typed.deserialize(cdr)
+
+    def same(x, y, where):
+        if hasattr(y, "__dataclass_fields__"):  # the message's fields (rosbags also lists its constants)
+            for name in y.__dataclass_fields__:
+                same(getattr(x, name), getattr(y, name), f"{where}.{name}")
+        elif isinstance(x, np.ndarray):
+            assert np.array_equal(np.asarray(x), np.asarray(y, dtype=x.dtype), equal_nan=x.dtype.kind == "f"), where
+        elif isinstance(x, (list, tuple)):
+            assert len(x) == len(y), where
+            for i, (u, v) in enumerate(zip(x, y)):
+                same(u, v, f"{where}[{i}]")
+        elif isinstance(x, float) and math.isnan(x):
+            assert math.isnan(y), where
+        else:
+            assert x == y, f"{where}: {x!r} != {y!r}"
+
+    same(a, b, msgtype)
+    assert bytes(b.serialize()).ljust(len(cdr), b"\0") == cdr, f"{msgtype}: Cyclone re-encodes to other bytes"
+
+
+# ---------------------------------------------------------------------- config
+
+
+def test_node_config_file_is_the_defaults_and_bad_fields_are_named(tmp_path):
+    """configs/node.toml is NodeConfig(); an unknown field, a bad QoS, topic or number is a
+    ConfigError naming the dotted field (and the file)."""
+    assert NodeConfig.load(REPO / "configs" / "node.toml") == NodeConfig()
+    assert NodeConfig.from_dict(NodeConfig().to_dict()) == NodeConfig()
+    with pytest.raises(ConfigError, match=r"safety\.max_age_s is not a setting"):
+        NodeConfig.from_dict({"safety": {"max_age_s": 1.0}})
+    with pytest.raises(ConfigError, match=r"qos\.sensors must be one of"):
+        NodeConfig.from_dict({"qos": {"sensors": "fast"}})
+    with pytest.raises(ConfigError, match=r"topics\.cmd_vel"):
+        NodeConfig.from_dict({"topics": {"cmd_vel": "/bad topic"}})
+    with pytest.raises(ConfigError, match=r"safety\.watchdog_s must be finite, got nan"):
+        NodeConfig.from_dict({"safety": {"watchdog_s": float("nan")}})
+    with pytest.raises(ConfigError, match=r"node\.domain_id must be in \[0, 232\]"):
+        NodeConfig.from_dict({"node": {"domain_id": 500}})
+    with pytest.raises(ConfigError, match=r"topics\.depth and topics\.camera_info must pair"):
+        NodeConfig.from_dict({"topics": {"depth": ["/a", "/b"]}})
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[rates]\nmap_hz = 'often'\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"rates\.map_hz must be a number.*bad\.toml"):
+        NodeConfig.load(bad)
+    with pytest.raises(InputError, match="robot"):
+        make_node("boat", NodeConfig())
+
+
+def test_dds_names_follow_the_ros2_conventions():
+    assert dds.dds_topic_name("/cmd_vel") == "rt/cmd_vel"
+    assert dds.dds_topic_name("ns/points") == "rt/ns/points"
+    assert dds.dds_type_name("sensor_msgs/msg/Image") == "sensor_msgs::msg::dds_::Image_"
+    with pytest.raises(InputError, match="topic"):
+        dds.dds_topic_name("/9lives")
+    with pytest.raises(InputError, match="domain_id"):
+        dds.RosParticipant(233)
+
+
+# ---------------------------------------------------------------------- ground node
+
+
+def test_ground_node_over_dds_commands_publishes_every_output_and_stops_when_inputs_cannot_be_trusted():
+    """A GroundNode fed over DDS: it answers each frame with a command stamped with the
+    frame's stamp, drives toward the goal on open ground, and publishes the path, the Nav2
+    occupancy grid, the grid map and diagnostics, every one decoding as its ROS 2 type with
+    rosbags and with Cyclone's typed CDR. A stale frame, a frame from the future and old
+    odometry each get a stop, counted by reason."""
+    domain = _domain(1)
+    node = GroundNode(_config(domain), loopback=True)
+    driver = Driver(domain, "ground")
+    try:
+        thread = _start(node)
+        driver.wait_for([driver.points, driver.odom, driver.goal, driver.clock, driver.outputs["/cmd_vel_stamped"]])
+        driver.tf_static.publish(ros.tf_message([("base_link", "lidar", 0, _lidar_mount())], driver.ts))
+        # No goal yet: a stop.
+        driver.tick(1 * NS)
+        assert driver.reply(1 * NS).linear.x == 0.0
+        driver.send_goal((4.0, 0.0, 0.0))
+        time.sleep(0.2)
+        speeds = []
+        for k in range(2, 8):
+            stamp = k * NS // 10 + NS
+            driver.tick(stamp)
+            speeds.append(driver.reply(stamp).linear.x)
+        assert max(speeds) > 0.05, speeds
+        # A frame 2 s old, a frame 1 s ahead of the clock, odometry 1 s behind the frame: stops.
+        t = 3 * NS
+        driver.tick(t, frame_stamp=t - 2 * NS + 1)
+        assert driver.reply(t - 2 * NS + 1).linear.x == 0.0
+        t += NS // 10
+        driver.tick(t, frame_stamp=t + NS)
+        assert driver.reply(t + NS).linear.x == 0.0
+        t += NS
+        driver.tick(t, odom_stamp=-1)  # the newest pose is now over 0.9 s older than the frame
+        assert driver.reply(t).linear.x == 0.0
+        time.sleep(0.3)
+        driver.poll()
+    finally:
+        node.stop()
+        thread.join(timeout=10)
+        node.close()
+        driver.close()
+    stops = node.stats.stops
+    assert stops.get("no goal") == 1 and stops.get("stale frame") == 1, node.stats.summary()
+    assert stops.get("frame from the future") == 1 and stops.get("odometry too old") == 1, stops
+    assert node.stats.frames_dropped == 0
+    for topic in ("/cmd_vel", "/cmd_vel_stamped", "/diagnostics", "/subterra/path", "/subterra/map", "/subterra/grid_map"):
+        assert driver.raw[topic], f"nothing on {topic}"
+        for cdr in driver.raw[topic][:3] + driver.raw[topic][-1:]:
+            _typed_equal(cdr, Driver.OUTPUTS[topic])
+    ts = dds.typestore()
+    grid = ts.deserialize_cdr(driver.raw["/subterra/map"][-1], "nav_msgs/msg/OccupancyGrid")
+    values = np.asarray(grid.data)
+    assert values.size == grid.info.width * grid.info.height and values.min() >= -1 and values.max() <= 100
+    assert (values >= 0).sum() > 100, "the open ground around the robot is observed"
+    gm = ts.deserialize_cdr(driver.raw["/subterra/grid_map"][-1], "grid_map_msgs/msg/GridMap")
+    assert "risk" in gm.layers and len(gm.data) == len(gm.layers)
+    labels = [d.label for d in gm.data[0].layout.dim]
+    assert labels == ["column_index", "row_index"]
+    nx_, ny_ = gm.data[0].layout.dim[1].size, gm.data[0].layout.dim[0].size
+    assert gm.data[0].data.size == nx_ * ny_ and math.isclose(gm.info.length_x, nx_ * gm.info.resolution)
+    diag = ts.deserialize_cdr(driver.raw["/diagnostics"][-1], "diagnostic_msgs/msg/DiagnosticArray")
+    keys = {kv.key for kv in diag.status[0].values}
+    assert {"behaviour", "frames_dropped", "stops"} <= keys
+
+
+def test_grid_map_layout_puts_the_largest_x_and_y_at_index_zero():
+    """grid_map's storage: index (0, 0) is the cell of the largest x and y, rows toward -x,
+    columns toward -y, column-major. A map with one marked cell shows where it lands."""
+    import subterra
+
+    nav = subterra.Navigator(goal=[4.0, 0.0])
+    nav.step(_flat_ground(), stamp=0.0, world_from_body=np.eye(4), body_from_sensor=_lidar_mount())
+    rm = nav.risk_map
+    msg = ros.grid_map_message(rm, stamp_ns=0, frame_id="odom", layers=["ground_height"])
+    ny, nx = rm.layer("risk").shape
+    data = np.asarray(msg.data[0].data).reshape(ny, nx)  # column-major: one column (fixed y index) per row here
+    grid = rm.layer("ground_height")
+    # storage[c, r] = layer[ny-1-c, nx-1-r]
+    assert np.array_equal(data, grid[::-1, ::-1], equal_nan=True)
+    x0, x1, y0, y1 = rm.extent[:4]
+    assert math.isclose(msg.info.pose.position.x, 0.5 * (x0 + x1)) and math.isclose(msg.info.pose.position.y, 0.5 * (y0 + y1))
+    with pytest.raises(InputError, match="no layer 'nope'"):
+        ros.grid_map_message(rm, stamp_ns=0, frame_id="odom", layers=["nope"])
+
+
+def test_latest_frame_wins_and_drops_are_counted():
+    """Frames that arrive while the compute thread is busy replace the waiting one; each
+    replaced frame is a drop (the receive path never waits on the computation)."""
+    node = GroundNode(_config(_domain(2)), loopback=True)
+    try:
+        for k in range(3):
+            node._file_frame(("frame", k))
+        assert node._frame == ("frame", 2)
+        assert node.stats.frames_received == 3 and node.stats.frames_dropped == 2
+    finally:
+        node.close()
+
+
+def test_watchdog_stops_the_robot_when_frames_stop_and_bad_goals_are_refused():
+    """With a goal but no frames for safety.watchdog_s, the node publishes a stop (and says
+    why); a goal in a frame it cannot transform, or not finite, is refused and counted."""
+    domain = _domain(3)
+    cfg = _config(domain).replace(safety={"watchdog_s": 0.2}, node={"use_sim_time": False})
+    node = GroundNode(cfg, loopback=True)
+    driver = Driver(domain, "ground")
+    try:
+        thread = _start(node)
+        driver.wait_for([driver.goal, driver.outputs["/cmd_vel"]])
+        driver.send_goal((1.0, 2.0, 0.0), frame_id="map")
+        driver.send_goal((float("nan"), 0.0, 0.0))
+        driver.send_goal((1.0, 0.0, 0.0))
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not node.stats.stops.get("no frame (watchdog)"):
+            time.sleep(0.05)
+        driver.poll()
+    finally:
+        node.stop()
+        thread.join(timeout=10)
+        node.close()
+        driver.close()
+    assert node.stats.stops.get("no frame (watchdog)", 0) >= 1
+    assert node.stats.goals == 1 and node.stats.rejected.get("/goal_pose") == 2, node.stats.summary()
+    twists = [dds.typestore().deserialize_cdr(c, "geometry_msgs/msg/Twist") for c in driver.raw["/cmd_vel"]]
+    assert twists and all(t.linear.x == 0.0 and t.angular.z == 0.0 for t in twists)
+
+
+# ---------------------------------------------------------------------- drone node
+
+
+def test_drone_node_over_dds_flies_from_depth_images_and_publishes_the_belief():
+    """A DroneNode fed depth images, camera info and the camera's mounting over DDS makes its
+    pilot from them, answers each frame with a finite body-frame velocity, and publishes the
+    belief (a wall 0.8 m ahead fills it) as markers that decode both ways."""
+    domain = _domain(4)
+    node = DroneNode(_config(domain), loopback=True)
+    driver = Driver(domain, "drone")
+    optical = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    try:
+        thread = _start(node)
+        driver.wait_for([driver.depth, driver.info, driver.odom, driver.goal, driver.outputs["/cmd_vel_stamped"]])
+        driver.tf_static.publish(ros.tf_message([("base_link", "camera", 0, optical)], driver.ts))
+        driver.send_goal((10.0, 0.0, 0.0))
+        time.sleep(0.2)
+        commands = []
+        for k in range(1, 12):
+            stamp = NS + k * NS // 15
+            driver.tick(stamp)
+            commands.append(driver.reply(stamp))
+        time.sleep(0.2)
+        driver.poll()
+    finally:
+        node.stop()
+        thread.join(timeout=10)
+        node.close()
+        driver.close()
+    assert node.stats.stops == {}, node.stats.summary()
+    vx = [c.linear.x for c in commands]
+    assert all(math.isfinite(v) for v in vx), vx
+    assert driver.raw["/subterra/belief"], "no belief markers"
+    _typed_equal(driver.raw["/subterra/belief"][-1], "visualization_msgs/msg/MarkerArray")
+    markers = dds.typestore().deserialize_cdr(driver.raw["/subterra/belief"][-1], "visualization_msgs/msg/MarkerArray").markers
+    assert markers[0].header.frame_id == "base_link" and len(markers[0].points) > 0, "the wall is in the belief"
+    for cdr in driver.raw["/cmd_vel_stamped"][:2]:
+        _typed_equal(cdr, "geometry_msgs/msg/TwistStamped")
+
+
+# ---------------------------------------------------------------------- software in the loop
+
+
+@pytest.mark.parametrize(("robot", "scenario"), [("ground", "mine"), ("drone", "highbay")])
+def test_software_in_the_loop_reaches_the_goal_over_dds(tmp_path, robot, scenario):
+    """`subterra sil`: the simulator here, `subterra node` in a second process, DDS on the
+    loopback interface in lockstep. The robot reaches its goal, every frame is answered, none
+    is dropped, and the end-to-end latency (frame handed to DDS -> its command received) is
+    in metrics.json with its median and p99."""
+    from subterra.live.sil import sil
+
+    m = sil(robot, scenario, seed=0, out=tmp_path, domain_id=_domain(10 if robot == "ground" else 11))
+    assert m["success"], (m["failure"], (tmp_path / "node.log").read_text())
+    assert m["commands_missed"] == 0 and m["node"]["frames_dropped"] == 0 and not m["node"]["stops"]
+    assert m["node"]["frames_processed"] == m["steps"]
+    assert 0.0 < m["latency_ms_median"] <= m["latency_ms_p99"] < 1000.0
+    assert m["collisions"] == 0
+    saved = json.loads((tmp_path / "metrics.json").read_text())
+    assert saved["latency_ms_median"] == m["latency_ms_median"] and saved["transport"] == "ros2-dds"
+    rows = (tmp_path / "trajectory.csv").read_text().splitlines()
+    assert len(rows) == m["steps"] + 1
+    print(f"sil {robot} {scenario}: latency median {m['latency_ms_median']:.2f} ms, p99 {m['latency_ms_p99']:.2f} ms")
+
+
+# ---------------------------------------------------------------------- MAVLink
+
+
+def _mavlink_peer():
+    """A MAVLink endpoint on a free loopback UDP port (the autopilot's side): (connection, port)."""
+    import socket
+
+    from pymavlink import mavutil
+
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    return mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}"), port
+
+
+def _drain(peer, seconds: float) -> list[tuple[float, Any]]:
+    out = []
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < seconds:
+        m = peer.recv_match(blocking=True, timeout=0.05)
+        if m is not None and m.get_type() != "BAD_DATA":
+            out.append((time.monotonic() - t0, m))
+    return out
+
+
+def test_flu_enu_to_mavlink_frames():
+    """FLU -> FRD negates y, z and the yaw rate; ENU -> NED swaps x and y and negates z and the yaw rate."""
+    from subterra.live.mavlink import enu_to_ned, flu_to_frd
+
+    assert flu_to_frd((1.0, 0.5, 0.2), 0.3) == (1.0, -0.5, -0.2, -0.3)
+    assert enu_to_ned((1.0, 2.0, 3.0), 0.3) == (2.0, 1.0, -3.0, -0.3)
+
+
+def test_mavlink_bridge_streams_setpoints_then_stops_when_commands_go_stale():
+    """Against a MAVLink peer on loopback: velocity-only SET_POSITION_TARGET_LOCAL_NED in
+    MAV_FRAME_BODY_NED with FRD values, at the stream rate, and heartbeats from an onboard
+    controller; commands going stale (or a stop marked not fresh) give one zero setpoint and
+    then silence; a fresh command resumes; a NaN command is refused; nothing else is ever
+    sent (no arming, no mode change)."""
+    from subterra.live.mavlink import VELOCITY_TYPE_MASK, MavlinkBridge
+
+    peer, port = _mavlink_peer()
+    bridge = MavlinkBridge(f"udpout:127.0.0.1:{port}", rate_hz=20.0, stale_after_s=0.3)
+    try:
+        bridge.command((1.0, 0.5, 0.2), 0.3)
+        live = _drain(peer, 0.25)
+        bridge.command((0.7, 0.0, 0.0), 0.0, fresh=False)  # a stop for untrusted inputs: not fresh
+        stale = _drain(peer, 1.0)
+        assert not bridge.command((float("nan"), 0.0, 0.0), 0.0)
+        bridge.command((0.4, 0.0, 0.0), 0.0)
+        resumed = _drain(peer, 0.2)
+    finally:
+        bridge.close()
+        peer.close()
+    kinds = {m.get_type() for _, m in live + stale + resumed}
+    assert kinds <= {"SET_POSITION_TARGET_LOCAL_NED", "HEARTBEAT"}, kinds
+    beats = [m for _, m in live + stale if m.get_type() == "HEARTBEAT"]
+    assert beats and beats[0].type == 18 and beats[0].autopilot == 8  # onboard controller, not an autopilot
+    sp = [m for _, m in live if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    assert len(sp) >= 4, "streamed at about 20 Hz"
+    first = sp[0]
+    assert first.coordinate_frame == 8 and first.type_mask == VELOCITY_TYPE_MASK
+    assert (first.target_system, first.target_component) == (1, 1)
+    assert np.allclose([first.vx, first.vy, first.vz, first.yaw_rate], [1.0, -0.5, -0.2, -0.3], atol=1e-6)
+    after = [(t, m) for t, m in stale if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    zeros = [m for _, m in after if m.vx == 0.0 and m.vy == 0.0 and m.vz == 0.0]
+    moving = [m for _, m in after if m.vx != 0.0]
+    assert len(zeros) == 1, "one stop"
+    assert all(t < 0.45 for t, m in after), "then no setpoint at all"
+    assert not any(abs(m.vx - 0.7) < 1e-6 for m in moving), "the not-fresh command is never sent"
+    assert bridge.stats.failsafes >= 1 and bridge.stats.rejected == 1
+    again = [m for _, m in resumed if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    assert again and abs(again[0].vx - 0.4) < 1e-6
+
+
+def test_mavlink_bridge_local_frame_and_bad_settings():
+    from subterra.live.mavlink import MavlinkBridge
+
+    peer, port = _mavlink_peer()
+    try:
+        with MavlinkBridge(f"udpout:127.0.0.1:{port}", frame="local") as bridge:
+            bridge.command((1.0, 2.0, 3.0), 0.5)  # ENU
+            msgs = [m for _, m in _drain(peer, 0.15) if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    finally:
+        peer.close()
+    assert msgs[0].coordinate_frame == 1
+    assert np.allclose([msgs[0].vx, msgs[0].vy, msgs[0].vz, msgs[0].yaw_rate], [2.0, 1.0, -3.0, -0.5])
+    with pytest.raises(ConfigError, match="frame"):
+        MavlinkBridge("udpout:127.0.0.1:9", frame="ned")
+    with pytest.raises(ConfigError, match="rate_hz"):
+        MavlinkBridge("udpout:127.0.0.1:9", rate_hz=1.0)
+    with pytest.raises(ConfigError, match="target_system"):
+        MavlinkBridge("udpout:127.0.0.1:9", target_system=300)
+
+
+def test_node_with_mavlink_never_streams_a_stop_for_untrusted_inputs():
+    """A node whose every command is a stop (no frames: the watchdog) never starts the
+    MAVLink stream: the autopilot hears only heartbeats, so its own failsafe stays in charge."""
+    from subterra.live.mavlink import MavlinkBridge
+
+    domain = _domain(5)
+    peer, port = _mavlink_peer()
+    bridge = MavlinkBridge(f"udpout:127.0.0.1:{port}")
+    node = GroundNode(_config(domain).replace(safety={"watchdog_s": 0.1}, node={"use_sim_time": False}), loopback=True, mavlink=bridge)
+    driver = Driver(domain, "ground")
+    try:
+        thread = _start(node)
+        driver.wait_for([driver.goal])
+        driver.send_goal((1.0, 0.0, 0.0))
+        received = _drain(peer, 1.2)
+    finally:
+        node.stop()
+        thread.join(timeout=10)
+        node.close()
+        driver.close()
+        bridge.close()
+        peer.close()
+    assert node.stats.stops.get("no frame (watchdog)", 0) >= 3
+    assert {m.get_type() for _, m in received} == {"HEARTBEAT"}
+
+
+# ---------------------------------------------------------------------- live view
+
+
+def test_foxglove_view_serves_the_nodes_messages_to_a_websocket_client():
+    """With a view, every message the node publishes is also served on Foxglove's WebSocket
+    protocol: a client on loopback sees the channels advertised with their ROS 2 types and
+    ros2msg schemas, subscribes, and receives CDR that decodes as the type."""
+    import asyncio
+    import struct
+
+    websockets = pytest.importorskip("websockets")
+    from subterra.live.view import FoxgloveView, parse_address
+
+    assert parse_address("9000") == ("127.0.0.1", 9000)
+    assert parse_address("0.0.0.0:9000") == ("0.0.0.0", 9000)
+    with pytest.raises(ConfigError, match="PORT"):
+        parse_address("nine")
+    domain = _domain(6)
+    view = FoxgloveView(port=0)
+    assert view.host == "127.0.0.1" and view.port > 0
+    node = GroundNode(_config(domain).replace(safety={"watchdog_s": 0.1}, node={"use_sim_time": False}), loopback=True, view=view)
+    driver = Driver(domain, "ground")
+    ts = dds.typestore()
+
+    async def client() -> tuple[dict, list]:
+        channels: dict[int, dict] = {}
+        twists = []
+        async with websockets.connect(view.url, subprotocols=["foxglove.sdk.v1"]) as ws:
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline and len(twists) < 3:
+                try:
+                    m = await asyncio.wait_for(ws.recv(), 0.5)
+                except asyncio.TimeoutError:
+                    continue
+                if isinstance(m, str):
+                    j = json.loads(m)
+                    if j["op"] == "advertise":
+                        new = [c for c in j["channels"] if c["id"] not in channels]
+                        channels.update({c["id"]: c for c in new})
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": c["id"], "channelId": c["id"]} for c in new]}))
+                elif m[0] == 1:
+                    sub_id = struct.unpack_from("<I", m, 1)[0]
+                    if channels[sub_id]["topic"] == "/cmd_vel":
+                        twists.append(ts.deserialize_cdr(bytes(m[13:]), "geometry_msgs/msg/Twist"))
+        return channels, twists
+
+    try:
+        thread = _start(node)
+        driver.wait_for([driver.goal])
+        driver.send_goal((1.0, 0.0, 0.0))  # the watchdog now publishes stops, several a second
+        channels, twists = asyncio.run(client())
+    finally:
+        node.stop()
+        thread.join(timeout=10)
+        node.close()
+        driver.close()
+        view.close()
+    by_topic = {c["topic"]: c for c in channels.values()}
+    assert by_topic["/cmd_vel"]["schemaName"] == "geometry_msgs/msg/Twist" and by_topic["/cmd_vel"]["encoding"] == "cdr"
+    assert by_topic["/cmd_vel"]["schemaEncoding"] == "ros2msg" and "Vector3 linear" in by_topic["/cmd_vel"]["schema"]
+    assert len(twists) >= 3 and all(t.linear.x == 0.0 for t in twists)
