@@ -9,12 +9,12 @@ MATURIN_TARGET := target/maturin
 STAMP  := $(VENV)/.subterra-built
 SOURCES := $(shell find crates python -name '*.rs' -o -name '*.py' -o -name '*.pyi' -o -name 'Cargo.toml' 2>/dev/null) pyproject.toml Cargo.toml
 
-.PHONY: demo test test-rust test-python build bench fuzz clean
+.PHONY: demo test test-rust test-python build bench fuzz wheel clean
 
 $(VENV)/.deps: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet "maturin>=1.9,<2" numpy pillow pyyaml matplotlib tqdm pytest hypothesis mujoco scipy scikit-image rosbags mcap mcap-ros2-support mcap-ros1-support rerun-sdk "ray>=2.9" atheris cyclonedds pymavlink foxglove-sdk websockets ruff
+	$(PY) -m pip install --quiet "maturin>=1.9,<2" numpy pillow pyyaml matplotlib tqdm pytest hypothesis mujoco scipy scikit-image rosbags mcap mcap-ros2-support mcap-ros1-support rerun-sdk "ray>=2.9" atheris cyclonedds pymavlink foxglove-sdk websockets ruff vermin
 	touch $@
 
 $(STAMP): $(VENV)/.deps $(SOURCES)
@@ -47,6 +47,10 @@ FUZZ_JOBS    ?= 1
 FUZZ_UNTIL   ?=
 fuzz: $(STAMP)
 	$(PY) fuzz/run.py --seconds $(FUZZ_SECONDS) --jobs $(FUZZ_JOBS) $(if $(FUZZ_UNTIL),--until $(FUZZ_UNTIL))
+
+# The abi3 wheel (CPython >= 3.10) of this machine's platform, in dist/.
+wheel: $(VENV)/.deps
+	VIRTUAL_ENV=$(abspath $(VENV)) CARGO_TARGET_DIR=$(MATURIN_TARGET) $(VENV)/bin/maturin build --release --quiet --out dist
 
 clean:
 	rm -rf $(VENV) target runs

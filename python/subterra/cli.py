@@ -146,7 +146,10 @@ def _parser() -> argparse.ArgumentParser:
     from subterra.sim import DEPTH_NOISE_PRESETS
 
     p = _Parser(prog="subterra", description="Perception and planning for robots underground.")
+    from subterra import __version__
+
     p.add_argument("--debug", action="store_true", help="show the traceback on errors")
+    p.add_argument("--version", action="version", version=f"subterra {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     per = sub.add_parser("perceive", help="run APF-PF over a folder of depth images")
@@ -238,7 +241,18 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
     demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")
     demo.add_argument("--quick", action="store_true", help="a short version (20 s flights, fewer frames, one batch route)")
+    _debug_everywhere(p)
     return p
+
+
+def _debug_everywhere(parser: argparse.ArgumentParser) -> None:
+    """``--debug`` after any subcommand too (``subterra drive --debug``), not only before it."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                if not any("--debug" in a.option_strings for a in child._actions):
+                    child.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback on errors")
+                _debug_everywhere(child)
 
 
 def _perceive(args: argparse.Namespace) -> int:

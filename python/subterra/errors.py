@@ -16,6 +16,7 @@ __all__ = [
     "ConfigError",
     "InputError",
     "FileFormatError",
+    "MissingExtraError",
 ]
 
 
@@ -36,3 +37,8 @@ class FileFormatError(InputError):
 
     The message ends with the path of the file.
     """
+
+
+class MissingExtraError(SubterraError, ImportError):
+    """An optional dependency is not installed; the message names the extra that brings it
+    (``pip install 'subterra[io]'``)."""

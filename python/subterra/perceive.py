@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from subterra._core import PerceptionConfig, PinholeCamera, Pilot
+from subterra._core import PerceptionConfig, Pilot, PinholeCamera
 from subterra.errors import InputError
 
 __all__ = ["run_perception", "perceive_folder", "timing_summary"]
@@ -58,7 +58,7 @@ def run_perception(
     records: list[dict[str, Any]] = []
     iterator: Iterable[tuple[str, np.ndarray, float | None]] = frames
     if progress:
-        from tqdm import tqdm
+        from subterra._extras import tqdm
 
         iterator = tqdm(frames, total=total, desc="perceive", unit="frame", leave=False, disable=None)
     for n, (name, depth, scale) in enumerate(iterator):

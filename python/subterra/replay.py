@@ -202,7 +202,7 @@ def _with_context(exc: SubterraError, where: str) -> SubterraError:
 
 
 def _progress(total: int, desc: str, enabled: bool):
-    from tqdm import tqdm
+    from subterra._extras import tqdm
 
     return tqdm(total=total, desc=desc, unit="msg", leave=False, disable=None if enabled else True)
 

@@ -584,3 +584,113 @@ def test_foxglove_view_serves_the_nodes_messages_to_a_websocket_client():
     assert by_topic["/cmd_vel"]["schemaName"] == "geometry_msgs/msg/Twist" and by_topic["/cmd_vel"]["encoding"] == "cdr"
     assert by_topic["/cmd_vel"]["schemaEncoding"] == "ros2msg" and "Vector3 linear" in by_topic["/cmd_vel"]["schema"]
     assert len(twists) >= 3 and all(t.linear.x == 0.0 for t in twists)
+
+
+def test_several_odometry_sources_go_through_the_hero_mux():
+    """With two odometry topics the node's pose comes from the HeRO mux: the first (most
+    trusted) source while it is healthy; when it falls silent, the second, reported in the
+    diagnostics' odometry_source; with neither fresh, a stop."""
+    from subterra.live.node import _Stop
+
+    cfg = _config(_domain(7)).replace(topics={"odometry": ["/odom/lio", "/odom/wheels"]})
+    node = GroundNode(cfg, loopback=True)
+
+    class Sub:
+        def __init__(self, topic: str) -> None:
+            self.topic = topic
+
+    lio, wheels = Sub("/odom/lio"), Sub("/odom/wheels")
+    ts = dds.typestore()
+
+    def pose(x: float) -> np.ndarray:
+        m = np.eye(4)
+        m[0, 3] = x
+        return m
+
+    try:
+        t = NS
+        for k in range(20):  # 2 s at 10 Hz, both sources agree
+            t = NS + k * NS // 10
+            node._on_odometry(ros.odometry_message(pose(0.1 * k), stamp_ns=t, typestore=ts), lio)
+            node._on_odometry(ros.odometry_message(pose(0.1 * k), stamp_ns=t, typestore=ts), wheels)
+            got, _, _ = node._pose_at(t)
+        assert node._odometry_state["odometry_source"] == "/odom/lio"
+        assert abs(got[0, 3] - 1.9) < 1e-9
+        for k in range(20, 40):  # the lidar odometry falls silent
+            t = NS + k * NS // 10
+            node._on_odometry(ros.odometry_message(pose(0.1 * k), stamp_ns=t, typestore=ts), wheels)
+            got, _, _ = node._pose_at(t)
+        assert node._odometry_state["odometry_source"] == "/odom/wheels"
+        assert abs(got[0, 3] - 3.9) < 0.2
+        with pytest.raises(_Stop):
+            node._pose_at(t + 5 * NS)
+    finally:
+        node.close()
+
+
+def test_drone_node_with_two_cameras_and_a_stale_one():
+    """Two cameras (topics.depth and topics.camera_info in pairs, each mounted by tf): the
+    pilot is made with both; a frame whose second camera's latest image is more than
+    safety.max_input_age_s older than the first's gets a stop."""
+    from subterra import PinholeCamera
+
+    domain = _domain(8)
+    cfg = _config(domain).replace(topics={"depth": ["/left/depth", "/right/depth"], "camera_info": ["/left/info", "/right/info"]})
+    node = DroneNode(cfg, loopback=True)
+    d = dds.RosParticipant(domain, loopback=True)
+    ts = dds.typestore()
+    pubs = {name: d.publisher(f"/{name}/depth", "sensor_msgs/msg/Image", "reliable_sensor") for name in ("left", "right")}
+    infos = {name: d.publisher(f"/{name}/info", "sensor_msgs/msg/CameraInfo", "reliable_sensor") for name in ("left", "right")}
+    clock = d.publisher("/clock", "rosgraph_msgs/msg/Clock")
+    odom = d.publisher("/odom", "nav_msgs/msg/Odometry", "reliable_sensor")
+    goal = d.publisher("/goal_pose", "geometry_msgs/msg/PoseStamped")
+    tf_static = d.publisher("/tf_static", "tf2_msgs/msg/TFMessage", "transient_local")
+    cmd = d.subscriber("/cmd_vel_stamped", "geometry_msgs/msg/TwistStamped", "reliable_sensor")
+    cam = PinholeCamera(40.0, 40.0, 31.5, 23.5, 64, 48)
+    optical = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+    def mount(yaw: float) -> np.ndarray:
+        r = np.eye(4)
+        r[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+        return r @ optical
+
+    replies: dict[int, Any] = {}
+
+    def tick(t: int, right_t: int | None = None) -> Any:
+        clock.publish(ros.clock_message(t, ts))
+        odom.publish(ros.odometry_message(np.eye(4), stamp_ns=t, typestore=ts))
+        for name, stamp in (("right", t if right_t is None else right_t), ("left", t)):  # left (camera 0) last: it paces
+            if stamp < 0:
+                continue
+            infos[name].publish(ros.camera_info_message(cam, stamp_ns=stamp, frame_id=name, typestore=ts))
+            pubs[name].publish(ros.image_message(np.full((48, 64), 800, np.uint16), stamp_ns=stamp, frame_id=name, encoding="16UC1",
+                                                 typestore=ts))
+            time.sleep(0.01)
+        deadline = time.monotonic() + 10
+        while t not in replies and time.monotonic() < deadline:
+            d.wait(0.02)
+            for m in cmd.take():
+                replies[ros.stamp_ns(m.header)] = m.twist
+        return replies[t]
+
+    try:
+        thread = _start(node)
+        assert d.wait_matched([*pubs.values(), *infos.values(), odom, goal, clock, cmd], 30)
+        tf_static.publish(ros.tf_message([("base_link", "left", 0, mount(0.5)), ("base_link", "right", 0, mount(-0.5))], ts))
+        target = np.eye(4)
+        target[0, 3] = 10.0
+        goal.publish(ros.pose_stamped_message(target, stamp_ns=0, frame_id="odom", typestore=ts))
+        time.sleep(0.2)
+        for k in range(1, 6):
+            tick(NS + k * NS // 15)
+        assert node._pilot is not None and node._pilot.camera_count == 2
+        assert set(node.stats.stops) <= {"no frame (watchdog)"}, node.stats.summary()  # before the first frame
+        t = 2 * NS
+        tick(t, right_t=-1)  # no new right image: the right camera's newest is 0.6 s older
+        assert node.stats.stops.get("camera 1 frame stale") == 1, node.stats.summary()
+        assert node.stats.frames_received == 6 and node.stats.frames_dropped == 0, node.stats.summary()
+    finally:
+        node.stop()
+        thread.join(timeout=10)
+        node.close()
+        d.close()

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from subterra import ApfController, DepthPerception, Escape, ObstacleMemory, PerceptionConfig, PinholeCamera, Pilot, errors
+from subterra import ApfController, DepthPerception, Escape, ObstacleMemory, PinholeCamera, Pilot, errors
 from subterra.perceive import run_perception
 
 REPO = Path(__file__).resolve().parents[2]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -278,6 +279,12 @@ def test_bad_poses_and_values_name_the_argument():
         mapper.set_mission_items([(0.0, float("nan"), 1.0)])
     with pytest.raises(InputError, match="items"):
         mapper.set_mission_items([(0.0, 1.0)])
+    with warnings.catch_warnings():  # a complex item is refused, not cast with a ComplexWarning
+        warnings.simplefilter("error")
+        with pytest.raises(InputError, match=r"items\[0\]"):
+            mapper.set_mission_items([np.array([1 + 1j, 2.0, 1.0])])
+        with pytest.raises(InputError, match=r"items\[0\]"):
+            mapper.set_mission_items([{"position": np.array([1j, 0.0]), "radius": 1.0}])
     m = mapper.last_coarse
     with pytest.raises(InputError, match="tilts"):
         m.layer("tilts")

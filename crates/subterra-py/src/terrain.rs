@@ -14,7 +14,7 @@ use subterra::terrain::{segment_ground as core_segment_ground, GroundConfig, Lay
 use subterra::Isometry3;
 
 use crate::shared::Shared;
-use crate::convert::{arg, check_rows, isometry, type_name, MAX_POINTS};
+use crate::convert::{arg, check_rows, isometry, real_array, type_name, MAX_POINTS};
 use crate::errors::{config_error, input_error, raise, IntoPyResult};
 
 /// Time between scans when `update` is not given a stamp [s] (a 10 Hz lidar).
@@ -646,8 +646,10 @@ impl PyTerrainMapper {
         let iter = items.try_iter().map_err(|_| input_error(py, format!("argument `items` must be a sequence, got {}", type_name(items))))?;
         for (i, item) in iter.enumerate() {
             let item = item?;
+            // Real numbers only: a complex value is refused, not cast (real_array checks the dtype).
             let numbers = |v: &Bound<'_, PyAny>| -> Option<Vec<f64>> {
-                np.call_method1("asarray", (v, "float64")).ok()?.call_method0("ravel").ok()?.call_method0("tolist").ok()?.extract().ok()
+                let raw = real_array(py, "items", v, "numbers").ok()?;
+                np.call_method1("asarray", (raw, "float64")).ok()?.call_method0("ravel").ok()?.call_method0("tolist").ok()?.extract().ok()
             };
             let values = if let Ok(d) = item.cast::<PyDict>() {
                 let position = d.get_item("position")?.and_then(|p| numbers(&p));

@@ -31,7 +31,7 @@ class Progress:
         self.rows: list[dict[str, Any]] = []
         self._status, self._status_at = "", -1.0
         if progress is True:
-            from tqdm import tqdm
+            from subterra._extras import tqdm
 
             self.bar = tqdm(total=total, initial=done, desc=desc, unit=unit, disable=None, file=sys.stderr)
             if self.bar.disable:

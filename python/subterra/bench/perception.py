@@ -15,7 +15,15 @@ from typing import Any
 
 import numpy as np
 
-from subterra._core import ApfController, DepthPerception, PerceptionConfig, PinholeCamera, Pilot, Qmdp, __version__
+from subterra._core import (
+    ApfController,
+    DepthPerception,
+    PerceptionConfig,
+    Pilot,
+    PinholeCamera,
+    Qmdp,
+    __version__,
+)
 from subterra.bench.reference import apf_pf as reference
 from subterra.perceive import timing_summary
 from subterra.scenarios.synthetic import approaching_box_frames
@@ -62,7 +70,7 @@ def bench_perception(
     stages: dict[str, list[float]] = {"count_s": [], "predict_s": [], "update_s": [], "belief_s": []}
     iterator = range(frames)
     if progress:
-        from tqdm import tqdm
+        from subterra._extras import tqdm
 
         iterator = tqdm(iterator, desc="rust", unit="frame", leave=False, disable=None)
     for n in iterator:
@@ -110,7 +118,7 @@ def bench_perception(
             pipeline.command(GOAL_BODY, pipeline.update(depth[n]))
         iterator = range(reference_frames)
         if progress:
-            from tqdm import tqdm
+            from subterra._extras import tqdm
 
             iterator = tqdm(iterator, desc="numpy reference", unit="frame", leave=False, disable=None)
         for n in iterator:

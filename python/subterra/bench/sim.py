@@ -6,14 +6,13 @@ arrays they return; `cargo bench -p subterra-sim --bench sim` times the Rust cas
 
 from __future__ import annotations
 
-import math
 import os
 import time
-from subterra._compat import tomllib
 from typing import Any
 
 import numpy as np
 
+from subterra._compat import tomllib
 from subterra.perceive import timing_summary
 from subterra.sim import DepthCamera, Lidar, World
 from subterra.sim.render import BODY_FROM_OPTICAL, pose_matrix, start_pose

@@ -31,11 +31,11 @@ from typing import Any
 
 import numpy as np
 
-from subterra.errors import InputError
 from subterra._core import OdometryMux
-from subterra.watchdog import SensorWatchdog
+from subterra.errors import InputError
 from subterra.sim import LIDAR_NOISE_PRESETS, Lidar, Simulation, World
 from subterra.sim.faults import ODOMETRY_SOURCES, FaultInjector, parse_faults
+from subterra.watchdog import SensorWatchdog
 
 __all__ = ["GROUND_SCENARIOS", "PLANNERS", "DriveResult", "drive", "true_risk", "true_terrain_risk"]
 
@@ -186,7 +186,11 @@ class DriveResult:
                 w.writerow([f"{e['time_s']:.3f}", e["from"], e["to"], e["reason"], f"{e['r_inst']:.3f}", f"{e['r_total']:.3f}"])
         written["metrics"].write_text(json.dumps(self.summary(), indent=2) + "\n", encoding="utf-8")
         if plots:
-            from subterra.viz.drive import plot_drive_compute, plot_drive_map, plot_speed_risk
+            from subterra.viz.drive import (
+                plot_drive_compute,
+                plot_drive_map,
+                plot_speed_risk,
+            )
 
             written["map_plot"] = plot_drive_map(self, out / "map.png")
             written["speed_plot"] = plot_speed_risk(self, out / "speed-risk.png")
@@ -348,7 +352,7 @@ def drive(
     events: list[dict[str, Any]] = []
     bar = None
     if progress is True:
-        from tqdm import tqdm
+        from subterra._extras import tqdm
 
         bar = tqdm(total=round(time_limit_s), unit="s", desc=f"drive {scenario} {planner}", leave=False, disable=None,
                    bar_format="{desc}: {n:.0f}/{total:.0f} s sim {postfix}")

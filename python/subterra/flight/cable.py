@@ -39,13 +39,14 @@ import json
 import math
 import os
 import time
-from subterra._compat import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from subterra._compat import tomllib
+from subterra._extras import require
 from subterra.errors import ConfigError, InputError, SubterraError
 
 __all__ = ["CONDITIONS", "cable_test", "register_cli"]
@@ -192,7 +193,7 @@ def _run_condition(
     max_count: list[int] = []
     frames = range(len(noise_seeds))
     if progress:
-        from tqdm import tqdm
+        from subterra._extras import tqdm
 
         frames = tqdm(frames, desc=desc, unit="frame", leave=False, disable=None)
     for n in frames:
@@ -387,6 +388,7 @@ def _describe(condition: dict[str, Any]) -> str:
 
 def _plot(summary: dict[str, Any], path: Path) -> None:
     """Fig. 6: per condition, the most probable voxel's depth per frame, marker area by its belief."""
+    require("matplotlib", "viz", "Plots")
     import matplotlib
 
     matplotlib.use("Agg")

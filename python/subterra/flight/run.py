@@ -28,10 +28,10 @@ from typing import Any
 import numpy as np
 
 from subterra._core import OdometryMux, PerceptionConfig, Pilot
-from subterra.errors import ConfigError, InputError
-from subterra.watchdog import SensorWatchdog
+from subterra.errors import InputError
 from subterra.sim import DEPTH_NOISE_PRESETS, DepthCamera, Simulation, World
 from subterra.sim.faults import ODOMETRY_SOURCES, FaultInjector, parse_faults
+from subterra.watchdog import SensorWatchdog
 
 __all__ = ["CONTROLLERS", "FlightResult", "fly", "resolve_path", "resolve_route"]
 
@@ -148,7 +148,11 @@ class FlightResult:
                 w.writerow([f"{e['time_s']:.3f}", e["event"], e.get("source") or "", e.get("reason") or ""])
         written["metrics"].write_text(json.dumps(self.summary(), indent=2) + "\n", encoding="utf-8")
         if plots:
-            from subterra.viz.flight import plot_compute_time, plot_flight_path, plot_flight_trace
+            from subterra.viz.flight import (
+                plot_compute_time,
+                plot_flight_path,
+                plot_flight_trace,
+            )
 
             written["path_plot"] = plot_flight_path(self, out / "path.png")
             written["trace_plot"] = plot_flight_trace(self, out / "depth-trace.png")
@@ -405,7 +409,7 @@ def fly(
     positions: list[np.ndarray] = []
     bar = None
     if progress is True:
-        from tqdm import tqdm
+        from subterra._extras import tqdm
 
         bar = tqdm(total=round(time_limit_s), unit="s", desc=f"fly {route_name} {controller}", leave=False, disable=None,
                    bar_format="{desc}: {n:.0f}/{total:.0f} s sim {postfix}")

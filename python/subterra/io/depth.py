@@ -45,9 +45,15 @@ from pathlib import Path
 from typing import Union
 
 import numpy as np
-from PIL import Image
 
-from .._files import MAX_BINARY_BYTES, check_regular_file, open_for_writing, open_regular, read_regular_bytes
+from .._extras import require
+from .._files import (
+    MAX_BINARY_BYTES,
+    check_regular_file,
+    open_for_writing,
+    open_regular,
+    read_regular_bytes,
+)
 from ..errors import ConfigError, FileFormatError, InputError
 
 __all__ = [
@@ -290,6 +296,7 @@ def write_depth_png(path: PathLike, data: np.ndarray) -> None:
     array = _checked_depth_array(data, "data", InputError, file_path)
     # Pillow maps a little-endian uint16 array to mode "I;16" and writes it as a
     # 16-bit grayscale PNG (big-endian on disk, as the PNG spec requires).
+    Image = require("PIL.Image", "io", "Writing PNG depth images")
     image = Image.fromarray(np.ascontiguousarray(array, dtype="<u2"))
     with open_for_writing(file_path, "depth image") as handle:
         image.save(handle, format="PNG")
@@ -409,6 +416,7 @@ def _read_png(path: Path) -> np.ndarray:
 
 
 def _decode_png(handle: object, path: Path) -> np.ndarray:
+    Image = require("PIL.Image", "io", "Reading PNG depth images")
     try:
         head = handle.read(len(_PNG_MAGIC))  # type: ignore[attr-defined]
         handle.seek(0)  # type: ignore[attr-defined]

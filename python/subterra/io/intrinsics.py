@@ -31,8 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Union
 
-import yaml
-
+from .._extras import require
 from .._files import read_regular_text
 from ..errors import ConfigError, FileFormatError, InputError, SubterraError
 
@@ -323,6 +322,7 @@ def _parse_yaml(text: str, path: Path) -> object:
             "intrinsics: expected standard YAML, got an OpenCV FileStorage file "
             f"('%YAML:1.0', not supported; convert it to a ROS camera_calibration YAML): {path}"
         )
+    yaml = require("yaml", "io", "Reading YAML intrinsics")
     try:
         documents = [doc for doc in yaml.safe_load_all(text) if doc is not None]
     except yaml.YAMLError as exc:

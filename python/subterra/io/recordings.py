@@ -43,8 +43,13 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path, PurePath
 from typing import Any, NamedTuple
 
-from .._files import check_regular_file, open_for_writing, open_regular, read_regular_text
-from ..errors import ConfigError, FileFormatError, InputError, SubterraError
+from .._files import (
+    check_regular_file,
+    open_for_writing,
+    open_regular,
+    read_regular_text,
+)
+from ..errors import FileFormatError, InputError, SubterraError
 
 __all__ = [
     "MCAP_MAGIC",
@@ -72,13 +77,9 @@ _IDL_SEPARATOR = "=" * 80 + "\n"
 
 
 def _need(module: str) -> Any:
-    import importlib
+    from .._extras import require
 
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:  # pragma: no cover - both are dependencies of subterra
-        package = module.split(".")[0]
-        raise ConfigError(f"reading and writing recordings needs the {package} package: pip install {package}") from exc
+    return require(module, "io", "Reading and writing recordings")
 
 
 def normalise_type(name: str) -> str:

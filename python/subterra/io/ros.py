@@ -924,10 +924,10 @@ _GRID_MAP_MSGS = {
 def default_typestore():
     """The ``rosbags`` typestore of ROS 2 Humble (the messages' definitions), with
     ``grid_map_msgs/msg/GridMap`` added; one shared instance."""
-    try:
-        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-    except ImportError as exc:
-        raise InputError("writing ROS messages needs the rosbags package: pip install 'subterra[io]'") from exc
+    from .._extras import require
+
+    typesys = require("rosbags.typesys", "io", "Writing ROS messages")
+    Stores, get_types_from_msg, get_typestore = typesys.Stores, typesys.get_types_from_msg, typesys.get_typestore
     ts = get_typestore(Stores.ROS2_HUMBLE)
     types: dict[str, Any] = {}
     for name, text in _GRID_MAP_MSGS.items():

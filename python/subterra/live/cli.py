@@ -29,6 +29,7 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
                    help="also stream the commands to a PX4/ArduPilot autopilot as MAVLink velocity setpoints, e.g. "
                         "udpout:127.0.0.1:14540 (extra subterra[mavlink]); it never arms the vehicle")
     p.add_argument("--mavlink-frame", choices=("body", "local"), default="body", help="body: FLU -> MAV_FRAME_BODY_NED (default)")
+    p.add_argument("--mavlink-baud", type=int_in(1200, 12_000_000), default=921600, help="serial rate for a serial --mavlink device")
     p.add_argument("--foxglove", default=None, metavar="[HOST:]PORT",
                    help="serve a live view on Foxglove's WebSocket protocol (loopback unless HOST is given; extra subterra[viz])")
     p.set_defaults(handler=_node)
@@ -62,7 +63,7 @@ def _node(args: argparse.Namespace) -> int:
     if args.mavlink:
         from subterra.live.mavlink import MavlinkBridge
 
-        bridge = MavlinkBridge(args.mavlink, frame=args.mavlink_frame)
+        bridge = MavlinkBridge(args.mavlink, frame=args.mavlink_frame, baud=args.mavlink_baud)
     view = None
     if args.foxglove:
         from subterra.live.view import FoxgloveView, parse_address

@@ -38,11 +38,11 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from subterra.errors import ConfigError, InputError, SubterraError
+from subterra._extras import require
+from subterra.errors import ConfigError, InputError
 
 __all__ = [
     "QOS_PROFILES",
-    "MissingExtraError",
     "RosParticipant",
     "RosPublisher",
     "RosSubscriber",
@@ -65,25 +65,12 @@ QOS_PROFILES: dict[str, tuple[str, str, int]] = {
 #: Largest DDS domain id ROS 2 allows (232 for Cyclone's port mapping).
 MAX_DOMAIN_ID = 232
 
-class MissingExtraError(SubterraError, ImportError):
-    """An optional dependency is not installed: the message names the extra to install."""
-
-
-def require(module: str, extra: str, what: str) -> Any:
-    """Imports ``module`` or raises :class:`MissingExtraError` naming ``pip install 'subterra[extra]'``."""
-    import importlib
-
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:
-        raise MissingExtraError(f"{what} needs the {module.split('.')[0]} package: pip install 'subterra[{extra}]'") from exc
-
-
 def typestore() -> Any:
     """The ``rosbags`` typestore the bridge speaks: ROS 2 Humble with ``grid_map_msgs``
     (:func:`subterra.io.ros.default_typestore`)."""
     from subterra.io.ros import default_typestore
 
+    require("rosbags.typesys", "ros", "The ROS 2 bridge")
     return default_typestore()
 
 
@@ -283,7 +270,13 @@ class RosParticipant:
             raise InputError(f"argument `domain_id` must be an integer in [0, {MAX_DOMAIN_ID}], got {domain_id!r}")
         if loopback and "CYCLONEDDS_URI" not in os.environ:
             os.environ["CYCLONEDDS_URI"] = loopback_config()
-        from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
+        from cyclonedds.core import (
+            InstanceState,
+            ReadCondition,
+            SampleState,
+            ViewState,
+            WaitSet,
+        )
         from cyclonedds.domain import DomainParticipant
 
         self.domain_id = domain_id

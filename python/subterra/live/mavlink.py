@@ -43,8 +43,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from subterra._extras import require
 from subterra.errors import ConfigError, InputError
-from subterra.live.dds import require
 
 __all__ = ["FRAMES", "MavlinkBridge", "MavlinkStats", "flu_to_frd", "enu_to_ned", "VELOCITY_TYPE_MASK"]
 
@@ -95,6 +95,7 @@ class MavlinkBridge:
             computer on the vehicle uses); its component is the onboard computer (191).
         rate_hz: setpoint stream rate while fresh (default 20 Hz, in [2, 100]).
         stale_after_s: with no fresh command this long, send a stop and stop streaming.
+        baud: the serial rate when ``connection`` is a serial device (``/dev/ttyAMA0``).
     """
 
     def __init__(
@@ -107,6 +108,7 @@ class MavlinkBridge:
         system_id: int = 1,
         rate_hz: float = 20.0,
         stale_after_s: float = 0.5,
+        baud: int = 921600,
     ) -> None:
         if frame not in FRAMES:
             raise ConfigError(f"argument `frame` must be one of {', '.join(FRAMES)}, got {frame!r}")
@@ -117,6 +119,8 @@ class MavlinkBridge:
             raise ConfigError(f"argument `rate_hz` must be in [2, 100] Hz, got {rate_hz!r}")
         if not (isinstance(stale_after_s, (int, float)) and math.isfinite(stale_after_s) and 0.0 < stale_after_s <= 10.0):
             raise ConfigError(f"argument `stale_after_s` must be in (0, 10] s, got {stale_after_s!r}")
+        if isinstance(baud, bool) or not isinstance(baud, int) or not 1200 <= baud <= 12_000_000:
+            raise ConfigError(f"argument `baud` must be an integer in [1200, 12000000], got {baud!r}")
         if not isinstance(connection, str) or not connection:
             raise ConfigError(f"argument `connection` must be a pymavlink connection string, got {connection!r}")
         mavutil = require("pymavlink.mavutil", "mavlink", "The MAVLink bridge")
@@ -126,7 +130,8 @@ class MavlinkBridge:
         self.stale_after_s = float(stale_after_s)
         self.stats = MavlinkStats()
         try:
-            self._conn = mavutil.mavlink_connection(connection, source_system=system_id, source_component=_MAV_COMP_ID_ONBOARD_COMPUTER)
+            self._conn = mavutil.mavlink_connection(connection, baud=int(baud), source_system=system_id,
+                                                    source_component=_MAV_COMP_ID_ONBOARD_COMPUTER)
         except (OSError, ValueError) as exc:
             raise InputError(f"argument `connection`: cannot open {connection!r}: {exc}") from exc
         self._lock = threading.Lock()

@@ -88,7 +88,11 @@ class NodeStats:
     stops: dict[str, int] = field(default_factory=dict)
     rejected: dict[str, int] = field(default_factory=dict)
     goals: int = 0
+    #: Frames whose pose was held from an older odometry sample (none newer had arrived).
+    poses_extrapolated: int = 0
     compute_ms: list[float] = field(default_factory=list)
+    #: The pipeline's own time per frame (the Rust step), inside ``compute_ms`` [ms].
+    pipeline_ms: list[float] = field(default_factory=list)
     last_error: str = ""
 
     def stop(self, reason: str) -> None:
@@ -100,6 +104,7 @@ class NodeStats:
 
     def summary(self) -> dict[str, Any]:
         c = np.asarray(self.compute_ms, dtype=np.float64)
+        p = np.asarray(self.pipeline_ms, dtype=np.float64)
         return {
             "frames_received": self.frames_received,
             "frames_processed": self.frames_processed,
@@ -108,8 +113,10 @@ class NodeStats:
             "stops": dict(self.stops),
             "rejected": dict(self.rejected),
             "goals": self.goals,
+            "poses_extrapolated": self.poses_extrapolated,
             "compute_ms_median": float(np.median(c)) if c.size else None,
             "compute_ms_p99": float(np.percentile(c, 99)) if c.size else None,
+            "pipeline_ms_median": float(np.median(p)) if p.size else None,
             "last_error": self.last_error,
         }
 
@@ -132,12 +139,15 @@ class LiveNode:
         self.view = view
         c = self.config
         self.stats = NodeStats()
-        self._ts = typestore()
         self._dds = RosParticipant(c.node.domain_id, loopback=loopback)
+        self._ts = typestore()
         if view is not None:
             self._dds.mirror = view.publish
         self._lock = threading.Lock()
         self._frame_ready = threading.Condition(self._lock)
+        # The inputs the receive thread files (tf, poses, the mux, camera infos): the compute
+        # thread reads them under this lock, never while the pipeline runs.
+        self._inputs = threading.RLock()
         self._stopping = threading.Event()
         self._tf = ros.TransformBuffer(max_history_ns=_HISTORY_NS)
         self._tracks = {topic: ros.PoseTrack(max_history_ns=_HISTORY_NS) for topic in c.topics.odometry}
@@ -156,6 +166,8 @@ class LiveNode:
         self._last_publish: dict[str, float] = {}
         self._state: dict[str, Any] = {"behaviour": "waiting for a goal"}
         self._last_stop_reason = ""
+        self._frame_times: list[float] = []
+        self._odometry_state: dict[str, Any] = {}
         q = c.qos
         t = c.topics
         sub = self._dds.subscriber
@@ -237,6 +249,8 @@ class LiveNode:
                 self.stats.frames_dropped += 1
             self._frame = frame
             self._frame_wall = time.monotonic()
+            self._frame_times.append(self._frame_wall)
+            del self._frame_times[:-20]
             self._frame_ready.notify()
 
     def _receive(self) -> None:
@@ -246,7 +260,8 @@ class LiveNode:
             for sub, handle in self._subs:
                 for msg in sub.take():
                     try:
-                        handle(msg, sub)
+                        with self._inputs:
+                            handle(msg, sub)
                     except (SubterraError, ValueError, KeyError, AttributeError, TypeError) as exc:
                         self.stats.reject(sub.topic, str(exc))
                 if sub.rejected:
@@ -262,6 +277,8 @@ class LiveNode:
         limit = int(self.config.safety.max_odometry_age_s * _NS)
         if self._mux is not None:
             out = self._mux.update(stamp_ns / _NS)
+            self._odometry_state = {"odometry_source": out.source or "none",
+                                    "odometry_faults": json.dumps({k: v for k, v in out.faults.items() if v})}
             if out.world_from_body is None or out.source is None:
                 raise _Stop("no usable odometry source")
             if stamp_ns - int(out.stamp * _NS) > limit:
@@ -274,6 +291,8 @@ class LiveNode:
         newest_ns, newest = track.latest
         if stamp_ns - newest_ns > limit:
             raise _Stop("odometry too old")
+        if newest_ns < stamp_ns:
+            self.stats.poses_extrapolated += 1
         pose = track.at(stamp_ns)
         return np.asarray(newest if pose is None else pose), self._speed(topic), 1.0
 
@@ -308,7 +327,8 @@ class LiveNode:
                 self._goal_new = False
                 self._on_new_goal(self._goal.copy())
             self._check_stamp(stamp_ns)
-            pose, speed, confidence = self._pose_at(stamp_ns)
+            with self._inputs:
+                pose, speed, confidence = self._pose_at(stamp_ns)
             linear, angular, outputs = self._compute(frame, stamp_ns, pose, speed, confidence)
             if not (np.all(np.isfinite(linear)) and np.all(np.isfinite(angular))):
                 raise _Stop("non-finite command")
@@ -356,10 +376,13 @@ class LiveNode:
         if self._diag is None or not self._due("diagnostics", self.config.rates.diagnostics_hz, force):
             return
         s = self.stats.summary()
-        values = {**{k: v for k, v in self._state.items()}, "frames_received": s["frames_received"],
-                  "frames_processed": s["frames_processed"], "frames_dropped": s["frames_dropped"],
-                  "compute_ms_median": s["compute_ms_median"], "stops": json.dumps(s["stops"]),
-                  "rejected": json.dumps(s["rejected"])}
+        times = self._frame_times[-20:]
+        rate = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 and times[-1] > times[0] else 0.0
+        values = {**self._state, **self._odometry_state, "frame_rate_hz": round(rate, 2),
+                  "frames_received": s["frames_received"], "frames_processed": s["frames_processed"],
+                  "frames_dropped": s["frames_dropped"], "compute_ms_median": s["compute_ms_median"],
+                  "compute_ms_p99": s["compute_ms_p99"], "pipeline_ms_median": s["pipeline_ms_median"],
+                  "stops": json.dumps(s["stops"]), "rejected": json.dumps(s["rejected"])}
         level = "warn" if stop or self._last_stop_reason else "ok"
         message = f"stop: {stop or self._last_stop_reason}" if level == "warn" else str(self._state.get("behaviour", "running"))
         self._diag.publish(ros.diagnostics_message([(f"{self.config.node.name}: {self.robot}", level, message, values)],
@@ -464,11 +487,13 @@ class GroundNode(LiveNode):
     def _compute(self, frame: _CloudFrame, stamp_ns: int, pose: np.ndarray, speed: float, confidence: float) -> tuple[np.ndarray, np.ndarray, Any]:
         body = self.config.frames.body
         sensor = frame.frame_id or body
-        if not self._tf.can_transform(body, sensor, stamp_ns):
-            raise _Stop(f"no transform {body} <- {sensor}")
-        body_from_sensor = self._tf.lookup(body, sensor, stamp_ns)
+        with self._inputs:
+            if not self._tf.can_transform(body, sensor, stamp_ns):
+                raise _Stop(f"no transform {body} <- {sensor}")
+            body_from_sensor = self._tf.lookup(body, sensor, stamp_ns)
         out = self._nav.step(frame.points, stamp=stamp_ns / _NS, world_from_body=pose, body_from_sensor=body_from_sensor,
                              speed=speed, confidence=confidence)
+        self.stats.pipeline_ms.append(1e3 * out.timings["total_s"])
         self._state = {"behaviour": out.behaviour, "target": out.target, "plan_status": out.plan_status or "",
                        "mpc_status": out.mpc_status or "", "local_risk": round(float(out.local_risk), 4),
                        "safety": out.safety or ""}
@@ -495,6 +520,7 @@ class _DepthFrame:
     stamp_ns: int
     images: list[Any]  # one DepthImage per camera, camera 0's is this frame's
     frame_ids: list[str]
+    stamps: list[int]  # each camera's frame stamp [ns]
 
 
 class DroneNode(LiveNode):
@@ -510,7 +536,9 @@ class DroneNode(LiveNode):
         self._pilot = None
         self._infos: dict[int, Any] = {}
         self._latest: dict[int, tuple[int, Any, str]] = {}
-        for i, (depth, info) in enumerate(zip(c.topics.depth, c.topics.camera_info)):
+        # Camera 0 paces the loop: its subscription is taken last in each pass, so that the
+        # other cameras' images of the same instant are already filed when its frame pairs them.
+        for i, (depth, info) in reversed(list(enumerate(zip(c.topics.depth, c.topics.camera_info)))):
             self._subs.append((self._dds.subscriber(info, "sensor_msgs/msg/CameraInfo", c.qos.sensors), self._info_handler(i)))
             self._subs.append((self._dds.subscriber(depth, "sensor_msgs/msg/Image", c.qos.sensors), self._depth_handler(i)))
         self._belief = self._dds.publisher(c.topics.belief, "visualization_msgs/msg/MarkerArray", c.qos.outputs) if c.topics.belief else None
@@ -530,7 +558,7 @@ class DroneNode(LiveNode):
             if i == 0:  # camera 0 paces the loop; the others give their newest frame
                 cams = [self._latest.get(k) for k in range(len(self.config.topics.depth))]
                 if all(cam is not None for cam in cams):
-                    self._file_frame(_DepthFrame(stamp, [cam[1] for cam in cams], [cam[2] for cam in cams]))
+                    self._file_frame(_DepthFrame(stamp, [cam[1] for cam in cams], [cam[2] for cam in cams], [cam[0] for cam in cams]))
         return handle
 
     def _on_new_goal(self, goal: np.ndarray) -> None:
@@ -555,16 +583,18 @@ class DroneNode(LiveNode):
         self._free = self._pilot.free_state()
 
     def _compute(self, frame: _DepthFrame, stamp_ns: int, pose: np.ndarray, speed: float, confidence: float) -> tuple[np.ndarray, np.ndarray, Any]:
-        if self._pilot is None:
-            self._make_pilot(frame, stamp_ns)
-        for i, image in enumerate(frame.images):
-            if abs(self._latest[i][0] - stamp_ns) > self.config.safety.max_input_age_s * _NS:
+        with self._inputs:
+            if self._pilot is None:
+                self._make_pilot(frame, stamp_ns)
+        for i, stamp in enumerate(frame.stamps):
+            if abs(stamp - stamp_ns) > self.config.safety.max_input_age_s * _NS:
                 raise _Stop(f"camera {i} frame stale")
         scale = frame.images[0].scale_m_per_unit if frame.images[0].data.dtype == np.uint16 else None
         data = [im.data for im in frame.images]
         out = self._pilot.step(data if len(data) > 1 else data[0], stamp=stamp_ns / _NS, world_from_body=pose, scale=scale,
                                confidence=confidence)
         cmd = np.asarray(out.command.as_array(), dtype=np.float64)
+        self.stats.pipeline_ms.append(1e3 * out.timings["total_s"])
         self._state = {"behaviour": "escape" if out.escape_active else "apf", "remaining_m": round(float(out.remaining_m), 3)}
 
         def outputs() -> None:

@@ -162,7 +162,7 @@ def sil(
             tilts: list[float] = []
             bar = None
             if progress:
-                from tqdm import tqdm
+                from subterra._extras import tqdm
 
                 bar = tqdm(total=round(setup["time_limit_s"]), unit="s", desc=f"sil {robot} {scenario}", leave=False, disable=None,
                            bar_format="{desc}: {n:.0f}/{total:.0f} s sim {postfix}")

@@ -23,8 +23,9 @@ import threading
 import time
 from typing import Any
 
+from subterra._extras import require
 from subterra.errors import ConfigError
-from subterra.live.dds import require, typestore
+from subterra.live.dds import typestore
 
 __all__ = ["FoxgloveView", "parse_address"]
 

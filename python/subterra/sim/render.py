@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from subterra._extras import require
 from subterra.sim import DepthCamera, Lidar, World
 
 __all__ = ["pose_matrix", "render_scenario", "start_pose"]
@@ -44,6 +45,7 @@ def render_scenario(name: str, out_dir: str | os.PathLike[str], *, seed: int = 0
     """Writes ``<name>-depth.png`` (a D435 frame from the start, truth and noisy),
     ``<name>-map.png`` (top-down world with regions, routes and the lidar scan) and
     returns their paths."""
+    require("matplotlib", "viz", "Plots")
     import matplotlib
 
     matplotlib.use("Agg")

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from subterra._extras import require
 from subterra.errors import InputError
 
 __all__ = ["parse_body_from_sensor", "register_cli", "run_cli", "run_terrain"]
@@ -132,10 +133,14 @@ def run_terrain(
     progress: bool = True,
 ) -> dict:
     """Maps ``files`` in order, writes the figures and ``summary.json`` to ``out``; returns the summary."""
-    from tqdm import tqdm
-
+    from subterra._extras import tqdm
     from subterra.io import read_cloud, read_trajectory
-    from subterra.terrain import TerrainMapper, estimate_sensor_height, lethal_cells, translation
+    from subterra.terrain import (
+        TerrainMapper,
+        estimate_sensor_height,
+        lethal_cells,
+        translation,
+    )
 
     files = [Path(f) for f in files]
     if not files:
@@ -218,10 +223,12 @@ _UNITS = {
 
 
 def _write_figures(mapper, risk_map, body_world: np.ndarray, out: Path) -> list[str]:
+    require("matplotlib", "viz", "Plots")
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    require("matplotlib", "viz", "Plots")
     from matplotlib.patches import Patch
 
     written = []

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from subterra._extras import require
 from subterra.errors import InputError
 from subterra.viz.flight import _draw_world, _figure, _save, _world_spec
 
@@ -106,6 +107,7 @@ def plot_speed_risk(result: Any, path: str | os.PathLike[str]) -> Path:
     """Speed over time against the risk-limited bound ``v_max·(1 - r)`` at the robot, with
     the map's local risk and the true (tilt) risk below; recovery behaviours shaded.
     Written to ``path`` (PNG); returns it."""
+    require("matplotlib", "viz", "Plots")
     from matplotlib.patches import Patch
 
     s = _check(result)

@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import math
 import os
-from subterra._compat import tomllib
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from subterra._compat import tomllib
+from subterra._extras import require
 from subterra.errors import InputError
 
 __all__ = ["plot_compute_time", "plot_flight_path", "plot_flight_trace"]
@@ -339,6 +340,7 @@ def _true_intervals(t: np.ndarray, flags: np.ndarray, dt_s: float) -> list[tuple
 
 
 def _figure(width_in: float, height_in: float):
+    require("matplotlib", "viz", "Plots")
     from matplotlib.figure import Figure
 
     return Figure(figsize=(width_in, height_in), dpi=DPI)
@@ -375,6 +377,7 @@ def _draw_world(ax, spec: dict[str, Any], z_band: tuple[float, float] | None) ->
     """Draws the world's geometry; returns legend proxies for what it drew. Obstacles
     that overlap the altitude band ``z_band`` [m] (all if None) are drawn dark, the
     others (floor and ceiling slabs, pipes overhead) light."""
+    require("matplotlib", "viz", "Plots")
     import matplotlib
     from matplotlib.patches import Circle, Patch, Polygon, Rectangle
 
@@ -494,6 +497,7 @@ def _failure(f: Any) -> str | None:
 
 
 def _draw_flights(ax, flights: list[Any], paths: list[np.ndarray], colours: dict[str, tuple[str, str]]) -> None:
+    require("matplotlib", "viz", "Plots")
     from matplotlib.patches import Circle
 
     reached = {name: [0, 0] for name in colours}

@@ -8,10 +8,13 @@ from typing import Any
 
 import numpy as np
 
+from subterra._extras import require
+
 __all__ = ["plot_depth_trace"]
 
 
 def _pyplot():
+    require("matplotlib", "viz", "Plots")
     import matplotlib
 
     matplotlib.use("Agg")
