@@ -694,3 +694,19 @@ def test_drone_node_with_two_cameras_and_a_stale_one():
         thread.join(timeout=10)
         node.close()
         d.close()
+
+
+def test_sil_refuses_bad_arguments_and_reports_a_node_that_cannot_start(tmp_path):
+    """Bad robot, scenario or seed: InputError naming it. A node that exits at start (here:
+    its navigator config file does not exist) is a SilError quoting the node's own error."""
+    from subterra.live.sil import SilError, sil
+
+    with pytest.raises(InputError, match="robot"):
+        sil("boat")
+    with pytest.raises(InputError, match="scenario"):
+        sil("drone", "mine")
+    with pytest.raises(InputError, match="seed"):
+        sil("ground", seed=-1)
+    broken = NodeConfig().replace(ground={"navigator_config": str(tmp_path / "missing.toml")})
+    with pytest.raises(SilError, match=r"the node exited with status 2.*missing\.toml"):
+        sil("ground", "mine", out=tmp_path / "run", node_config=broken, domain_id=_domain(9))

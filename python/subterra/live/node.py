@@ -262,8 +262,8 @@ class LiveNode:
                     try:
                         with self._inputs:
                             handle(msg, sub)
-                    except (SubterraError, ValueError, KeyError, AttributeError, TypeError) as exc:
-                        self.stats.reject(sub.topic, str(exc))
+                    except Exception as exc:  # noqa: BLE001 - a bad message is counted; the thread goes on
+                        self.stats.reject(sub.topic, f"{type(exc).__name__}: {exc}" if not isinstance(exc, SubterraError) else str(exc))
                 if sub.rejected:
                     self.stats.rejected[sub.topic] = self.stats.rejected.get(sub.topic, 0) + sub.rejected
                     self.stats.last_error = sub.last_error
@@ -321,11 +321,12 @@ class LiveNode:
         started = time.perf_counter()
         reason = ""
         try:
-            if self._goal is None:
+            with self._inputs:
+                goal, new_goal, self._goal_new = self._goal, self._goal_new, False
+            if goal is None:
                 raise _Stop("no goal")
-            if self._goal_new:
-                self._goal_new = False
-                self._on_new_goal(self._goal.copy())
+            if new_goal:
+                self._on_new_goal(goal.copy())
             self._check_stamp(stamp_ns)
             with self._inputs:
                 pose, speed, confidence = self._pose_at(stamp_ns)
@@ -339,6 +340,11 @@ class LiveNode:
         except SubterraError as exc:
             reason = "pipeline error"
             self.stats.last_error = str(exc)
+            linear = angular = np.zeros(3)
+            outputs = None
+        except Exception as exc:  # noqa: BLE001 - a bug must stop the robot, not the node
+            reason = "internal error"
+            self.stats.last_error = f"{type(exc).__name__}: {exc}"
             linear = angular = np.zeros(3)
             outputs = None
         self.stats.frames_processed += 1
@@ -485,6 +491,8 @@ class GroundNode(LiveNode):
             self._nav.set_goal(goal[:2])
 
     def _compute(self, frame: _CloudFrame, stamp_ns: int, pose: np.ndarray, speed: float, confidence: float) -> tuple[np.ndarray, np.ndarray, Any]:
+        if self._nav is None:
+            raise _Stop("no goal")
         body = self.config.frames.body
         sensor = frame.frame_id or body
         with self._inputs:

@@ -46,13 +46,15 @@ from subterra.io import ros
 from subterra.live.config import NodeConfig
 from subterra.live.dds import RosParticipant, typestore
 
-__all__ = ["SIL_SCENARIOS", "sil"]
+__all__ = ["SIL_SCENARIOS", "SilError", "sil"]
 
 #: The scenarios each robot can run in the loop (the built-in worlds with a start and a goal).
 SIL_SCENARIOS = {"ground": ("mine", "slopes", "rough", "ledge", "cave"), "drone": ("highbay",)}
 _NS = 1_000_000_000
 #: How long the simulator waits for the node to appear on the domain [s].
 DISCOVERY_TIMEOUT_S = 60.0
+#: The loop gives up when the node has answered none of this many frames in a row.
+MAX_MISSED_IN_A_ROW = 5
 _LIDAR_FRAME = "lidar"
 _CAMERA_FRAME = "camera_depth_optical_frame"
 
@@ -155,7 +157,7 @@ def sil(
             pubs["goal"].publish(ros.pose_stamped_message(goal, stamp_ns=t0, frame_id=cfg.frames.world, typestore=ts))
             rows: list[list[Any]] = []
             latency: list[float] = []
-            missed = 0
+            missed = missed_in_a_row = 0
             behaviour = ""
             true_risk: list[float] = []
             positions: list[np.ndarray] = []
@@ -203,9 +205,14 @@ def sil(
                                     behaviour = kv.value
                 if command is None:
                     missed += 1
+                    missed_in_a_row += 1
+                    if missed_in_a_row >= MAX_MISSED_IN_A_ROW:
+                        raise SilError(f"the node answered none of the last {missed_in_a_row} frames "
+                                       f"(waited {reply_timeout_s:.0f} s for each): {_tail(out_dir / 'node.log')}")
                     vector = [0.0, 0.0, 0.0, 0.0]
                     lat = math.nan
                 else:
+                    missed_in_a_row = 0
                     lat = 1e3 * (time.perf_counter() - sent)
                     latency.append(lat)
                     vector = [command.linear.x, command.linear.y, command.linear.z, command.angular.z]
