@@ -135,6 +135,15 @@ def _start(node) -> threading.Thread:
     return t
 
 
+def _shutdown(node, thread: threading.Thread, *others) -> None:
+    """Stops the node's run, leaves its domain, then closes the test's own endpoints."""
+    node.stop()
+    thread.join(timeout=10)
+    node.close()
+    for other in others:
+        other.close()
+
+
 def _config(domain: int, **rates: float) -> NodeConfig:
     return NodeConfig().replace(
         node={"domain_id": domain, "use_sim_time": True},
@@ -248,10 +257,7 @@ def test_ground_node_over_dds_commands_publishes_every_output_and_stops_when_inp
         time.sleep(0.3)
         driver.poll()
     finally:
-        node.stop()
-        thread.join(timeout=10)
-        node.close()
-        driver.close()
+        _shutdown(node, thread, driver)
     stops = node.stats.stops
     assert stops.get("no goal") == 1 and stops.get("stale frame") == 1, node.stats.summary()
     assert stops.get("frame from the future") == 1 and stops.get("odometry too old") == 1, stops
@@ -327,10 +333,7 @@ def test_watchdog_stops_the_robot_when_frames_stop_and_bad_goals_are_refused():
             time.sleep(0.05)
         driver.poll()
     finally:
-        node.stop()
-        thread.join(timeout=10)
-        node.close()
-        driver.close()
+        _shutdown(node, thread, driver)
     assert node.stats.stops.get("no frame (watchdog)", 0) >= 1
     assert node.stats.goals == 1 and node.stats.rejected.get("/goal_pose") == 2, node.stats.summary()
     twists = [dds.typestore().deserialize_cdr(c, "geometry_msgs/msg/Twist") for c in driver.raw["/cmd_vel"]]
@@ -362,10 +365,7 @@ def test_drone_node_over_dds_flies_from_depth_images_and_publishes_the_belief():
         time.sleep(0.2)
         driver.poll()
     finally:
-        node.stop()
-        thread.join(timeout=10)
-        node.close()
-        driver.close()
+        _shutdown(node, thread, driver)
     assert node.stats.stops == {}, node.stats.summary()
     vx = [c.linear.x for c in commands]
     assert all(math.isfinite(v) for v in vx), vx
@@ -513,12 +513,7 @@ def test_node_with_mavlink_never_streams_a_stop_for_untrusted_inputs():
         driver.send_goal((1.0, 0.0, 0.0))
         received = _drain(peer, 1.2)
     finally:
-        node.stop()
-        thread.join(timeout=10)
-        node.close()
-        driver.close()
-        bridge.close()
-        peer.close()
+        _shutdown(node, thread, driver, bridge, peer)
     assert node.stats.stops.get("no frame (watchdog)", 0) >= 3
     assert {m.get_type() for _, m in received} == {"HEARTBEAT"}
 
@@ -575,11 +570,7 @@ def test_foxglove_view_serves_the_nodes_messages_to_a_websocket_client():
         driver.send_goal((1.0, 0.0, 0.0))  # the watchdog now publishes stops, several a second
         channels, twists = asyncio.run(client())
     finally:
-        node.stop()
-        thread.join(timeout=10)
-        node.close()
-        driver.close()
-        view.close()
+        _shutdown(node, thread, driver, view)
     by_topic = {c["topic"]: c for c in channels.values()}
     assert by_topic["/cmd_vel"]["schemaName"] == "geometry_msgs/msg/Twist" and by_topic["/cmd_vel"]["encoding"] == "cdr"
     assert by_topic["/cmd_vel"]["schemaEncoding"] == "ros2msg" and "Vector3 linear" in by_topic["/cmd_vel"]["schema"]
@@ -690,10 +681,7 @@ def test_drone_node_with_two_cameras_and_a_stale_one():
         assert node.stats.stops.get("camera 1 frame stale") == 1, node.stats.summary()
         assert node.stats.frames_received == 6 and node.stats.frames_dropped == 0, node.stats.summary()
     finally:
-        node.stop()
-        thread.join(timeout=10)
-        node.close()
-        d.close()
+        _shutdown(node, thread, d)
 
 
 def test_sil_refuses_bad_arguments_and_reports_a_node_that_cannot_start(tmp_path):
