@@ -2,6 +2,7 @@
 //!
 //! Conversions, error mapping and GIL release only; every algorithm lives in the core crate.
 
+mod codec;
 mod convert;
 mod errors;
 mod hero;
@@ -913,5 +914,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     qmdp::register(m)?;
     hero::register(m)?;
     pilot::register(m)?;
+    codec::register(m)?;
     Ok(())
 }
