@@ -104,6 +104,8 @@ def check_regular_file(
         FileFormatError: the path is missing, unreadable, not a regular file (a FIFO,
             a device, a folder), empty (with ``allow_empty=False``) or too large.
     """
+    if not isinstance(path, (str, bytes, os.PathLike)):  # an int would be taken as a file descriptor
+        raise FileFormatError(f"cannot read {what}: not a path (got {type(path).__name__} {path!r:.40})")
     try:
         st = os.stat(path)
     except OSError as exc:

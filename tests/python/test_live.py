@@ -121,9 +121,11 @@ class Driver:
             self.depth.publish(ros.image_message(image, stamp_ns=f, frame_id="camera", encoding="16UC1", typestore=ts))
 
     def send_goal(self, xyz: tuple[float, float, float], frame_id: str = "odom", stamp: int = 0) -> None:
-        m = np.eye(4)
-        m[:3, 3] = xyz
-        self.goal.publish(ros.pose_stamped_message(m, stamp_ns=stamp, frame_id=frame_id, typestore=self.ts))
+        """A goal as another ROS 2 node would send it (built field by field: NaN allowed)."""
+        t = self.ts.types
+        pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=xyz[0], y=xyz[1], z=xyz[2]),
+                                           orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+        self.goal.publish(t["geometry_msgs/msg/PoseStamped"](header=ros.header(stamp, frame_id, self.ts), pose=pose))
 
     def close(self) -> None:
         self.dds.close()
@@ -722,3 +724,147 @@ def test_every_input_type_the_loop_publishes_decodes_the_same_with_cyclone():
     }
     for msgtype, msg in messages.items():
         _typed_equal(bytes(ts.serialize_cdr(msg, msgtype)), msgtype)
+
+
+# ---------------------------------------------------------------------- the probe's findings
+
+
+def test_probe_findings_on_the_bridge_are_clear_errors(tmp_path):
+    """What an independent probe of the live surface found, each now a clear subterra error
+    naming the argument or field (it was a segfault, a hang, a dead thread, or a raw
+    TypeError/AttributeError/OverflowError/RecursionError)."""
+    import warnings
+
+    from subterra.errors import FileFormatError, SubterraError
+    from subterra.live.mavlink import MavlinkBridge
+    from subterra.live.sil import sil
+    from subterra.live.view import FoxgloveView, parse_address
+
+    # DDS: a 70 000-character topic crashed Cyclone; type names, QoS, counts and timeouts.
+    with pytest.raises(InputError, match="at most 250 characters"):
+        dds.dds_topic_name("/" + "x" * 70000)
+    with pytest.raises(InputError, match="topic"):
+        dds.dds_topic_name("/ä")
+    with pytest.raises(InputError, match="msgtype"):
+        dds.dds_type_name(None)
+    p = dds.RosParticipant(_domain(20), loopback=True)
+    try:
+        with pytest.raises(ConfigError, match="qos"):
+            p.publisher("/a", "geometry_msgs/msg/Twist", qos=("bogus", "volatile", 1))
+        with pytest.raises(ConfigError, match="depth"):
+            p.publisher("/a", "geometry_msgs/msg/Twist", qos=("reliable", "volatile", 0))
+        pub = p.publisher("/a", "geometry_msgs/msg/Twist")
+        with pytest.raises(InputError, match="msg"):
+            pub.publish(None)
+        sub = p.subscriber("/a", "geometry_msgs/msg/Twist")
+        with pytest.raises(InputError, match="`n`"):
+            sub.take(0)
+        with pytest.raises(InputError, match="timeout_s"):
+            p.wait(float("inf"))
+    finally:
+        p.close()
+    with pytest.raises(InputError, match="closed"):
+        p.publisher("/b", "geometry_msgs/msg/Twist")
+    # The navigator config: a FIFO hung the node and `subterra drive --config`.
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    with pytest.raises(ConfigError, match="not a regular file"):
+        make_node("ground", NodeConfig.from_dict({"ground": {"navigator_config": str(fifo)}}), loopback=True)
+    with pytest.raises(ConfigError, match="navigator.nope|nope"):
+        (tmp_path / "nav.toml").write_text("[navigator]\nnope = 1\n", encoding="utf-8")
+        make_node("ground", NodeConfig.from_dict({"ground": {"navigator_config": str(tmp_path / "nav.toml")}}), loopback=True)
+    # NodeConfig: overflow, nesting, huge integers, non-tables, control characters, duplicates.
+    with pytest.raises(ConfigError, match=r"rates\.map_hz must be finite"):
+        NodeConfig.from_dict({"rates": {"map_hz": 10**400}})
+    deep = tmp_path / "deep.toml"
+    deep.write_text("[node]\nname = " + "[" * 5000 + "]" * 5000 + "\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match="nested too deeply"):
+        NodeConfig.load(deep)
+    digits = tmp_path / "digits.toml"
+    digits.write_text("[node]\ndomain_id = " + "9" * 5000 + "\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match="digits.toml"):
+        NodeConfig.load(digits)
+    with pytest.raises(ConfigError, match="node must be a table"):
+        NodeConfig().replace(node=5)
+    with pytest.raises(ConfigError, match="frames.world"):
+        NodeConfig.from_dict({"frames": {"world": "od\nom"}})
+    with pytest.raises(ConfigError, match="printable"):
+        NodeConfig.from_dict({"node": {"name": "\ud800"}})
+    with pytest.raises(ConfigError, match=r"topics\.odometry\[0\] and topics\.cmd_vel|topics\.cmd_vel and topics\.odometry\[0\]"):
+        NodeConfig.from_dict({"topics": {"cmd_vel": "/odom"}})
+    with pytest.raises(ConfigError, match="drone.preset"):
+        NodeConfig.from_dict({"drone": {"preset": "nope"}})
+    with pytest.raises(FileFormatError, match="not a path"):
+        NodeConfig.load(0)
+    with pytest.raises(InputError, match="config"):
+        make_node("ground", {"node": {}})
+    # MAVLink: a huge finite command killed the streaming thread; a bad port; strings and complex.
+    with pytest.raises(ConfigError, match="port"):
+        MavlinkBridge("udpout:127.0.0.1:99999")
+    peer, port = _mavlink_peer()
+    bridge = MavlinkBridge(f"udpout:127.0.0.1:{port}", stale_after_s=0.3)
+    try:
+        assert bridge.command((0.5, 0.0, 0.0))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            for bad in ((1e300, 0.0, 0.0), ("1", "2", "3"), np.array([1j, 0, 0]), "abc", 5, None):
+                assert not bridge.command(bad), bad
+        assert bridge.stats.rejected == 6
+        time.sleep(1.2)
+        beats = [m for _, m in _drain(peer, 1.2) if m.get_type() == "HEARTBEAT"]
+        assert beats, "the bridge's thread is alive"
+    finally:
+        bridge.close()
+        peer.close()
+    with pytest.raises(SubterraError):
+        MavlinkBridge("/dev/zero")  # a serial link: MissingExtraError without pyserial, else InputError
+    # The view.
+    for bad in (None, 80, "٨٠", "8_0"):
+        with pytest.raises(ConfigError, match="PORT"):
+            parse_address(bad)
+    with FoxgloveView(port=0) as view:
+        with pytest.raises(InputError, match="msgtype"):
+            view.publish("/a", "std_msgs/msg/Bogus", b"")
+        with pytest.raises(InputError, match="cdr"):
+            view.publish("/a", "std_msgs/msg/Header", None)
+    # sil: checked before anything starts.
+    for kwargs, field in (({"reply_timeout_s": float("nan")}, "reply_timeout_s"), ({"time_limit_s": "10"}, "time_limit_s"),
+                          ({"node_config": {"node": {}}}, "node_config"), ({"domain_id": 999}, "domain_id"),
+                          ({"out": tmp_path / "deep.toml"}, "out"), ({"robot": ["ground"]}, "robot")):
+        with pytest.raises(InputError, match=field):
+            sil(**{"robot": "ground", **kwargs})
+
+
+def test_probe_findings_on_the_ros_encoders_are_clear_errors():
+    """The encoders check what they encode: stamps, frames, vectors, poses, sizes, types."""
+    ts = dds.typestore()
+    bad_calls = [
+        (lambda: ros.clock_message(float("nan"), ts), "stamp_ns"),
+        (lambda: ros.clock_message(2**80, ts), "stamp_ns"),
+        (lambda: ros.twist_message((float("nan"), 0, 0), (0, 0, 0), ts), "linear"),
+        (lambda: ros.twist_message(("1", "2", "3"), (0, 0, 0), ts), "linear"),
+        (lambda: ros.twist_message((1, 2), (0, 0, 0), ts), "linear"),
+        (lambda: ros.twist_stamped_message((0, 0, 0), (0, 0, 0), stamp_ns=0, frame_id=None, typestore=ts), "frame_id"),
+        (lambda: ros.pose_stamped_message(np.full((4, 4), np.nan), stamp_ns=0, frame_id="odom", typestore=ts), "world_from_body"),
+        (lambda: ros.pose_stamped_message(np.eye(3), stamp_ns=0, frame_id="odom", typestore=ts), "world_from_body"),
+        (lambda: ros.path_message(np.broadcast_to(np.zeros(2), (10**9, 2)), stamp_ns=0, frame_id="map", typestore=ts), "poses"),
+        (lambda: ros.path_message(np.array([[np.nan, 0.0]]), stamp_ns=0, frame_id="map", typestore=ts), "poses"),
+        (lambda: ros.belief_markers_message(np.zeros(6), np.zeros(2), stamp_ns=0, frame_id="b", typestore=ts), "centres"),
+        (lambda: ros.belief_markers_message(np.zeros((2, 3)), np.array([0.5, 2.0]), stamp_ns=0, frame_id="b", typestore=ts), "probabilities"),
+        (lambda: ros.occupancy_grid_message(None, stamp_ns=0, frame_id="odom", typestore=ts), "risk_map"),
+        (lambda: ros.diagnostics_message([("a", "ok", "m")], stamp_ns=0, typestore=ts), "statuses"),
+        (lambda: ros.diagnostics_message([("a", ["ok"], "m", {})], stamp_ns=0, typestore=ts), "level"),
+        (lambda: ros.diagnostics_message([(None, "ok", "m", {})], stamp_ns=0, typestore=ts), "name"),
+    ]
+    for call, field in bad_calls:  # the broadcast path of 10^9 points is refused before any loop
+        with pytest.raises(InputError, match=field):
+            call()
+
+
+def test_cli_node_checks_its_stats_path_before_running(tmp_path):
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-m", "subterra.cli", "node", "ground", "--loopback", "--duration", "30", "--stats", str(tmp_path)],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "--stats" in run.stderr and "Traceback" not in run.stderr

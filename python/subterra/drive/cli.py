@@ -24,15 +24,18 @@ def _navigator_config(path: str | None) -> dict[str, Any] | None:
     ``navigator``); the navigator checks the keys."""
     if path is None:
         return None
+    from subterra._files import read_regular_text
+    from subterra.errors import FileFormatError
+
     p = Path(path)
+    try:  # a regular file only (a FIFO or /dev/zero is refused at once), UTF-8, bounded
+        text = read_regular_text(p, "navigator config")
+    except FileFormatError as exc:
+        raise ConfigError(f"argument --config: {exc}") from exc
     try:
-        config = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"argument --config: cannot read {p}: {exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"argument --config: {p} is not UTF-8 text (byte {exc.start}: {exc.reason})") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"argument --config: {p} is not valid TOML: {exc}") from exc
+        config = tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, RecursionError, ValueError) as exc:  # ValueError: an integer of > 4300 digits
+        raise ConfigError(f"argument --config: {p} is not valid TOML: {type(exc).__name__ if isinstance(exc, RecursionError) else exc}") from exc
     return config
 
 

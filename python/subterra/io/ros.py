@@ -940,15 +940,65 @@ def _store(typestore: Any):
     return default_typestore() if typestore is None else typestore
 
 
+#: The latest stamp a message can carry [ns]: ``builtin_interfaces/Time.sec`` is an int32.
+MAX_STAMP_NS = (2**31 - 1) * _NS_PER_S
+#: The most poses or markers one encoder call writes (each is a Python object).
+MAX_ENCODED_ITEMS = 100_000
+
+
+def _encoder_stamp(stamp: Any, name: str = "stamp_ns") -> int:
+    value = _checked_stamp(stamp, name)
+    if not 0 <= value <= MAX_STAMP_NS:
+        raise InputError(f"argument `{name}` must be in [0, {MAX_STAMP_NS}] ns (a ROS time), got {value}")
+    return value
+
+
+def _encoder_frame(frame_id: Any, name: str = "frame_id") -> str:
+    if not isinstance(frame_id, str) or len(frame_id) > 1024 or not frame_id.isprintable():
+        raise InputError(f"argument `{name}` must be a frame id (printable text), got {frame_id!r:.60}")
+    return frame_id
+
+
+def _encoder_text(value: Any, name: str) -> str:
+    if not isinstance(value, str) or len(value) > 65536 or "\x00" in value:
+        raise InputError(f"argument `{name}` must be text, got {value!r:.60}")
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raise InputError(f"argument `{name}` must be valid text (a lone surrogate at {exc.start})") from exc
+    return value
+
+
+def _encoder_reals(value: Any, name: str, shape: tuple[int | None, ...]) -> np.ndarray:
+    """``value`` as a finite float64 array of ``shape`` (None: any length), checked on the view."""
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"argument `{name}` must be an array of numbers, got {type(value).__name__}") from exc
+    if raw.dtype.kind not in "iuf":
+        raise InputError(f"argument `{name}` must hold real numbers, got dtype {raw.dtype}")
+    if raw.ndim != len(shape) or any(want is not None and got != want for got, want in zip(raw.shape, shape)):
+        want = "(" + ", ".join("N" if w is None else str(w) for w in shape) + ")"
+        raise InputError(f"argument `{name}` must have shape {want}, got {raw.shape}")
+    if raw.ndim and raw.shape[0] > MAX_ENCODED_ITEMS:
+        raise InputError(f"argument `{name}`: at most {MAX_ENCODED_ITEMS} rows per message, got {raw.shape[0]}")
+    out = raw.astype(np.float64)
+    if not np.isfinite(out).all():
+        raise InputError(f"argument `{name}` must be finite, got NaN or inf")
+    return out
+
+
 def time_message(stamp: int, typestore: Any = None):
-    """``builtin_interfaces/Time`` of ``stamp`` [ns]."""
+    """``builtin_interfaces/Time`` of ``stamp`` [ns] (an integer in [0, :data:`MAX_STAMP_NS`])."""
     ts = _store(typestore)
+    stamp = _encoder_stamp(stamp)
     return ts.types["builtin_interfaces/msg/Time"](sec=int(stamp // _NS_PER_S), nanosec=int(stamp % _NS_PER_S))
 
 
 def header(stamp: int, frame_id: str, typestore: Any = None):
     """``std_msgs/Header`` (ROS 1 typestores get ``seq`` 0)."""
     ts = _store(typestore)
+    frame_id = _encoder_frame(frame_id)
     cls = ts.types["std_msgs/msg/Header"]
     kwargs = {"stamp": time_message(stamp, ts), "frame_id": frame_id}
     if "seq" in cls.__dataclass_fields__:
@@ -1152,8 +1202,8 @@ def twist_message(linear: Sequence[float], angular: Sequence[float], typestore: 
     """``geometry_msgs/Twist`` of ``linear`` [m/s] and ``angular`` [rad/s] (3 numbers each)."""
     ts = _store(typestore)
     vec = ts.types["geometry_msgs/msg/Vector3"]
-    lx, ly, lz = (float(v) for v in linear)
-    ax, ay, az = (float(v) for v in angular)
+    lx, ly, lz = (float(v) for v in _encoder_reals(linear, "linear", (3,)))
+    ax, ay, az = (float(v) for v in _encoder_reals(angular, "angular", (3,)))
     return ts.types["geometry_msgs/msg/Twist"](linear=vec(x=lx, y=ly, z=lz), angular=vec(x=ax, y=ay, z=az))
 
 
@@ -1166,7 +1216,8 @@ def twist_stamped_message(linear: Sequence[float], angular: Sequence[float], *, 
 def pose_stamped_message(world_from_body: np.ndarray, *, stamp_ns: int, frame_id: str, typestore: Any = None):
     """``geometry_msgs/PoseStamped`` of a 4x4 pose."""
     ts = _store(typestore)
-    return ts.types["geometry_msgs/msg/PoseStamped"](header=header(stamp_ns, frame_id, ts), pose=_pose_msg(np.asarray(world_from_body, np.float64), ts))
+    pose = _checked_rigid(world_from_body, "argument `world_from_body`")
+    return ts.types["geometry_msgs/msg/PoseStamped"](header=header(stamp_ns, frame_id, ts), pose=_pose_msg(pose, ts))
 
 
 def path_message(poses: Iterable[tuple[int, np.ndarray]] | np.ndarray, *, stamp_ns: int, frame_id: str, typestore: Any = None):
@@ -1174,9 +1225,8 @@ def path_message(poses: Iterable[tuple[int, np.ndarray]] | np.ndarray, *, stamp_
     array of points (each pose then stamped ``stamp_ns`` and heading along the path)."""
     ts = _store(typestore)
     if isinstance(poses, np.ndarray):
-        pts = np.asarray(poses, np.float64)
-        if pts.ndim != 2 or pts.shape[1] not in (2, 3):
-            raise InputError(f"argument `poses`: expected (N, 2) or (N, 3) points, got shape {pts.shape}")
+        width = poses.shape[1] if poses.ndim == 2 and poses.shape[1] in (2, 3) else 3
+        pts = _encoder_reals(poses, "poses", (None, width))
         items = []
         for i, p in enumerate(pts):
             d = (pts[min(i + 1, len(pts) - 1)] - pts[max(i - 1, 0)])[:2] if len(pts) > 1 else np.zeros(2)
@@ -1186,8 +1236,16 @@ def path_message(poses: Iterable[tuple[int, np.ndarray]] | np.ndarray, *, stamp_
             m[: pts.shape[1], 3] = p
             items.append((stamp_ns, m))
     else:
-        items = list(poses)
-    stamped = [ts.types["geometry_msgs/msg/PoseStamped"](header=header(s, frame_id, ts), pose=_pose_msg(np.asarray(m, np.float64), ts))
+        try:
+            items = list(poses)
+        except TypeError as exc:
+            raise InputError(f"argument `poses` must be (stamp_ns, 4x4 pose) items or an (N, 2|3) array, got {type(poses).__name__}") from exc
+        if len(items) > MAX_ENCODED_ITEMS:
+            raise InputError(f"argument `poses`: at most {MAX_ENCODED_ITEMS} poses per message, got {len(items)}")
+        if not all(isinstance(item, tuple) and len(item) == 2 for item in items):
+            raise InputError("argument `poses` must be (stamp_ns, 4x4 pose) items or an (N, 2|3) array")
+        items = [(s, _checked_rigid(m, f"argument `poses[{i}]`")) for i, (s, m) in enumerate(items)]
+    stamped = [ts.types["geometry_msgs/msg/PoseStamped"](header=header(s, frame_id, ts), pose=_pose_msg(m, ts))
                for s, m in items]
     return ts.types["nav_msgs/msg/Path"](header=header(stamp_ns, frame_id, ts), poses=stamped)
 
@@ -1203,6 +1261,12 @@ def occupancy_values(risk: np.ndarray, observed: np.ndarray, lethal_risk: float)
     return out
 
 
+def _risk_map(risk_map: Any) -> Any:
+    if not all(hasattr(risk_map, a) for a in ("layer", "layer_names", "extent", "resolution", "lethal_risk")):
+        raise InputError(f"argument `risk_map` must be a subterra.RiskMap, got {type(risk_map).__name__}")
+    return risk_map
+
+
 def _map_origin(risk_map: Any, z: float = 0.0) -> np.ndarray:
     origin = np.eye(4)
     origin[0, 3], origin[1, 3], origin[2, 3] = risk_map.extent[0], risk_map.extent[2], z
@@ -1214,7 +1278,7 @@ def occupancy_grid_message(risk_map: Any, *, stamp_ns: int, frame_id: str, types
     meaning (:func:`occupancy_values`: lethal 100, unobserved -1); ``info.origin`` is the
     corner of cell (0, 0), rows along world y."""
     ts = _store(typestore)
-    risk = risk_map.layer("risk")
+    risk = _risk_map(risk_map).layer("risk")
     ny, nx = risk.shape
     info = ts.types["nav_msgs/msg/MapMetaData"](
         map_load_time=time_message(stamp_ns, ts), resolution=float(risk_map.resolution),
@@ -1234,6 +1298,9 @@ def grid_map_message(risk_map: Any, *, stamp_ns: int, frame_id: str, layers: Ite
     ts = _store(typestore)
     if "grid_map_msgs/msg/GridMap" not in ts.types:
         raise InputError("argument `typestore` has no grid_map_msgs/msg/GridMap: use subterra.io.ros.default_typestore()")
+    _risk_map(risk_map)
+    if layers is not None and (isinstance(layers, str) or not isinstance(layers, (list, tuple)) or not all(isinstance(n, str) for n in layers)):
+        raise InputError(f"argument `layers` must be a list of layer names (or None: all), got {layers!r:.60}")
     names = list(risk_map.layer_names if layers is None else layers)
     unknown = [n for n in names if n not in risk_map.layer_names]
     if unknown:
@@ -1296,10 +1363,16 @@ def belief_markers_message(centres: np.ndarray, probabilities: np.ndarray, *, st
     -> red and opacity by belief relative to the largest), marker 1 a ``TEXT_VIEW_FACING`` with
     ``P(free)`` when given."""
     ts = _store(typestore)
-    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-    probs = np.asarray(probabilities, dtype=np.float64).reshape(-1)
+    c = _encoder_reals(centres, "centres", (None, 3))
+    probs = _encoder_reals(probabilities, "probabilities", (None,))
     if probs.shape[0] != c.shape[0]:
         raise InputError(f"argument `probabilities`: expected {c.shape[0]} values, got {probs.shape[0]}")
+    if probs.size and (probs.min() < 0.0 or probs.max() > 1.0):
+        raise InputError(f"argument `probabilities` must be in [0, 1], got {probs.min():g} .. {probs.max():g}")
+    if p_free is not None:
+        p_free = float(_encoder_reals(p_free, "p_free", ()))
+        if not 0.0 <= p_free <= 1.0:
+            raise InputError(f"argument `p_free` must be in [0, 1], got {p_free}")
     t = ts.types
     point, colour = t["geometry_msgs/msg/Point"], t["std_msgs/msg/ColorRGBA"]
     rel = probs / probs.max() if probs.size and probs.max() > 0 else np.ones_like(probs)
@@ -1323,11 +1396,21 @@ def diagnostics_message(statuses: Iterable[tuple[str, str, str, Mapping[str, Any
     ``level`` one of :data:`DIAGNOSTIC_LEVELS`, ``values`` a mapping written as key/value strings."""
     ts = _store(typestore)
     t = ts.types
+    hardware_id = _encoder_text(hardware_id, "hardware_id")
+    try:
+        items = list(statuses)
+    except TypeError as exc:
+        raise InputError(f"argument `statuses` must be (name, level, message, values) items, got {type(statuses).__name__}") from exc
     status = []
-    for name, level, message, values in statuses:
-        if level not in DIAGNOSTIC_LEVELS:
-            raise InputError(f"argument `statuses`: level must be one of {', '.join(DIAGNOSTIC_LEVELS)}, got {level!r}")
-        kv = [t["diagnostic_msgs/msg/KeyValue"](key=str(k), value=str(v)) for k, v in values.items()]
-        status.append(t["diagnostic_msgs/msg/DiagnosticStatus"](level=DIAGNOSTIC_LEVELS[level], name=name, message=message,
+    for i, item in enumerate(items):
+        if not (isinstance(item, tuple) and len(item) == 4 and isinstance(item[3], Mapping)):
+            raise InputError(f"argument `statuses[{i}]` must be (name, level, message, values: a mapping), got {item!r:.80}")
+        name, level, message, values = item
+        if not isinstance(level, str) or level not in DIAGNOSTIC_LEVELS:
+            raise InputError(f"argument `statuses[{i}]`: level must be one of {', '.join(DIAGNOSTIC_LEVELS)}, got {level!r:.40}")
+        kv = [t["diagnostic_msgs/msg/KeyValue"](key=_encoder_text(str(k), f"statuses[{i}] key"), value=_encoder_text(str(v), f"statuses[{i}] value"))
+              for k, v in values.items()]
+        status.append(t["diagnostic_msgs/msg/DiagnosticStatus"](level=DIAGNOSTIC_LEVELS[level], name=_encoder_text(name, f"statuses[{i}] name"),
+                                                                message=_encoder_text(message, f"statuses[{i}] message"),
                                                                 hardware_id=hardware_id, values=kv))
     return t["diagnostic_msgs/msg/DiagnosticArray"](header=header(stamp_ns, "", ts), status=status)

@@ -8,6 +8,8 @@ import signal
 import sys
 from typing import Any
 
+from subterra.errors import InputError
+
 __all__ = ["register_cli"]
 
 
@@ -52,6 +54,12 @@ def _node(args: argparse.Namespace) -> int:
     from subterra.live.node import make_node, write_stats
 
     config = NodeConfig.load(args.config) if args.config else NodeConfig()
+    if args.stats:  # found out now, not after the run
+        from pathlib import Path
+
+        stats = Path(args.stats)
+        if stats.is_dir() or (stats.exists() and not stats.is_file()) or not stats.parent.is_dir():
+            raise InputError(f"argument --stats must be a file in an existing folder, got {args.stats}")
     changes: dict[str, Any] = {}
     if args.domain_id is not None:
         changes["domain_id"] = args.domain_id

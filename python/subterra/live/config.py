@@ -177,6 +177,10 @@ class NodeConfig:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"node config is not valid TOML ({exc}): {path}") from exc
+        except RecursionError:
+            raise ConfigError(f"node config is not valid TOML (nested too deeply): {path}") from None
+        except ValueError as exc:  # e.g. an integer of more than 4300 digits
+            raise ConfigError(f"node config is not valid TOML ({exc}): {path}") from exc
         try:
             return cls.from_dict(data)
         except ConfigError as exc:
@@ -202,6 +206,8 @@ class NodeConfig:
         for name, values in sections.items():
             if name not in data:
                 raise ConfigError(f"node config: unknown section {name!r}")
+            if not isinstance(values, dict):
+                raise ConfigError(f"node config: {name} must be a table (a dict), got {type(values).__name__}")
             data[name] = {**data[name], **values}
         return NodeConfig.from_dict(data)
 
@@ -211,8 +217,10 @@ class NodeConfig:
         if not 0 <= n.domain_id <= 232:
             raise ConfigError(f"node.domain_id must be in [0, 232], got {n.domain_id}")
         for name, frame in (("frames.world", self.frames.world), ("frames.body", self.frames.body)):
-            if not frame or frame.startswith("/"):
-                raise ConfigError(f"{name} must be a non-empty frame id without a leading '/', got {frame!r}")
+            if not frame or frame.startswith("/") or not frame.isascii() or not all(c.isprintable() and not c.isspace() for c in frame):
+                raise ConfigError(f"{name} must be a non-empty frame id of printable ASCII without spaces or a leading '/', got {frame!r:.80}")
+        if not n.name or not n.name.isprintable() or len(n.name) > 255:
+            raise ConfigError(f"node.name must be printable text of 1 to 255 characters, got {n.name!r:.80}")
         if self.frames.world == self.frames.body:
             raise ConfigError(f"frames.world and frames.body must differ, both are {self.frames.world!r}")
         from subterra.live.dds import dds_topic_name
@@ -227,6 +235,14 @@ class NodeConfig:
                     dds_topic_name(topic)
                 except Exception as exc:
                     raise ConfigError(f"{label}: {exc}") from None
+        seen: dict[str, str] = {}
+        for f in dataclasses.fields(Topics):
+            value = getattr(self.topics, f.name)
+            for i, topic in enumerate(value if isinstance(value, tuple) else (value,)):
+                label = f"topics.{f.name}" + (f"[{i}]" if isinstance(value, tuple) else "")
+                if topic and topic.strip("/") in seen:
+                    raise ConfigError(f"{label} and {seen[topic.strip('/')]} are both {topic!r}: each topic has one role")
+                seen[topic.strip("/")] = label
         if len(self.topics.depth) != len(self.topics.camera_info):
             raise ConfigError(f"topics.depth and topics.camera_info must pair one to one, got {len(self.topics.depth)} and "
                               f"{len(self.topics.camera_info)}")
@@ -250,8 +266,16 @@ class NodeConfig:
                 raise ConfigError(f"safety.{f.name} must be in (0, 60] s, got {value}")
         if not (math.isfinite(self.ground.void_min_gap_deg) and 0.0 <= self.ground.void_min_gap_deg <= 90.0):
             raise ConfigError(f"ground.void_min_gap_deg must be in [0, 90], got {self.ground.void_min_gap_deg}")
-        if self.drone.seed < 0:
-            raise ConfigError(f"drone.seed must be >= 0, got {self.drone.seed}")
+        if not 0 <= self.drone.seed < 2**64:
+            raise ConfigError(f"drone.seed must be in [0, 2^64), got {self.drone.seed}")
+        from subterra._core import Pilot, preset_names
+
+        if self.drone.preset not in preset_names():
+            raise ConfigError(f"drone.preset must be one of {', '.join(preset_names())}, got {self.drone.preset!r:.80}")
+        if self.drone.controller not in Pilot.controllers():
+            raise ConfigError(f"drone.controller must be one of {', '.join(Pilot.controllers())}, got {self.drone.controller!r:.80}")
+        if "\x00" in self.ground.navigator_config or not self.ground.navigator_config.isprintable():
+            raise ConfigError(f"ground.navigator_config must be a file path (printable), got {self.ground.navigator_config!r:.80}")
 
 
 def _section(name: str, factory: Any, values: dict[str, Any]) -> Any:
@@ -277,18 +301,20 @@ def _typed(label: str, default: Any, value: Any) -> Any:
         return value
     if isinstance(default, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{label} must be a number, got {value!r}")
+            raise ConfigError(f"{label} must be a number, got {value!r:.80}")
+        if isinstance(value, int) and abs(value) > 2**63:
+            raise ConfigError(f"{label} must be finite, got an integer of {len(str(abs(value)))} digits")
         if not math.isfinite(float(value)):
             raise ConfigError(f"{label} must be finite, got {value!r}")
         return float(value)
     if isinstance(default, str):
-        if not isinstance(value, str) or len(value) > 4096:
-            raise ConfigError(f"{label} must be a string (up to 4096 characters), got {value!r:.80}")
+        if not isinstance(value, str) or len(value) > 4096 or not value.isprintable():
+            raise ConfigError(f"{label} must be printable text (up to 4096 characters), got {value!r:.80}")
         return value
     if isinstance(default, tuple):
         items = [value] if isinstance(value, str) else value
-        if not isinstance(items, list) or not all(isinstance(v, str) for v in items):
-            raise ConfigError(f"{label} must be a topic name or a list of them, got {value!r:.80}")
+        if not isinstance(items, list) or len(items) > 64 or not all(isinstance(v, str) and len(v) <= 4096 for v in items):
+            raise ConfigError(f"{label} must be a topic name or a list of up to 64 of them, got {value!r:.80}")
         return tuple(items)
     raise ConfigError(f"{label}: unsupported setting type")  # pragma: no cover
 

@@ -32,6 +32,7 @@ goals or commands. docs/live.md says how to keep it to one machine or interface.
 from __future__ import annotations
 
 import functools
+import math
 import os
 import threading
 from collections.abc import Iterable
@@ -64,6 +65,12 @@ QOS_PROFILES: dict[str, tuple[str, str, int]] = {
 
 #: Largest DDS domain id ROS 2 allows (232 for Cyclone's port mapping).
 MAX_DOMAIN_ID = 232
+#: Deepest history queue a QoS may ask for (samples).
+MAX_QUEUE_DEPTH = 1000
+#: Longest topic name (without the leading slash): ROS 2 caps a DDS topic at 255 characters.
+MAX_TOPIC_CHARS = 250
+_NAME_START = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ_")
+_NAME_CHARS = _NAME_START | frozenset("0123456789")
 
 def typestore() -> Any:
     """The ``rosbags`` typestore the bridge speaks: ROS 2 Humble with ``grid_map_msgs``
@@ -78,9 +85,11 @@ def dds_topic_name(topic: str) -> str:
     """The DDS topic of a ROS 2 topic: ``/cmd_vel`` -> ``rt/cmd_vel`` (a name without a
     leading slash is taken from the root namespace)."""
     if not isinstance(topic, str) or not topic.strip("/"):
-        raise InputError(f"argument `topic` must be a non-empty ROS topic name, got {topic!r}")
+        raise InputError(f"argument `topic` must be a non-empty ROS topic name, got {topic!r:.80}")
     name = topic.strip("/")
-    if "//" in name or not all(part and (part[0].isalpha() or part[0] == "_") and all(c.isalnum() or c == "_" for c in part)
+    if len(name) > MAX_TOPIC_CHARS:
+        raise InputError(f"argument `topic` must be at most {MAX_TOPIC_CHARS} characters (ROS 2's limit), got {len(name)}")
+    if "//" in name or not all(part and (part[0] in _NAME_START) and all(c in _NAME_CHARS for c in part)
                                for part in name.split("/")):
         raise InputError(f"argument `topic` {topic!r} is not a valid ROS 2 name (letters, digits and _ between slashes, "
                          "each token starting with a letter or _)")
@@ -90,8 +99,10 @@ def dds_topic_name(topic: str) -> str:
 def dds_type_name(msgtype: str) -> str:
     """The DDS type of a ROS 2 message type: ``sensor_msgs/msg/Image`` ->
     ``sensor_msgs::msg::dds_::Image_``."""
+    if not isinstance(msgtype, str):
+        raise InputError(f"argument `msgtype` must be a ROS 2 type name such as sensor_msgs/msg/Image, got {type(msgtype).__name__}")
     parts = msgtype.split("/")
-    if len(parts) != 3 or parts[1] != "msg" or not all(parts):
+    if len(parts) != 3 or parts[1] != "msg" or not all(p and all(c in _NAME_CHARS for c in p) for p in parts):
         raise InputError(f"argument `msgtype` must look like pkg/msg/Type, got {msgtype!r}")
     return f"{parts[0]}::msg::dds_::{parts[2]}_"
 
@@ -170,7 +181,15 @@ def _qos(profile: str | tuple[str, str, int]) -> Any:
         if profile not in QOS_PROFILES:
             raise ConfigError(f"qos must be one of {', '.join(QOS_PROFILES)}, got {profile!r}")
         profile = QOS_PROFILES[profile]
+    if not (isinstance(profile, tuple) and len(profile) == 3):
+        raise ConfigError(f"qos must be a profile name ({', '.join(QOS_PROFILES)}) or (reliability, durability, depth), "
+                          f"got {profile!r:.80}")
     reliability, durability, depth = profile
+    if reliability not in ("reliable", "best_effort") or durability not in ("volatile", "transient_local"):
+        raise ConfigError(f"qos: reliability must be reliable or best_effort and durability volatile or transient_local, "
+                          f"got {reliability!r:.40}, {durability!r:.40}")
+    if isinstance(depth, bool) or not isinstance(depth, int) or not 1 <= depth <= MAX_QUEUE_DEPTH:
+        raise ConfigError(f"qos: the history depth must be an integer in [1, {MAX_QUEUE_DEPTH}], got {depth!r:.40}")
     policies = [
         Policy.Reliability.Reliable(duration(seconds=1)) if reliability == "reliable" else Policy.Reliability.BestEffort,
         Policy.Durability.TransientLocal if durability == "transient_local" else Policy.Durability.Volatile,
@@ -202,7 +221,16 @@ class RosPublisher:
     bytes_sent: int = 0
 
     def publish(self, msg: Any) -> None:
-        cdr = msg if isinstance(msg, (bytes, bytearray, memoryview)) else typestore().serialize_cdr(msg, self.msgtype)
+        if isinstance(msg, (bytes, bytearray, memoryview)):
+            cdr = msg
+        else:
+            if getattr(msg, "__msgtype__", None) != self.msgtype:
+                raise InputError(f"argument `msg` must be a {self.msgtype} message (or its CDR bytes) for {self.topic}, "
+                                 f"got {getattr(msg, '__msgtype__', type(msg).__name__)}")
+            try:
+                cdr = typestore().serialize_cdr(msg, self.msgtype)
+            except Exception as exc:  # rosbags raises several types for a field of the wrong kind
+                raise InputError(f"argument `msg`: a {self.msgtype} that cannot be serialized ({type(exc).__name__}: {exc})") from exc
         sample = self._cls.__new__(self._cls)
         sample._cdr = bytes(cdr)
         self._writer.write(sample)
@@ -232,6 +260,7 @@ class RosSubscriber:
     last_error: str = ""
 
     def take(self, n: int = 64) -> list[Any]:
+        n = _count(n)
         out = []
         ts = typestore()
         for sample in self._reader.take(n):
@@ -248,12 +277,24 @@ class RosSubscriber:
 
     def take_raw(self, n: int = 64) -> list[bytes]:
         """The waiting samples' CDR bytes (with the 4-byte encapsulation header), undecoded."""
-        return [bytes(s) for s in self._reader.take(n) if isinstance(s, _Cdr)]
+        return [bytes(s) for s in self._reader.take(_count(n)) if isinstance(s, _Cdr)]
 
     @property
     def matched(self) -> int:
         """How many publications (writers) this subscriber has found."""
         return len(self._reader.get_matched_publications())
+
+
+def _count(n: Any) -> int:
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_QUEUE_DEPTH:
+        raise InputError(f"argument `n` must be an integer in [1, {MAX_QUEUE_DEPTH}], got {n!r:.40}")
+    return n
+
+
+def _seconds(value: Any, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and 0.0 <= value <= 3600.0):
+        raise InputError(f"argument `{name}` must be a number of seconds in [0, 3600], got {value!r:.40}")
+    return float(value)
 
 
 class RosParticipant:
@@ -293,7 +334,10 @@ class RosParticipant:
     def _topic(self, topic: str, msgtype: str) -> Any:
         from cyclonedds.topic import Topic
 
+        if self._dp is None:
+            raise InputError("this RosParticipant is closed")
         name = dds_topic_name(topic)
+        dds_type_name(msgtype)
         with self._lock:
             if name in self._topics:
                 existing, kind = self._topics[name]
@@ -330,13 +374,18 @@ class RosParticipant:
         data is waiting."""
         from cyclonedds.util import duration
 
-        return self._waitset.wait(duration(seconds=max(0.0, float(timeout_s)))) > 0
+        timeout_s = _seconds(timeout_s, "timeout_s")
+        if self._waitset is None:
+            raise InputError("this RosParticipant is closed")
+        return self._waitset.wait(duration(seconds=timeout_s)) > 0
 
     def wait_matched(self, endpoints: Iterable[RosPublisher | RosSubscriber], timeout_s: float) -> bool:
         """Waits until each of ``endpoints`` has found at least one peer (discovery)."""
         import time
 
-        deadline = time.monotonic() + timeout_s
+        deadline = time.monotonic() + _seconds(timeout_s, "timeout_s")
+        if not isinstance(endpoints, (list, tuple)) or not all(isinstance(e, (RosPublisher, RosSubscriber)) for e in endpoints):
+            raise InputError("argument `endpoints` must be a list of this participant's publishers and subscribers")
         endpoints = list(endpoints)
         while time.monotonic() < deadline:
             if all(e.matched > 0 for e in endpoints):

@@ -40,6 +40,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -58,16 +59,38 @@ _MAV_STATE_ACTIVE = 4
 _MAV_COMP_ID_ONBOARD_COMPUTER = 191
 
 
+#: The largest speed [m/s] and yaw rate [rad/s] the bridge sends; a larger command is refused.
+MAX_SPEED_M_S = 50.0
+MAX_YAW_RATE_RAD_S = 10.0
+
+
+def _velocity(linear: Any, yaw_rate: Any) -> np.ndarray:
+    """``(vx, vy, vz, yaw_rate)`` as four finite real numbers within the bridge's limits."""
+    try:
+        v = np.asarray(linear)
+        w = np.asarray(yaw_rate)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"argument `linear`/`yaw_rate` must be numbers, got {linear!r:.60}, {yaw_rate!r:.40}") from exc
+    if v.dtype.kind not in "fiu" or w.dtype.kind not in "fiu" or v.shape != (3,) or w.shape != ():
+        raise InputError(f"argument `linear` must be 3 real numbers and `yaw_rate` one, got {linear!r:.60}, {yaw_rate!r:.40}")
+    out = np.append(v.astype(np.float64), float(w))
+    if not np.all(np.isfinite(out)):
+        raise InputError(f"the command must be finite, got {out.tolist()}")
+    if np.any(np.abs(out[:3]) > MAX_SPEED_M_S) or abs(out[3]) > MAX_YAW_RATE_RAD_S:
+        raise InputError(f"the command must be within {MAX_SPEED_M_S} m/s and {MAX_YAW_RATE_RAD_S} rad/s, got {out.tolist()}")
+    return out
+
+
 def flu_to_frd(linear: Sequence[float], yaw_rate: float) -> tuple[float, float, float, float]:
     """A body velocity and yaw rate from ROS's FLU axes to MAVLink's FRD axes."""
-    x, y, z = (float(v) for v in linear)
-    return x, -y, -z, -float(yaw_rate)
+    x, y, z, w = (float(v) for v in _velocity(linear, yaw_rate))
+    return x, -y, -z, -w
 
 
 def enu_to_ned(linear: Sequence[float], yaw_rate: float) -> tuple[float, float, float, float]:
     """A world velocity (ENU, REP 103) and yaw rate (about up) to NED (about down)."""
-    e, n, u = (float(v) for v in linear)
-    return n, e, -u, -float(yaw_rate)
+    e, n, u, w = (float(v) for v in _velocity(linear, yaw_rate))
+    return n, e, -u, -w
 
 
 @dataclass
@@ -80,6 +103,17 @@ class MavlinkStats:
     rejected: int = 0
     streaming: bool = False
     events: list[str] = field(default_factory=list)
+
+
+def _check_connection(connection: Any) -> None:
+    """A pymavlink connection string: ``udp*:HOST:PORT`` / ``tcp*:HOST:PORT`` with a port in
+    1..65535, or a device path."""
+    if not isinstance(connection, str) or not connection or len(connection) > 1024 or not connection.isprintable():
+        raise ConfigError(f"argument `connection` must be a pymavlink connection string, got {connection!r:.80}")
+    if connection.startswith(("udp", "tcp")):
+        _, _, port = connection.rpartition(":")
+        if not (port.isascii() and port.isdigit() and 1 <= int(port) <= 65535):
+            raise ConfigError(f"argument `connection` {connection!r}: the port must be in 1..65535")
 
 
 class MavlinkBridge:
@@ -110,7 +144,7 @@ class MavlinkBridge:
         stale_after_s: float = 0.5,
         baud: int = 921600,
     ) -> None:
-        if frame not in FRAMES:
+        if not isinstance(frame, str) or frame not in FRAMES:
             raise ConfigError(f"argument `frame` must be one of {', '.join(FRAMES)}, got {frame!r}")
         for name, value in (("target_system", target_system), ("target_component", target_component), ("system_id", system_id)):
             if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 255:
@@ -121,18 +155,19 @@ class MavlinkBridge:
             raise ConfigError(f"argument `stale_after_s` must be in (0, 10] s, got {stale_after_s!r}")
         if isinstance(baud, bool) or not isinstance(baud, int) or not 1200 <= baud <= 12_000_000:
             raise ConfigError(f"argument `baud` must be an integer in [1200, 12000000], got {baud!r}")
-        if not isinstance(connection, str) or not connection:
-            raise ConfigError(f"argument `connection` must be a pymavlink connection string, got {connection!r}")
+        _check_connection(connection)
         mavutil = require("pymavlink.mavutil", "mavlink", "The MAVLink bridge")
         self.frame = frame
         self.target = (target_system, target_component)
         self.rate_hz = float(rate_hz)
         self.stale_after_s = float(stale_after_s)
         self.stats = MavlinkStats()
+        if not connection.startswith(("udp", "tcp")):  # a serial device: pymavlink needs pyserial
+            require("serial", "mavlink", "A serial MAVLink link")
         try:
             self._conn = mavutil.mavlink_connection(connection, baud=int(baud), source_system=system_id,
                                                     source_component=_MAV_COMP_ID_ONBOARD_COMPUTER)
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, OverflowError) as exc:
             raise InputError(f"argument `connection`: cannot open {connection!r}: {exc}") from exc
         self._lock = threading.Lock()
         self._setpoint = (0.0, 0.0, 0.0, 0.0)
@@ -147,14 +182,17 @@ class MavlinkBridge:
     def command(self, linear: Sequence[float], yaw_rate: float = 0.0, *, fresh: bool = True) -> bool:
         """The newest command (FLU body, or ENU world with ``frame="local"``) [m/s, rad/s].
         ``fresh=False`` (a stop because the inputs cannot be trusted) counts as no command:
-        the stream stops after ``stale_after_s``. Returns whether it was taken (a
-        non-finite command is not)."""
-        values = np.asarray([*linear, yaw_rate], dtype=np.float64)
-        if values.shape != (4,) or not np.all(np.isfinite(values)):
-            self.stats.rejected += 1
-            return False
+        the stream stops after ``stale_after_s``. Returns whether it was taken: a command
+        that is not 3 + 1 finite real numbers, or is beyond :data:`MAX_SPEED_M_S` /
+        :data:`MAX_YAW_RATE_RAD_S`, is refused and counted in ``stats.rejected``."""
         convert = flu_to_frd if self.frame == "body" else enu_to_ned
-        setpoint = convert(values[:3], values[3])
+        try:
+            setpoint = convert(linear, yaw_rate)
+        except InputError as exc:
+            self.stats.rejected += 1
+            self.stats.events.append(f"refused: {exc}")
+            del self.stats.events[:-100]
+            return False
         with self._lock:
             if fresh:
                 self._setpoint = setpoint
@@ -201,9 +239,11 @@ class MavlinkBridge:
                         else:
                             self._send(self._setpoint)
                 self._conn.recv_match(blocking=False)  # drain what the autopilot sends (heartbeats, acks)
-            except OSError as exc:  # the link went away: say so once, keep trying
+            except Exception as exc:  # noqa: BLE001 - the link went away, or a send failed: stop the stream, keep beating
+                with self._lock:
+                    self.stats.streaming = False
                 if not self.stats.events or not self.stats.events[-1].startswith("link error"):
-                    self.stats.events.append(f"link error: {exc}")
+                    self.stats.events.append(f"link error: {type(exc).__name__}: {exc}")
             self._stop.wait(period)
 
     def close(self) -> None:

@@ -61,7 +61,7 @@ from typing import Any
 
 import numpy as np
 
-from subterra.errors import InputError, SubterraError
+from subterra.errors import ConfigError, InputError, SubterraError
 from subterra.io import ros
 from subterra.live.config import NodeConfig
 from subterra.live.dds import RosParticipant, typestore
@@ -132,6 +132,16 @@ class LiveNode:
     robot = ""
 
     def __init__(self, config: NodeConfig | None = None, *, loopback: bool = False, mavlink: Any = None, view: Any = None) -> None:
+        from subterra.live.mavlink import MavlinkBridge
+        from subterra.live.view import FoxgloveView
+
+        if config is not None and not isinstance(config, NodeConfig):
+            raise InputError(f"argument `config` must be a NodeConfig (NodeConfig.load(path), NodeConfig.from_dict(d)), "
+                             f"got {type(config).__name__}")
+        if mavlink is not None and not isinstance(mavlink, MavlinkBridge):
+            raise InputError(f"argument `mavlink` must be a MavlinkBridge, got {type(mavlink).__name__}")
+        if view is not None and not isinstance(view, FoxgloveView):
+            raise InputError(f"argument `view` must be a FoxgloveView, got {type(view).__name__}")
         self.config = config or NodeConfig()
         #: A :class:`~subterra.live.mavlink.MavlinkBridge` that gets every command too (or None).
         self.mavlink = mavlink
@@ -466,8 +476,7 @@ class GroundNode(LiveNode):
 
     def _setup(self) -> None:
         c = self.config
-        self._nav = None
-        self._nav_config = _navigator_config(c.ground.navigator_config)
+        self._nav = self._make_navigator(_navigator_config(c.ground.navigator_config))  # a bad setting fails here, named
         self._subs.append((self._dds.subscriber(c.topics.points, "sensor_msgs/msg/PointCloud2", c.qos.sensors), self._on_points))
         pub = self._dds.publisher
         self._path = pub(c.topics.path, "nav_msgs/msg/Path", c.qos.outputs) if c.topics.path else None
@@ -478,21 +487,26 @@ class GroundNode(LiveNode):
         cloud = ros.decode_pointcloud2(msg, where=sub.topic)
         self._file_frame(_CloudFrame(cloud.stamp_ns, ros._strip(cloud.frame_id), cloud.points))
 
-    def _on_new_goal(self, goal: np.ndarray) -> None:
-        if self._nav is None:
-            from subterra import Navigator
+    def _make_navigator(self, config: dict[str, Any]) -> Any:
+        """The navigator, made at start (its goal is set when one arrives; home is where the
+        robot is at its first step)."""
+        from subterra import Navigator
 
-            config = dict(self._nav_config)
-            terrain = {"ground": {"void_min_gap_deg": self.config.ground.void_min_gap_deg}}
-            for section, values in dict(config.pop("terrain", None) or {}).items():
-                terrain[section] = {**terrain.get(section, {}), **values}
-            self._nav = Navigator(goal=goal[:2], config=config, terrain=terrain)
-        else:
-            self._nav.set_goal(goal[:2])
+        config = dict(config)
+        terrain = {"ground": {"void_min_gap_deg": self.config.ground.void_min_gap_deg}}
+        sections = config.pop("terrain", None) or {}
+        if not isinstance(sections, dict):
+            raise ConfigError(f"ground.navigator_config: terrain must be a table, got {sections!r:.60}")
+        for section, values in sections.items():
+            if not isinstance(values, dict):
+                raise ConfigError(f"ground.navigator_config: terrain.{section} must be a table, got {values!r:.60}")
+            terrain[section] = {**terrain.get(section, {}), **values}
+        return Navigator(goal=[0.0, 0.0], config=config, terrain=terrain)
+
+    def _on_new_goal(self, goal: np.ndarray) -> None:
+        self._nav.set_goal(goal[:2])
 
     def _compute(self, frame: _CloudFrame, stamp_ns: int, pose: np.ndarray, speed: float, confidence: float) -> tuple[np.ndarray, np.ndarray, Any]:
-        if self._nav is None:
-            raise _Stop("no goal")
         body = self.config.frames.body
         sensor = frame.frame_id or body
         with self._inputs:
@@ -631,8 +645,8 @@ def make_node(robot: str, config: NodeConfig | None = None, *, loopback: bool = 
     """A :class:`GroundNode` or :class:`DroneNode` (``robot``: one of :data:`ROBOTS`);
     ``mavlink``: a :class:`~subterra.live.mavlink.MavlinkBridge` that also gets the commands;
     ``view``: a :class:`~subterra.live.view.FoxgloveView` that shows what the node publishes."""
-    if robot not in ROBOTS:
-        raise InputError(f"argument `robot` must be one of {', '.join(ROBOTS)}, got {robot!r}")
+    if not isinstance(robot, str) or robot not in ROBOTS:
+        raise InputError(f"argument `robot` must be one of {', '.join(ROBOTS)}, got {robot!r:.40}")
     return (GroundNode if robot == "ground" else DroneNode)(config, loopback=loopback, mavlink=mavlink, view=view)
 
 

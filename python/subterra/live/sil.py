@@ -87,18 +87,31 @@ def sil(
     domain, ``use_sim_time``, and the sensor and odometry QoS are set here: reliable, as a
     lockstep loop must lose no frame). ``time_limit_s``: simulated seconds, default as
     ``drive``/``fly`` choose it."""
-    if robot not in SIL_SCENARIOS:
-        raise InputError(f"argument `robot` must be one of {', '.join(SIL_SCENARIOS)}, got {robot!r}")
-    scenario = scenario or SIL_SCENARIOS[robot][0]
-    if scenario not in SIL_SCENARIOS[robot]:
-        raise InputError(f"argument `scenario` for the {robot} robot must be one of {', '.join(SIL_SCENARIOS[robot])}, got {scenario!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise InputError(f"argument `seed` must be an integer >= 0, got {seed!r}")
+    if not isinstance(robot, str) or robot not in SIL_SCENARIOS:
+        raise InputError(f"argument `robot` must be one of {', '.join(SIL_SCENARIOS)}, got {robot!r:.40}")
+    scenario = SIL_SCENARIOS[robot][0] if scenario is None else scenario
+    if not isinstance(scenario, str) or scenario not in SIL_SCENARIOS[robot]:
+        raise InputError(f"argument `scenario` for the {robot} robot must be one of {', '.join(SIL_SCENARIOS[robot])}, got {scenario!r:.40}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**64:
+        raise InputError(f"argument `seed` must be an integer in [0, 2^64), got {seed!r:.40}")
     if domain_id is None:
         domain_id = 100 + os.getpid() % 100
-    if time_limit_s is not None and not (math.isfinite(time_limit_s) and time_limit_s > 0):
-        raise InputError(f"argument `time_limit_s` must be finite and > 0, got {time_limit_s!r}")
+    if isinstance(domain_id, bool) or not isinstance(domain_id, int) or not 0 <= domain_id <= 232:
+        raise InputError(f"argument `domain_id` must be an integer in [0, 232], got {domain_id!r:.40}")
+    for name, value, top in (("time_limit_s", time_limit_s, 86_400.0), ("reply_timeout_s", reply_timeout_s, 600.0)):
+        if value is None and name == "time_limit_s":
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and 0 < value <= top):
+            raise InputError(f"argument `{name}` must be a number of seconds in (0, {top:.0f}], got {value!r:.40}")
+    if node_config is not None and not isinstance(node_config, NodeConfig):
+        raise InputError(f"argument `node_config` must be a NodeConfig (NodeConfig.load(path) reads a file), got {type(node_config).__name__}")
+    if not isinstance(out, (str, os.PathLike)):
+        raise InputError(f"argument `out` must be a folder path, got {type(out).__name__}")
     out_dir = Path(out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"argument `out` must be a folder, got an existing {'file' if out_dir.is_file() else 'special file'}: {out_dir}")
+    if node_config is not None and not (node_config.topics.cmd_vel_stamped and node_config.topics.diagnostics):
+        raise InputError("argument `node_config`: the loop needs topics.cmd_vel_stamped and topics.diagnostics (they pace it)")
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = (node_config or NodeConfig()).replace(
         node={"domain_id": domain_id, "use_sim_time": True},

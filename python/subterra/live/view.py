@@ -24,7 +24,7 @@ import time
 from typing import Any
 
 from subterra._extras import require
-from subterra.errors import ConfigError
+from subterra.errors import ConfigError, InputError
 from subterra.live.dds import typestore
 
 __all__ = ["FoxgloveView", "parse_address"]
@@ -36,12 +36,13 @@ DEFAULT_PORT = 8765
 
 def parse_address(text: str) -> tuple[str, int]:
     """``PORT`` or ``HOST:PORT`` -> (host, port); host default :data:`DEFAULT_HOST`; port 0 picks a free one."""
+    if not isinstance(text, str) or not text.isascii() or not text.isprintable():
+        raise ConfigError(f"the view address must be PORT or HOST:PORT, got {text!r:.80}")
     host, _, port = text.rpartition(":")
     host = host.strip("[]") or DEFAULT_HOST
-    try:
-        number = int(port)
-    except ValueError:
-        raise ConfigError(f"the view address must be PORT or HOST:PORT, got {text!r}") from None
+    if not port.isdigit():
+        raise ConfigError(f"the view address must be PORT or HOST:PORT, got {text!r:.80}")
+    number = int(port)
     if not 0 <= number <= 65535:
         raise ConfigError(f"the view port must be in [0, 65535], got {number}")
     return host, number
@@ -75,6 +76,14 @@ class FoxgloveView:
     def publish(self, topic: str, msgtype: str, cdr: bytes, log_time_ns: int | None = None) -> None:
         """Sends one message (its ROS 2 CDR bytes) on ``topic``; the channel is made with the
         type's ``ros2msg`` schema the first time."""
+        if not isinstance(cdr, (bytes, bytearray, memoryview)):
+            raise InputError(f"argument `cdr` must be the message's CDR bytes, got {type(cdr).__name__}")
+        if log_time_ns is not None and (isinstance(log_time_ns, bool) or not isinstance(log_time_ns, int) or not 0 <= log_time_ns < 2**63):
+            raise InputError(f"argument `log_time_ns` must be an integer in [0, 2^63), got {log_time_ns!r:.40}")
+        if not isinstance(msgtype, str) or msgtype not in typestore().types:
+            raise InputError(f"argument `msgtype`: unknown ROS 2 message type {msgtype!r:.80}")
+        if not isinstance(topic, str) or not topic.startswith("/") or not topic.isprintable() or len(topic) > 256:
+            raise InputError(f"argument `topic` must be a ROS topic name such as /cmd_vel, got {topic!r:.80}")
         with self._lock:
             channel = self._channels.get(topic)
             if channel is None:
