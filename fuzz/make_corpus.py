@@ -208,6 +208,19 @@ def configs(out: Path) -> None:
     }
     for name, text in sweeps.items():
         _put(out, "sweep_file", name, text.encode())
+    _put(out, "node_config_file", "default.toml", (REPO / "configs" / "node.toml").read_bytes())
+    _put(out, "node_config_file", "partial.toml", b'[node]\ndomain_id = 7\n[topics]\npoints = "/ouster/points"\nodometry = ["/a", "/b"]\n')
+
+
+def codecs(out: Path) -> None:
+    """LZF streams: a size (4 bytes, as FuzzedDataProvider reads an int) then the stream."""
+    from subterra.io import clouds as io_clouds
+
+    plain = (np.arange(600, dtype=np.float32) % 7).tobytes()
+    packed = io_clouds._lzf_compress(plain)
+    _put(out, "lzf_codec", "floats", len(plain).to_bytes(4, "little") + packed)
+    literal = bytes(range(40))
+    _put(out, "lzf_codec", "literal", len(literal).to_bytes(4, "little") + io_clouds._lzf_compress(literal))
 
 
 def fdp_blobs(out: Path) -> None:
@@ -236,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     if out.exists():
         shutil.rmtree(out)
     out.mkdir(parents=True)
-    for make in (clouds, depth, intrinsics, poses, recordings, configs, fdp_blobs):
+    for make in (clouds, depth, intrinsics, poses, recordings, configs, codecs, fdp_blobs):
         make(out)
     missing = [name for name in targets.TARGETS if not (out / name).is_dir()]
     if missing:

@@ -423,6 +423,13 @@ def _load_terrain_config(path: Path) -> None:
     subterra.terrain.load_terrain_config(path).to_dict()
 
 
+def _load_node_config(path: Path) -> None:
+    from subterra.live.config import NodeConfig
+
+    config = NodeConfig.load(path)
+    NodeConfig.from_dict(config.to_dict())  # what it accepts writes out and reads back
+
+
 def _mpc_config(path: Path) -> None:
     import subterra
 
@@ -904,6 +911,64 @@ def navigator_step(data: bytes) -> None:
     nav.transitions
 
 
+def lzf_codec(data: bytes) -> None:
+    """The core's LZF decoder (PCD binary_compressed) on fuzzed streams and sizes, against the
+    NumPy decoder: both decode the same bytes, or the core says no and NumPy says why."""
+    from subterra.errors import SubterraError
+    from subterra.io import clouds
+
+    fdp = atheris.FuzzedDataProvider(data)
+    size = fdp.ConsumeIntInRange(0, 1 << 16)
+    stream = fdp.ConsumeBytes(fdp.remaining_bytes())
+    if size > max(1, len(stream)) * 88:
+        return  # the PCD reader refuses such a ratio before decoding
+    fast = clouds._lzf_decompress_fast(stream, size)
+    try:
+        slow = clouds._lzf_decompress(np.frombuffer(stream, np.uint8), size, "fuzz", Path("fuzz"))
+    except SubterraError:
+        slow = None
+    if fast != slow:
+        raise AssertionError(f"the decoders disagree: core {None if fast is None else len(fast)} bytes, NumPy {None if slow is None else len(slow)}")
+    if fast is not None and size:
+        again = clouds._lzf_decompress_fast(clouds._lzf_compress(fast), size)
+        if again != fast:
+            raise AssertionError("LZF round trip changed the bytes")
+
+
+def ros_encoders(data: bytes) -> None:
+    """The ROS message encoders the live node publishes with, on fuzzed stamps, frames,
+    vectors, poses, paths, beliefs and diagnostics; what they accept serializes."""
+    from subterra.errors import SubterraError
+    from subterra.io import ros
+
+    fdp = atheris.FuzzedDataProvider(data)
+    ts = ros.default_typestore()
+    stamp = fdp.PickValueInList([0, 1, 10**18, 2**63, -1, float("nan"), 1.5, real(fdp, -1e3, 1e12)])
+    frame = text(fdp, ["odom", "base_link", "", "a b", "\x00"])
+    kind = fdp.ConsumeIntInRange(0, 5)
+    try:
+        if kind == 0:
+            msg, name = ros.twist_stamped_message(point(fdp, 3), point(fdp, 3), stamp_ns=stamp, frame_id=frame, typestore=ts), "geometry_msgs/msg/TwistStamped"
+        elif kind == 1:
+            msg, name = ros.pose_stamped_message(rigid(fdp), stamp_ns=stamp, frame_id=frame, typestore=ts), "geometry_msgs/msg/PoseStamped"
+        elif kind == 2:
+            msg, name = ros.path_message(array(fdp, (None, fdp.PickValueInList([2, 3, 4])), max_dim=6), stamp_ns=stamp, frame_id=frame,
+                                         typestore=ts), "nav_msgs/msg/Path"
+        elif kind == 3:
+            n = fdp.ConsumeIntInRange(0, 5)
+            msg, name = ros.belief_markers_message(array(fdp, (n, 3)), array(fdp, (n,), lo=0.0, hi=1.0), stamp_ns=stamp, frame_id=frame,
+                                                   p_free=maybe(fdp, lambda: real(fdp, 0.0, 1.0)), typestore=ts), "visualization_msgs/msg/MarkerArray"
+        elif kind == 4:
+            items = [(text(fdp, ["node"]), text(fdp, ["ok", "warn", "nope"]), text(fdp, ["m"]), {text(fdp, ["k"]): any_value(fdp)})
+                     for _ in range(fdp.ConsumeIntInRange(0, 3))]
+            msg, name = ros.diagnostics_message(items, stamp_ns=stamp, hardware_id=frame, typestore=ts), "diagnostic_msgs/msg/DiagnosticArray"
+        else:
+            msg, name = ros.clock_message(stamp, ts), "rosgraph_msgs/msg/Clock"
+    except SubterraError:
+        return
+    ts.deserialize_cdr(ts.serialize_cdr(msg, name), name)
+
+
 def _text(data: bytes) -> str:
     return data.decode("utf-8", "replace")
 
@@ -1096,6 +1161,7 @@ TARGETS: dict[str, Callable[[bytes], None]] = {
     "terrain_config_file": _file_target(".toml", _load_terrain_config),
     "mpc_config_file": _file_target(".toml", _mpc_config),
     "sweep_file": _file_target(".toml", _load_sweep),
+    "node_config_file": _file_target(".toml", _load_node_config),
     "ros_pointcloud2": ros_pointcloud2,
     "ros_tf": ros_tf,
     "depth_perception_update": depth_perception_update,
@@ -1119,6 +1185,8 @@ TARGETS: dict[str, Callable[[bytes], None]] = {
     "robot_config_dict": robot_config_dict,
     "world_from_toml": world_from_toml,
     "simulation_step": simulation_step,
+    "lzf_codec": lzf_codec,
+    "ros_encoders": ros_encoders,
 }
 
 _IO = ["subterra", "subterra.io"]
@@ -1133,6 +1201,9 @@ MODULES.update({
     "world_from_toml": ["subterra", "subterra.sim"],
     "simulation_step": ["subterra", "subterra.sim"],
     "terrain_config_file": ["subterra", "subterra.terrain"],
+    "node_config_file": ["subterra", "subterra.live.config"],
+    "lzf_codec": _IO + ["subterra.io.clouds"],
+    "ros_encoders": _IO,
     "sweep_file": ["subterra", "subterra.batch.sweep_spec", "subterra.batch.sweep", "subterra.flight.batch",
                    "subterra.flight.run", "subterra.drive.run", "subterra.sim"],
 })
