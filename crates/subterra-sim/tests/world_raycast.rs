@@ -2,7 +2,7 @@
 //! plane, sphere, finite cylinder, capsule, yawed box, an inclined height field; the nearest of
 //! many objects; bad worlds; the documented example world; and the cost of one ray.
 //!
-//! The reference answers here are computed independently of `world.rs` (local frames and
+//! The reference answers here are computed independently of `world/` (local frames and
 //! face-by-face tests rather than its projections and slabs).
 
 use std::time::Instant;
