@@ -7,7 +7,7 @@ extra          packages                                            for
 ``viz``        matplotlib, rerun-sdk, foxglove-sdk                 plots, Rerun, the live view
 ``sim``        matplotlib, tqdm                                    run folders with plots, bars
 ``ros``        cyclonedds, rosbags                                 ``subterra node``, ``sil``
-``mavlink``    pymavlink                                           the MAVLink offboard bridge
+``mavlink``    pymavlink, pyserial                                 the MAVLink offboard bridge
 ``cluster``    ray                                                 ``--engine ray``
 ``bench``      scipy, scikit-image, mujoco                         the peers of ``subterra bench``
 ``all``        all of the above
