@@ -390,7 +390,8 @@ def test_software_in_the_loop_reaches_the_goal_over_dds(tmp_path, robot, scenari
     in metrics.json with its median and p99."""
     from subterra.live.sil import sil
 
-    m = sil(robot, scenario, seed=0, out=tmp_path, domain_id=_domain(10 if robot == "ground" else 11))
+    # Seeds with a short episode (every seed 0-4 of both reaches its goal: docs/live.md).
+    m = sil(robot, scenario, seed=0 if robot == "ground" else 1, out=tmp_path, domain_id=_domain(10 if robot == "ground" else 11))
     assert m["success"], (m["failure"], (tmp_path / "node.log").read_text())
     assert m["commands_missed"] == 0 and m["node"]["frames_dropped"] == 0 and not m["node"]["stops"]
     assert m["node"]["frames_processed"] == m["steps"]
