@@ -17,7 +17,7 @@ use std::f64::consts::PI;
 
 use rand::SeedableRng;
 
-use super::{boxed, perimeter_walls, plane, region, route, sign, uni, uni_count, Rng};
+use super::helpers::{boxed, perimeter_walls, plane, region, route, sign, uni, uni_count, Rng};
 use crate::spec::{BoxSpec, HeightFieldSpec, WorldSpec};
 
 /// World size of the trade-off scenarios [m]: x in [0, 20], y in [0, 16].

@@ -13,7 +13,8 @@
 
 use rand::{RngExt, SeedableRng};
 
-use super::{boxed, dist2, perimeter_walls, plane, region, route, uni, uni_count, Rng, HIGHBAY_FLIGHT_HEIGHT_M};
+use super::helpers::{boxed, dist2, perimeter_walls, plane, region, route, uni, uni_count, Rng};
+use super::HIGHBAY_FLIGHT_HEIGHT_M;
 use crate::spec::{CylinderSpec, WorldSpec};
 
 /// Hall length along x [m].
