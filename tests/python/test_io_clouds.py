@@ -924,3 +924,29 @@ def test_write_binary_compressed_pcd_round_trips_and_matches_the_numpy_decoder(t
     assert clouds._lzf_decompress_fast(packed[:-5], int(size_u)) is None  # truncated: the caller explains
     with pytest.raises(InputError, match="compressed"):
         clouds.write_pcd(tmp_path / "a.pcd", points, binary=False, compressed=True)
+
+
+def test_lzf_core_functions_and_write_pcd_flags_refuse_bad_arguments(tmp_path: Path) -> None:
+    """The core LZF functions take bytes and an int size (errors name the argument); a
+    corrupt stream that claims a huge output is refused without decoding it with NumPy
+    (which would take seconds and GBs); write_pcd's flags must be booleans."""
+    core = pytest.importorskip("subterra._core")
+    for data, size in ((b"\x00a", -1), (b"\x00a", 2**64), (b"\x00a", 1.5), (b"\x00a", True), (bytearray(b"\x00a"), 1), (None, 1)):
+        with pytest.raises(InputError):
+            core.lzf_decompress(data, size)
+    assert core.lzf_decompress(b"\x00a", 1) == b"a"
+    with pytest.raises(InputError, match="data"):
+        core.lzf_compress("text")
+    # A stream of 102-byte back-references (ratio 34, under LZF's 88) that claims 100 MB and
+    # ends in a broken token.
+    points = (100 << 20) // 12
+    stream = b"\x00a" + b"\xe0\x5d\x00" * ((points * 12 - 1) // 102) + b"\xe0"
+    head = f"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {points}\nHEIGHT 1\nPOINTS {points}\n"
+    body = np.array([len(stream), points * 12], "<u4").tobytes() + stream
+    path = tmp_path / "bomb.pcd"
+    path.write_bytes(head.encode() + b"DATA binary_compressed\n" + body)
+    with pytest.raises(FileFormatError, match="corrupt"):
+        clouds.read_cloud(path)
+    for flags in ({"compressed": "false"}, {"binary": "no"}, {"compressed": None}):
+        with pytest.raises(InputError, match="True or False"):
+            clouds.write_pcd(tmp_path / "f.pcd", np.zeros((1, 3), np.float32), **flags)

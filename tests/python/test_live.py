@@ -840,8 +840,8 @@ def test_probe_findings_on_the_ros_encoders_are_clear_errors():
     """The encoders check what they encode: stamps, frames, vectors, poses, sizes, types."""
     ts = dds.typestore()
     bad_calls = [
-        (lambda: ros.clock_message(float("nan"), ts), "stamp_ns"),
-        (lambda: ros.clock_message(2**80, ts), "stamp_ns"),
+        (lambda: ros.clock_message(float("nan"), ts), "stamp"),
+        (lambda: ros.clock_message(2**80, ts), "stamp"),
         (lambda: ros.twist_message((float("nan"), 0, 0), (0, 0, 0), ts), "linear"),
         (lambda: ros.twist_message(("1", "2", "3"), (0, 0, 0), ts), "linear"),
         (lambda: ros.twist_message((1, 2), (0, 0, 0), ts), "linear"),
@@ -869,3 +869,77 @@ def test_cli_node_checks_its_stats_path_before_running(tmp_path):
     run = subprocess.run([sys.executable, "-m", "subterra.cli", "node", "ground", "--loopback", "--duration", "30", "--stats", str(tmp_path)],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "--stats" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_second_probe_findings_are_clear_errors(tmp_path):
+    """What a second probe found after the first round of fixes."""
+    import subprocess
+    import sys
+
+    from subterra.live.mavlink import MavlinkBridge
+    from subterra.live.sil import sil
+    from subterra.live.view import FoxgloveView, parse_address
+
+    run = subprocess.run([sys.executable, "-m", "subterra.cli", "sil", "-h"], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and "pid % 100" in run.stdout  # a bare % in a help text crashed argparse
+    p = dds.RosParticipant(_domain(21), loopback=True)
+    pub = p.publisher("/x", "std_msgs/msg/Header")
+    sub = p.subscriber("/x", "std_msgs/msg/Header")
+    for bad in (b"", b"\x05\x01garbage"):
+        with pytest.raises(InputError, match="encapsulation header"):
+            pub.publish(bad)
+    p.close()
+    with pytest.raises(InputError, match="closed"):
+        pub.publish(ros.header(0, "a", dds.typestore()))
+    with pytest.raises(InputError, match="closed"):
+        sub.take()
+    with pytest.raises(InputError, match="closed"):
+        p.wait_matched([pub], 0.1)
+    for bad in ("/a/", "//a"):
+        with pytest.raises(InputError, match="topic"):
+            dds.dds_topic_name(bad)
+    bridge = MavlinkBridge("udpout:127.0.0.1:9")
+    assert not bridge.command(np.ma.masked_array([1.0, 2.0, 3.0], [1, 0, 0]))
+    with pytest.raises(InputError, match="fresh"):
+        bridge.command((0.1, 0.0, 0.0), fresh="no")
+    bridge.close()
+    with pytest.raises(InputError, match="closed"):
+        bridge.command((0.1, 0.0, 0.0))
+    with pytest.raises(ConfigError, match="host"):
+        MavlinkBridge("udpout::14550")
+    for bad in ("h o:1", "a:b:c:1", "[]:5"):
+        with pytest.raises(ConfigError, match="HOST:PORT"):
+            parse_address(bad)
+    assert parse_address("[::1]:9000") == ("::1", 9000)
+    with pytest.raises(ConfigError, match="name"):
+        FoxgloveView(port=0, name="a\x00b")
+    view = FoxgloveView(port=0)
+    view.close()
+    with pytest.raises(InputError, match="closed"):
+        view.publish("/a", "std_msgs/msg/Header", b"\x00\x01\x00\x00")
+    with pytest.raises(InputError, match="out"):
+        sil("ground", out="a\x00b")
+    node = GroundNode(_config(_domain(22)), loopback=True)
+    try:
+        for bad in (-1, float("nan"), True, "1"):
+            with pytest.raises(InputError, match="duration_s"):
+                node.run(bad)
+    finally:
+        node.close()
+    with pytest.raises(InputError, match="closed"):
+        node.run(0.1)
+    with pytest.raises(ConfigError, match=r"ground\.navigator_config"):
+        GroundNode(NodeConfig.from_dict({"ground": {"navigator_config": str(tmp_path / "missing.toml")}}), loopback=True)
+    ts = dds.typestore()
+    with pytest.raises(InputError, match="argument `stamp`"):
+        ros.clock_message(1.5, ts)
+    with pytest.raises(InputError, match="poses"):
+        ros.path_message(np.array([[1e300, 0.0, 0.0]]), stamp_ns=1, frame_id="odom", typestore=ts)
+    with pytest.raises(InputError, match="linear"):
+        ros.twist_message([1e308, 0, 0], [0, 0, 0], ts)
+    with pytest.raises(InputError, match="statuses"):
+        ros.diagnostics_message([("n", "ok", "m", {})] * 100_001, stamp_ns=0, typestore=ts)
+    with pytest.raises(ConfigError, match="odometry_hz"):
+        NodeConfig.from_dict({"rates": {"odometry_hz": 1e-300}})
+    with pytest.raises(ConfigError, match="watchdog_s"):
+        NodeConfig.from_dict({"safety": {"watchdog_s": 5e-324}})

@@ -174,6 +174,9 @@ _LZF_LONG_REF = 7
 _LZF_MIN_REF_LEN = 2
 # The most output per input byte: a 3-byte long back-reference copies up to 264 bytes.
 _LZF_MAX_RATIO = 88
+# The NumPy decoder explains a corrupt LZF stream only up to this output size [bytes]; beyond,
+# the error says the stream is corrupt without the byte (it would take seconds and GBs).
+_LZF_EXPLAIN_MAX_BYTES = 64 << 20
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -327,6 +330,9 @@ def write_pcd(
     """
     file_path = _as_path(path, "path")
     suffix = f": {file_path}"
+    for name, flag in (("binary", binary), ("compressed", compressed)):
+        if not isinstance(flag, (bool, np.bool_)):
+            raise InputError(f"argument `{name}` must be True or False, got {flag!r:.40}{suffix}")
     if compressed and not binary:
         raise InputError(f"argument `compressed` needs binary=True (an ASCII PCD is not compressed){suffix}")
     xyz = _checked_points(points, "points", suffix)
@@ -803,6 +809,11 @@ def _pcd_compressed_columns(raw: bytes, header: _PcdHeader, path: Path) -> dict[
             f"{available} (truncated file): {path}"
         )
     data = _lzf_decompress_fast(raw[start : start + compressed], needed)
+    if data is None and needed > _LZF_EXPLAIN_MAX_BYTES and _core_lzf_available():
+        raise FileFormatError(
+            f"PCD binary_compressed data: expected {compressed} LZF bytes that decompress to {needed} bytes, "
+            f"got a corrupt stream (truncated, or a bad back-reference): {path}"
+        )
     if data is None:  # corrupt: the NumPy decoder says where and why (or decodes it after all)
         source = np.frombuffer(raw, np.uint8, count=compressed, offset=start)
         data = _lzf_decompress(source, needed, "PCD binary_compressed data", path)
@@ -826,6 +837,14 @@ def _lzf_decompress_fast(source: bytes, expected_size: int) -> bytes | None:
     except ImportError:
         return None
     return lzf_decompress(bytes(source), int(expected_size))
+
+
+def _core_lzf_available() -> bool:
+    try:
+        from subterra._core import lzf_decompress  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def _lzf_compress(data: bytes) -> bytes:

@@ -947,7 +947,10 @@ MAX_ENCODED_ITEMS = 100_000
 
 
 def _encoder_stamp(stamp: Any, name: str = "stamp_ns") -> int:
-    value = _checked_stamp(stamp, name)
+    if isinstance(stamp, bool) or not isinstance(stamp, numbers.Integral):
+        if not (isinstance(stamp, numbers.Real) and math.isfinite(float(stamp)) and float(stamp).is_integer()):
+            raise InputError(f"argument `{name}` must be an integer number of nanoseconds, got {stamp!r:.40}")
+    value = int(stamp)
     if not 0 <= value <= MAX_STAMP_NS:
         raise InputError(f"argument `{name}` must be in [0, {MAX_STAMP_NS}] ns (a ROS time), got {value}")
     return value
@@ -971,9 +974,11 @@ def _encoder_text(value: Any, name: str) -> str:
 
 def _encoder_reals(value: Any, name: str, shape: tuple[int | None, ...]) -> np.ndarray:
     """``value`` as a finite float64 array of ``shape`` (None: any length), checked on the view."""
+    if isinstance(value, np.ma.MaskedArray):
+        raise InputError(f"argument `{name}`: a masked array (a masked value has no value)")
     try:
         raw = np.asarray(value)
-    except (TypeError, ValueError) as exc:
+    except Exception as exc:  # noqa: BLE001 - whatever an odd object's __array__ raises
         raise InputError(f"argument `{name}` must be an array of numbers, got {type(value).__name__}") from exc
     if raw.dtype.kind not in "iuf":
         raise InputError(f"argument `{name}` must hold real numbers, got dtype {raw.dtype}")
@@ -982,16 +987,19 @@ def _encoder_reals(value: Any, name: str, shape: tuple[int | None, ...]) -> np.n
         raise InputError(f"argument `{name}` must have shape {want}, got {raw.shape}")
     if raw.ndim and raw.shape[0] > MAX_ENCODED_ITEMS:
         raise InputError(f"argument `{name}`: at most {MAX_ENCODED_ITEMS} rows per message, got {raw.shape[0]}")
-    out = raw.astype(np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = raw.astype(np.float64)
     if not np.isfinite(out).all():
         raise InputError(f"argument `{name}` must be finite, got NaN or inf")
+    if out.size and float(np.abs(out).max()) > _MAX_TRANSLATION_M:
+        raise InputError(f"argument `{name}` must be within {_MAX_TRANSLATION_M:g} (m, m/s, rad/s), got {float(np.abs(out).max()):g}")
     return out
 
 
-def time_message(stamp: int, typestore: Any = None):
+def time_message(stamp: int, typestore: Any = None, *, name: str = "stamp_ns"):
     """``builtin_interfaces/Time`` of ``stamp`` [ns] (an integer in [0, :data:`MAX_STAMP_NS`])."""
     ts = _store(typestore)
-    stamp = _encoder_stamp(stamp)
+    stamp = _encoder_stamp(stamp, name)
     return ts.types["builtin_interfaces/msg/Time"](sec=int(stamp // _NS_PER_S), nanosec=int(stamp % _NS_PER_S))
 
 
@@ -1195,7 +1203,7 @@ def tf_message(transforms: Iterable[tuple[str, str, int, np.ndarray]], typestore
 def clock_message(stamp: int, typestore: Any = None):
     """``rosgraph_msgs/Clock`` of ``stamp`` [ns] (``/clock``, simulated time)."""
     ts = _store(typestore)
-    return ts.types["rosgraph_msgs/msg/Clock"](clock=time_message(stamp, ts))
+    return ts.types["rosgraph_msgs/msg/Clock"](clock=time_message(stamp, ts, name="stamp"))
 
 
 def twist_message(linear: Sequence[float], angular: Sequence[float], typestore: Any = None):
@@ -1401,6 +1409,8 @@ def diagnostics_message(statuses: Iterable[tuple[str, str, str, Mapping[str, Any
         items = list(statuses)
     except TypeError as exc:
         raise InputError(f"argument `statuses` must be (name, level, message, values) items, got {type(statuses).__name__}") from exc
+    if len(items) > MAX_ENCODED_ITEMS:
+        raise InputError(f"argument `statuses`: at most {MAX_ENCODED_ITEMS} per message, got {len(items)}")
     status = []
     for i, item in enumerate(items):
         if not (isinstance(item, tuple) and len(item) == 4 and isinstance(item[3], Mapping)):
@@ -1408,8 +1418,14 @@ def diagnostics_message(statuses: Iterable[tuple[str, str, str, Mapping[str, Any
         name, level, message, values = item
         if not isinstance(level, str) or level not in DIAGNOSTIC_LEVELS:
             raise InputError(f"argument `statuses[{i}]`: level must be one of {', '.join(DIAGNOSTIC_LEVELS)}, got {level!r:.40}")
-        kv = [t["diagnostic_msgs/msg/KeyValue"](key=_encoder_text(str(k), f"statuses[{i}] key"), value=_encoder_text(str(v), f"statuses[{i}] value"))
-              for k, v in values.items()]
+        if len(values) > MAX_ENCODED_ITEMS:
+            raise InputError(f"argument `statuses[{i}]`: at most {MAX_ENCODED_ITEMS} values, got {len(values)}")
+        try:
+            pairs = [(str(k), str(v)) for k, v in values.items()]
+        except Exception as exc:  # noqa: BLE001 - an object whose __str__ raises
+            raise InputError(f"argument `statuses[{i}]`: a key or value that cannot be written as text ({type(exc).__name__})") from exc
+        kv = [t["diagnostic_msgs/msg/KeyValue"](key=_encoder_text(k, f"statuses[{i}] key"), value=_encoder_text(v, f"statuses[{i}] value"))
+              for k, v in pairs]
         status.append(t["diagnostic_msgs/msg/DiagnosticStatus"](level=DIAGNOSTIC_LEVELS[level], name=_encoder_text(name, f"statuses[{i}] name"),
                                                                 message=_encoder_text(message, f"statuses[{i}] message"),
                                                                 hardware_id=hardware_id, values=kv))

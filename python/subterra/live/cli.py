@@ -43,7 +43,7 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     s.add_argument("--scenario", default=None, help="ground: mine, slopes, rough, ledge, cave; drone: highbay")
     s.add_argument("--seed", type=seed_int, default=0, help="world and sensor noise seed (default 0)")
     s.add_argument("--out", default="runs/sil", help="run folder (default runs/sil)")
-    s.add_argument("--domain-id", type=int_in(0, 232), default=None, help="DDS domain (default: 100 + pid % 100)")
+    s.add_argument("--domain-id", type=int_in(0, 232), default=None, help="DDS domain (default: 100 + pid %% 100)")
     s.add_argument("--time-limit", type=sim_seconds, default=None, help="simulated seconds (default as drive/fly)")
     s.add_argument("--config", default=None, help="the node's settings (TOML); the loop sets its domain, clock and sensor QoS")
     s.set_defaults(handler=_sil)

@@ -258,12 +258,12 @@ class NodeConfig:
                 raise ConfigError(f"qos.{f.name} must be one of {', '.join(_QOS_NAMES)}, got {value!r}")
         for f in dataclasses.fields(Rates):
             value = getattr(self.rates, f.name)
-            if not (math.isfinite(value) and (0.0 < value if f.name == "odometry_hz" else 0.0 <= value) and value <= 1000.0):
-                raise ConfigError(f"rates.{f.name} must be in [0, 1000] Hz (odometry_hz above 0), got {value}")
+            if not (math.isfinite(value) and (0.01 <= value if f.name == "odometry_hz" else value == 0.0 or 0.01 <= value) and value <= 1000.0):
+                raise ConfigError(f"rates.{f.name} must be 0 (off) or in [0.01, 1000] Hz (odometry_hz not 0), got {value}")
         for f in dataclasses.fields(Safety):
             value = getattr(self.safety, f.name)
-            if not (math.isfinite(value) and 0.0 < value <= 60.0):
-                raise ConfigError(f"safety.{f.name} must be in (0, 60] s, got {value}")
+            if not (math.isfinite(value) and 0.001 <= value <= 60.0):
+                raise ConfigError(f"safety.{f.name} must be in [0.001, 60] s, got {value}")
         if not (math.isfinite(self.ground.void_min_gap_deg) and 0.0 <= self.ground.void_min_gap_deg <= 90.0):
             raise ConfigError(f"ground.void_min_gap_deg must be in [0, 90], got {self.ground.void_min_gap_deg}")
         if not 0 <= self.drone.seed < 2**64:

@@ -89,7 +89,7 @@ def dds_topic_name(topic: str) -> str:
     name = topic.strip("/")
     if len(name) > MAX_TOPIC_CHARS:
         raise InputError(f"argument `topic` must be at most {MAX_TOPIC_CHARS} characters (ROS 2's limit), got {len(name)}")
-    if "//" in name or not all(part and (part[0] in _NAME_START) and all(c in _NAME_CHARS for c in part)
+    if "//" in topic or topic.endswith("/") or not all(part and (part[0] in _NAME_START) and all(c in _NAME_CHARS for c in part)
                                for part in name.split("/")):
         raise InputError(f"argument `topic` {topic!r} is not a valid ROS 2 name (letters, digits and _ between slashes, "
                          "each token starting with a letter or _)")
@@ -221,8 +221,13 @@ class RosPublisher:
     bytes_sent: int = 0
 
     def publish(self, msg: Any) -> None:
+        if self._owner is not None and self._owner._dp is None:
+            raise InputError(f"the publisher of {self.topic} belongs to a closed RosParticipant")
         if isinstance(msg, (bytes, bytearray, memoryview)):
-            cdr = msg
+            cdr = bytes(msg)
+            if len(cdr) < 4 or cdr[:2] not in (b"\x00\x00", b"\x00\x01"):
+                raise InputError(f"argument `msg`: CDR bytes start with the 4-byte encapsulation header (00 00 or 00 01, ...), "
+                                 f"got {cdr[:4]!r}")
         else:
             if getattr(msg, "__msgtype__", None) != self.msgtype:
                 raise InputError(f"argument `msg` must be a {self.msgtype} message (or its CDR bytes) for {self.topic}, "
@@ -255,12 +260,14 @@ class RosSubscriber:
     topic: str
     msgtype: str
     _reader: Any
+    _owner: Any = None
     count: int = 0
     rejected: int = 0
     last_error: str = ""
 
     def take(self, n: int = 64) -> list[Any]:
         n = _count(n)
+        self._check_open()
         out = []
         ts = typestore()
         for sample in self._reader.take(n):
@@ -277,7 +284,13 @@ class RosSubscriber:
 
     def take_raw(self, n: int = 64) -> list[bytes]:
         """The waiting samples' CDR bytes (with the 4-byte encapsulation header), undecoded."""
-        return [bytes(s) for s in self._reader.take(_count(n)) if isinstance(s, _Cdr)]
+        n = _count(n)
+        self._check_open()
+        return [bytes(s) for s in self._reader.take(n) if isinstance(s, _Cdr)]
+
+    def _check_open(self) -> None:
+        if self._owner is not None and self._owner._dp is None:
+            raise InputError(f"the subscriber of {self.topic} belongs to a closed RosParticipant")
 
     @property
     def matched(self) -> int:
@@ -365,7 +378,7 @@ class RosParticipant:
         reader = DataReader(self._dp, t, qos=_qos(qos))
         cond_cls, mask = self._read_condition
         self._waitset.attach(cond_cls(reader, mask))
-        sub = RosSubscriber(topic, msgtype, reader)
+        sub = RosSubscriber(topic, msgtype, reader, self)
         self.subscribers.append(sub)
         return sub
 
@@ -386,6 +399,8 @@ class RosParticipant:
         deadline = time.monotonic() + _seconds(timeout_s, "timeout_s")
         if not isinstance(endpoints, (list, tuple)) or not all(isinstance(e, (RosPublisher, RosSubscriber)) for e in endpoints):
             raise InputError("argument `endpoints` must be a list of this participant's publishers and subscribers")
+        if self._dp is None:
+            raise InputError("this RosParticipant is closed")
         endpoints = list(endpoints)
         while time.monotonic() < deadline:
             if all(e.matched > 0 for e in endpoints):

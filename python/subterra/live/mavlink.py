@@ -66,14 +66,17 @@ MAX_YAW_RATE_RAD_S = 10.0
 
 def _velocity(linear: Any, yaw_rate: Any) -> np.ndarray:
     """``(vx, vy, vz, yaw_rate)`` as four finite real numbers within the bridge's limits."""
+    if isinstance(linear, np.ma.MaskedArray) or isinstance(yaw_rate, np.ma.MaskedArray):
+        raise InputError("argument `linear`/`yaw_rate`: a masked array is not a command (a masked value has no value)")
     try:
         v = np.asarray(linear)
         w = np.asarray(yaw_rate)
-    except (TypeError, ValueError) as exc:
+    except Exception as exc:  # noqa: BLE001 - whatever an odd object's __array__ raises
         raise InputError(f"argument `linear`/`yaw_rate` must be numbers, got {linear!r:.60}, {yaw_rate!r:.40}") from exc
     if v.dtype.kind not in "fiu" or w.dtype.kind not in "fiu" or v.shape != (3,) or w.shape != ():
         raise InputError(f"argument `linear` must be 3 real numbers and `yaw_rate` one, got {linear!r:.60}, {yaw_rate!r:.40}")
-    out = np.append(v.astype(np.float64), float(w))
+    with np.errstate(over="ignore", invalid="ignore"):  # a longdouble beyond float64 becomes inf: refused below
+        out = np.append(v.astype(np.float64), w.astype(np.float64))
     if not np.all(np.isfinite(out)):
         raise InputError(f"the command must be finite, got {out.tolist()}")
     if np.any(np.abs(out[:3]) > MAX_SPEED_M_S) or abs(out[3]) > MAX_YAW_RATE_RAD_S:
@@ -111,9 +114,12 @@ def _check_connection(connection: Any) -> None:
     if not isinstance(connection, str) or not connection or len(connection) > 1024 or not connection.isprintable():
         raise ConfigError(f"argument `connection` must be a pymavlink connection string, got {connection!r:.80}")
     if connection.startswith(("udp", "tcp")):
-        _, _, port = connection.rpartition(":")
+        _, _, rest = connection.partition(":")
+        host, _, port = rest.rpartition(":")
         if not (port.isascii() and port.isdigit() and 1 <= int(port) <= 65535):
             raise ConfigError(f"argument `connection` {connection!r}: the port must be in 1..65535")
+        if not host or any(c.isspace() for c in host):
+            raise ConfigError(f"argument `connection` {connection!r}: expected KIND:HOST:PORT with a host")
 
 
 class MavlinkBridge:
@@ -185,6 +191,10 @@ class MavlinkBridge:
         the stream stops after ``stale_after_s``. Returns whether it was taken: a command
         that is not 3 + 1 finite real numbers, or is beyond :data:`MAX_SPEED_M_S` /
         :data:`MAX_YAW_RATE_RAD_S`, is refused and counted in ``stats.rejected``."""
+        if self._stop.is_set():
+            raise InputError("this MavlinkBridge is closed")
+        if not isinstance(fresh, (bool, np.bool_)):
+            raise InputError(f"argument `fresh` must be True or False, got {fresh!r:.40}")
         convert = flu_to_frd if self.frame == "body" else enu_to_ned
         try:
             setpoint = convert(linear, yaw_rate)

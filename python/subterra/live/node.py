@@ -426,6 +426,11 @@ class LiveNode:
     def run(self, duration_s: float | None = None) -> NodeStats:
         """Runs until :meth:`stop` (or ``duration_s`` of wall time); returns the counts. A stop
         command is published on the way out."""
+        if duration_s is not None and (isinstance(duration_s, bool) or not isinstance(duration_s, (int, float))
+                                       or not (math.isfinite(duration_s) and 0 < duration_s <= 1e7)):
+            raise InputError(f"argument `duration_s` must be a number of seconds in (0, 1e7], or None, got {duration_s!r:.40}")
+        if self._dds._dp is None:
+            raise InputError("this node is closed")
         receiver = threading.Thread(target=self._receive, name="subterra-node-receive", daemon=True)
         receiver.start()
         deadline = None if duration_s is None else time.monotonic() + duration_s
@@ -637,7 +642,10 @@ def _navigator_config(path: str) -> dict[str, Any]:
         return {}
     from subterra.drive.cli import _navigator_config as load
 
-    return load(path) or {}
+    try:
+        return load(path) or {}
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace("argument --config", "ground.navigator_config", 1)) from exc
 
 
 def make_node(robot: str, config: NodeConfig | None = None, *, loopback: bool = False, mavlink: Any = None,

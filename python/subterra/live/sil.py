@@ -105,8 +105,8 @@ def sil(
             raise InputError(f"argument `{name}` must be a number of seconds in (0, {top:.0f}], got {value!r:.40}")
     if node_config is not None and not isinstance(node_config, NodeConfig):
         raise InputError(f"argument `node_config` must be a NodeConfig (NodeConfig.load(path) reads a file), got {type(node_config).__name__}")
-    if not isinstance(out, (str, os.PathLike)):
-        raise InputError(f"argument `out` must be a folder path, got {type(out).__name__}")
+    if not isinstance(out, (str, os.PathLike)) or "\x00" in os.fspath(out):
+        raise InputError(f"argument `out` must be a folder path, got {out!r:.60}")
     out_dir = Path(out)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"argument `out` must be a folder, got an existing {'file' if out_dir.is_file() else 'special file'}: {out_dir}")

@@ -39,7 +39,11 @@ def parse_address(text: str) -> tuple[str, int]:
     if not isinstance(text, str) or not text.isascii() or not text.isprintable():
         raise ConfigError(f"the view address must be PORT or HOST:PORT, got {text!r:.80}")
     host, _, port = text.rpartition(":")
-    host = host.strip("[]") or DEFAULT_HOST
+    bracketed = host.startswith("[") and host.endswith("]")
+    host = host[1:-1] if bracketed else host
+    if (bracketed and not host) or any(c.isspace() for c in host) or (":" in host and not bracketed):
+        raise ConfigError(f"the view address must be PORT or HOST:PORT (an IPv6 host in brackets), got {text!r:.80}")
+    host = host or DEFAULT_HOST
     if not port.isdigit():
         raise ConfigError(f"the view address must be PORT or HOST:PORT, got {text!r:.80}")
     number = int(port)
@@ -59,6 +63,10 @@ class FoxgloveView:
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, name: str = "subterra") -> None:
         foxglove = require("foxglove", "viz", "The live view")
+        if not isinstance(name, str) or not name.isprintable() or len(name) > 255:
+            raise ConfigError(f"argument `name` must be printable text, got {name!r:.60}")
+        if not isinstance(host, str) or not host.isprintable() or any(c.isspace() for c in host):
+            raise ConfigError(f"argument `host` must be a host name or address, got {host!r:.60}")
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
             raise ConfigError(f"argument `port` must be an integer in [0, 65535], got {port!r}")
         self._foxglove = foxglove
@@ -76,6 +84,8 @@ class FoxgloveView:
     def publish(self, topic: str, msgtype: str, cdr: bytes, log_time_ns: int | None = None) -> None:
         """Sends one message (its ROS 2 CDR bytes) on ``topic``; the channel is made with the
         type's ``ros2msg`` schema the first time."""
+        if self._server is None:
+            raise InputError("this FoxgloveView is closed")
         if not isinstance(cdr, (bytes, bytearray, memoryview)):
             raise InputError(f"argument `cdr` must be the message's CDR bytes, got {type(cdr).__name__}")
         if log_time_ns is not None and (isinstance(log_time_ns, bool) or not isinstance(log_time_ns, int) or not 0 <= log_time_ns < 2**63):
