@@ -14,7 +14,7 @@ SOURCES := $(shell find crates python -name '*.rs' -o -name '*.py' -o -name '*.p
 $(VENV)/.deps: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet "maturin>=1.9,<2" numpy pillow pyyaml matplotlib tqdm pytest hypothesis mujoco scipy scikit-image rosbags mcap mcap-ros2-support mcap-ros1-support rerun-sdk "ray>=2.9" atheris cyclonedds pymavlink foxglove-sdk websockets ruff vermin
+	$(PY) -m pip install --quiet "maturin>=1.9,<2" numpy pillow pyyaml matplotlib tqdm pytest hypothesis mujoco scipy scikit-image rosbags mcap mcap-ros2-support mcap-ros1-support rerun-sdk "ray>=2.9" atheris cyclonedds pymavlink foxglove-sdk websockets ruff vermin pytest-xdist
 	touch $@
 
 $(STAMP): $(VENV)/.deps $(SOURCES)
@@ -33,8 +33,10 @@ test-rust:
 	# The criterion benches and examples are not built by `cargo test`: check they compile.
 	cargo check --workspace --exclude subterra-py --benches --examples
 
+# Two workers (pytest-xdist): the suite on the 2-core CI machine in about 6 minutes instead of 9.5.
+PYTEST_WORKERS ?= 2
 test-python: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(PYTEST_WORKERS)
 
 bench: $(STAMP)
 	cargo bench -p subterra --bench perception
