@@ -333,7 +333,9 @@ def test_watchdog_stops_the_robot_when_frames_stop_and_bad_goals_are_refused():
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline and not node.stats.stops.get("no frame (watchdog)"):
             time.sleep(0.05)
-        driver.poll()
+        while time.monotonic() < deadline and not driver.raw["/cmd_vel"]:  # the stop is on its way
+            driver.dds.wait(0.05)
+            driver.poll()
     finally:
         _shutdown(node, thread, driver)
     assert node.stats.stops.get("no frame (watchdog)", 0) >= 1

@@ -49,6 +49,7 @@ topic (default)               type                                    robot
 
 from __future__ import annotations
 
+import abc
 import json
 import math
 import os
@@ -125,7 +126,7 @@ class _Stop(Exception):
     """This frame's command is a stop; the message is the reason (counted, in diagnostics)."""
 
 
-class LiveNode:
+class LiveNode(abc.ABC):
     """The receive thread, the compute thread, the safety checks and the outputs that both
     robots share; :class:`GroundNode` and :class:`DroneNode` add their pipeline."""
 
@@ -197,16 +198,18 @@ class LiveNode:
 
     # ------------------------------------------------------------------ subclass hooks
 
+    @abc.abstractmethod
     def _setup(self) -> None:
-        raise NotImplementedError
+        """Subscribes the robot's sensor topics and makes its outputs."""
 
+    @abc.abstractmethod
     def _compute(self, frame: Any, stamp_ns: int, pose: np.ndarray, speed: float, confidence: float) -> tuple[np.ndarray, np.ndarray, Any]:
         """The pipeline on one frame: returns the body-frame (linear, angular) command and a
         callable that publishes the other outputs (run after the command is out)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _on_new_goal(self, goal: np.ndarray) -> None:
-        raise NotImplementedError
+        """Hands a new goal [m, world] to the pipeline."""
 
     # ------------------------------------------------------------------ receive thread
 
