@@ -2,6 +2,10 @@
 //! for a robot's own control loop (STEP; the JPL CoSTAR draft "Risk-aware Traversability in
 //! Extreme Environments"). One [`Navigator::step`] per control tick.
 //!
+//! - `tick`: one control tick's input and output ([`NavigatorInput`], [`NavigatorOutput`]);
+//! - `grids`: step 2, the navigator's grid from a new map, through the memories;
+//! - `planning`: step 3, the A*'s grid, the stand-in, the entry prices and the plan;
+//! - `route`: step 3's choice between the route being followed and a new plan;
 //! - [`config`]: the settings and their committed defaults (`configs/navigator.toml`);
 //! - [`memory`]: the hazard, near and driven memories, by [`WorldCell`];
 //! - [`morphology`]: lethal patches, their growth into their own shadow, the inflation;
@@ -90,10 +94,14 @@
 //! Every stage's wall time is reported.
 
 mod config;
+mod grids;
 mod memory;
 mod morphology;
+mod planning;
 mod reactive;
+mod route;
 mod target;
+mod tick;
 
 use std::time::Instant;
 
@@ -101,84 +109,18 @@ use glam::DVec2;
 
 pub use config::{NavigatorConfig, NavigatorSettings, MAX_MORPHOLOGY_M, MAX_RANGE_SETTING_M, UNSEEN_RISK_PER_M};
 pub use memory::WorldCell;
+pub use tick::{NavigatorInput, NavigatorOutput, NavigatorTimings};
 
-use self::memory::{mark_unseen_near, mark_void_rims, DrivenMemory, HazardMemory, HazardRules, NearMemory, UnseenNear};
-use self::morphology::{clustered, grow_into_unseen, inflate_lethal, turn_room_prices, Growth};
-use self::reactive::{FootprintReplan, SafetyView};
-use self::target::{nearest_traversable, nearest_traversable_to, on_map, path_length_from, reachable_from, Search};
+use self::memory::{DrivenMemory, HazardMemory, NearMemory};
+use self::reactive::SafetyView;
+use self::target::path_length_from;
 use crate::error::{Error, Result};
 use crate::frames::Isometry3;
-use crate::plan::astar::{EntryPrices, PlanOutcome, PlanStatus, RiskAStar, RiskAStarConfig};
-use crate::plan::coverage::unseen_entries;
+use crate::plan::astar::{PlanOutcome, PlanStatus, RiskAStar};
 use crate::plan::grid::RiskGrid;
 use crate::plan::mpc::{MpcOutput, MpcTracker, UnicycleState};
-use crate::plan::recovery::{wrap_angle, Behaviour, PlanFeedback, RecoveryInput, RecoveryMachine, Target, Transition};
+use crate::plan::recovery::{wrap_angle, Behaviour, PlanFeedback, RecoveryInput, RecoveryMachine, Target};
 use crate::terrain::{RiskMap, RobotConfig, TerrainConfig, TerrainMapper, TerrainStats, TerrainTimings};
-
-/// One control tick's inputs.
-#[derive(Debug, Clone, Copy)]
-pub struct NavigatorInput<'a> {
-    /// Time [s]; must not go backwards.
-    pub stamp_s: f64,
-    /// A new scan, `(N, 3)` flat, sensor frame [m], or `None`.
-    pub points_sensor: Option<&'a [f32]>,
-    /// Odometry pose.
-    pub world_from_body: Isometry3,
-    /// Sensor mounting.
-    pub body_from_sensor: Isometry3,
-    /// Odometry confidence in [0, 1] (fusion window).
-    pub confidence: f64,
-    /// Measured forward speed [m/s].
-    pub speed_m_s: f64,
-}
-
-/// Wall time of each stage of one step [s].
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct NavigatorTimings {
-    /// Map update.
-    pub map_s: f64,
-    /// Planning (0 when it did not run).
-    pub plan_s: f64,
-    /// MPC (0 when it did not run).
-    pub track_s: f64,
-    /// The whole step.
-    pub total_s: f64,
-}
-
-/// One control tick's outputs.
-#[derive(Debug, Clone)]
-pub struct NavigatorOutput {
-    /// Forward speed to command [m/s].
-    pub speed_m_s: f64,
-    /// Yaw rate to command [rad/s].
-    pub yaw_rate_rad_s: f64,
-    /// The behaviour that produced the command.
-    pub behaviour: Behaviour,
-    /// The target being driven to.
-    pub target: Target,
-    /// The plan made this tick, if one was made.
-    pub plan: Option<PlanOutcome>,
-    /// The path being tracked (the last found), world [m].
-    pub path_world: Vec<DVec2>,
-    /// The MPC's output, when it ran.
-    pub mpc: Option<MpcOutput>,
-    /// Risk under the robot [0-1].
-    pub local_risk: f64,
-    /// `v_max·(1 - local_risk)` [m/s].
-    pub speed_limit_m_s: f64,
-    /// Planner thresholds in force.
-    pub r_inst: f64,
-    /// Planner budget in force.
-    pub r_total: f64,
-    /// Transitions of the recovery machine during this tick.
-    pub transitions: Vec<Transition>,
-    /// Stage times.
-    pub timings: NavigatorTimings,
-    /// Why the command is not the behaviour's own, when the motion it asked for was not safe
-    /// (the footprint it would sweep): the tracker's command replaced by a turn, a straight
-    /// drive or a stop, or a recovery stopped.
-    pub safety: Option<String>,
-}
 
 /// The scratch of a plan.
 #[derive(Debug, Default)]
@@ -570,192 +512,6 @@ impl Navigator {
         safety_view(&self.config.navigator, self.robot, (&self.hazards, &self.near, &self.driven), grid, blocking, lethal, recovery)
     }
 
-    /// Step 2: the navigator's grid from a new map, through the memories.
-    fn grids(&mut self, map: RiskMap, position: DVec2) -> Result<()> {
-        let nav = self.config.navigator;
-        // Risk (or its CVaR) where observed, NaN elsewhere so that the planner's own
-        // `unknown_risk` prices the unseen.
-        let risk = match nav.cvar_alpha {
-            Some(alpha) => map.cvar(alpha)?,
-            None => map.layer("risk")?.to_vec(),
-        };
-        let observed = map.layer("observed")?;
-        self.grid.clear();
-        self.grid.extend(risk.iter().zip(observed).map(|(&r, &o)| if o > 0.0 { r } else { f32::NAN }));
-        let g = *map.geometry();
-        let lethal = map.lethal_risk;
-        if nav.near_memory_m > 0.0 {
-            self.near.record(&self.grid, map.layer("count")?, &g, position, nav.near_memory_m, nav.coverage.min_range_m, nav.near_memory_highest);
-        }
-        if nav.hazard_memory {
-            let rules = HazardRules {
-                lethal,
-                min_neighbours: nav.lethal_min_neighbours,
-                forget_points: nav.hazard_memory_forget_points as f32,
-                record_m: nav.hazard_memory_record_m,
-                range_m: nav.hazard_memory_range_m,
-            };
-            self.hazards.update(&mut self.grid, map.layer("ground_count")?, map.layer("negative")?, &g, position, &rules);
-        }
-        let s = &mut self.scratch;
-        s.grown.clone_from(&self.grid);
-        if nav.unseen_growth_m > 0.0 {
-            let growth = Growth { lethal, min_neighbours: nav.lethal_min_neighbours, radius_m: nav.unseen_growth_m, robot: position, min_range_m: nav.unseen_growth_min_range_m };
-            grow_into_unseen(&mut s.grown, &mut s.astar, &g, &growth);
-        }
-        if nav.near_memory_m > 0.0 {
-            let above = self.config.planner.unknown_risk as f32;
-            self.near.recall(&mut self.grid, &g, position, nav.near_memory_m, above, lethal);
-            self.near.recall(&mut s.grown, &g, position, nav.near_memory_m, above, lethal);
-        }
-        let start = *self.start.get_or_insert(position);
-        if nav.unseen_near_lethal {
-            let rule = UnseenNear { robot: position, start, blind_m: nav.coverage.min_range_m, lethal };
-            mark_unseen_near(&mut self.grid, &mut s.grown, &g, &self.near, &self.driven, &rule);
-        }
-        if nav.void_rim_m > 0.0 {
-            // The voids of this map (patches, as the hazard memory keeps them) the memory does
-            // not already hold, and the remembered ones, which the blind ring hides once the
-            // robot is beside them.
-            let negative = map.layer("negative")?;
-            let on_map: Vec<WorldCell> = (0..g.cells())
-                .filter(|&c| negative[c] >= lethal && clustered(&self.grid, g.nx, g.ny, c, lethal, nav.lethal_min_neighbours))
-                .map(|c| WorldCell::of_flat(&g, c))
-                .filter(|&cell| !self.hazards.is_void(cell))
-                .collect();
-            let remembered = self.hazards.voids().collect::<Vec<_>>();
-            mark_void_rims(&mut self.grid, &mut s.grown, &g, on_map.into_iter().chain(remembered), &self.driven, nav.void_rim_m, lethal);
-        }
-        self.map = Some(map);
-        Ok(())
-    }
-
-    /// Step 3: the A*'s grid, the stand-in, the entry prices and the plan; keeps the path.
-    fn plan(&mut self, grid: &RiskGrid<'_>, lethal: f32, pose: (DVec2, f64), target_point: DVec2, key: (f64, f64, Target)) -> Result<PlanOutcome> {
-        let position = pose.0;
-        let nav = self.config.navigator;
-        let g = *grid.map_geometry().ok_or_else(|| Error::input("grid", "must lie on a map geometry"))?;
-        let fit_radius = 0.5 * self.robot.width_m + nav.inflation_margin_m;
-        let unknown = self.config.planner.unknown_risk;
-        let s = &mut self.scratch;
-        if nav.inflate_lethal {
-            // The lethal cells of the map and the memories are inflated by the inscribed
-            // radius; the cells grown into the unseen, a guess, only block where they are.
-            inflate_lethal(grid.risk(), &mut s.astar, &g, lethal, nav.lethal_min_neighbours, fit_radius, position);
-            for (a, &grown) in s.astar.iter_mut().zip(&s.grown) {
-                if grown >= lethal && !(*a >= grown) {
-                    *a = grown;
-                }
-            }
-        } else {
-            s.astar.clone_from(&s.grown);
-        }
-        let astar_grid = RiskGrid::on_geometry(&s.astar, &g)?;
-        let (mut goal_on_map, mut remainder) = on_map(grid, position, target_point);
-        let off_map = remainder > 0.0;
-        let exit_search = off_map && nav.leave_by_any_border;
-        if self.planner.config().r_inst != key.0 || self.planner.config().r_total != key.1 {
-            self.planner = RiskAStar::new(RiskAStarConfig { r_inst: key.0, r_total: key.1, ..self.config.planner })?;
-        }
-        if nav.perception_aware {
-            s.known.clear();
-            s.known.extend((0..g.cells()).map(|c| {
-                let cell = WorldCell::of_flat(&g, c);
-                !s.astar[c].is_nan() || self.near.get(cell).is_some() || self.driven.contains(cell)
-            }));
-            unseen_entries(&astar_grid, &s.known, position, &nav.coverage, lethal, &mut s.unseen, &mut s.run);
-        } else {
-            s.unseen.clear();
-        }
-        let turn_room = nav.inflate_lethal && nav.turn_room_price > 0.0;
-        if turn_room {
-            // Room to turn: the ground between the inscribed and the circumscribed radius of
-            // the same lethal cells the inflation grows, priced (it stays traversable).
-            let circumscribed = (0.5 * self.robot.length_m).hypot(0.5 * self.robot.width_m) + nav.inflation_margin_m;
-            turn_room_prices(grid.risk(), &mut s.turn_room, &g, lethal, nav.lethal_min_neighbours, fit_radius, circumscribed, nav.turn_room_price as f32);
-        } else {
-            s.turn_room.clear();
-        }
-        let entry = (nav.perception_aware || turn_room).then(|| EntryPrices { unseen: &s.unseen, unseen_risk: self.unseen_risk, clearance: &s.turn_room });
-        // Toward a target beyond the map: leave by whichever border cell makes the whole way
-        // cheapest (the A*'s "toward a target off the grid"); when no way out within the
-        // thresholds exists (the border walled off or over them), the stand-in still gets
-        // the robot as near as the map allows.
-        let toward = if exit_search { Some(self.planner.plan_toward(&astar_grid, position, target_point, entry.as_ref())?) } else { None };
-        let mut outcome = match toward {
-            Some(out) if out.status == PlanStatus::Found => {
-                goal_on_map = astar_grid.centre_of(out.goal_cell);
-                remainder = goal_on_map.distance(target_point);
-                out
-            }
-            _ => {
-                // A stand-in for a target off the map, or on a cell the robot may not enter,
-                // must be a cell where it fits and that the planner can reach.
-                let blocking = key.0.min(f64::from(lethal));
-                reachable_from(&astar_grid, position, blocking, unknown, self.config.planner.allow_corner_cutting, &mut s.reachable, &mut s.flood);
-                let search = Search { r_inst: blocking, unknown, fit_radius_m: fit_radius, reachable: &s.reachable };
-                let standin = nearest_traversable(grid, goal_on_map, nav.standin_search_m, &search)
-                    .or_else(|| off_map.then(|| nearest_traversable_to(grid, target_point, &search)).flatten());
-                if let Some(p) = standin {
-                    goal_on_map = p;
-                    remainder = p.distance(target_point);
-                }
-                self.planner.plan_with(&astar_grid, position, goal_on_map, entry.as_ref())?
-            }
-        };
-        if nav.footprint_replans > 0 && outcome.found().is_some() {
-            // The path checked with the tracker's own footprint test (the rectangle along the
-            // path's tangent, lethal cells and the unknown next to them): where it fails, a
-            // disc around that point of the path is closed and the A* plans again.
-            let view = safety_view(&nav, self.robot, (&self.hazards, &self.near, &self.driven), *grid, lethal, lethal, false);
-            let replan = FootprintReplan {
-                view: &view,
-                from: pose,
-                goal: goal_on_map,
-                replans: nav.footprint_replans,
-                half_window_m: self.config.tracker.tracking.tangent_half_window_m,
-            };
-            outcome = reactive::footprint_checked(&mut self.planner, &s.astar, &g, lethal, entry.as_ref(), &replan, outcome)?;
-        }
-        let followed = self.last_plan_ok && self.planned_for == Some(key) && self.path.len() >= 2;
-        if let Some(path) = outcome.found() {
-            let view = safety_view(&nav, self.robot, (&self.hazards, &self.near, &self.driven), *grid, lethal, lethal, false);
-            let check = FootprintReplan { view: &view, from: pose, goal: goal_on_map, replans: 0, half_window_m: self.config.tracker.tracking.tangent_half_window_m };
-            let rest = if followed { rest_of_path(&self.path, position, 0.5 * self.robot.width_m) } else { None };
-            let planner = &self.planner;
-            // Both priced alike, as the A* prices a path (its perception-aware entry prices
-            // included: a path kept through ground the sensor will not have seen costs what
-            // the search would charge for it), then λ per metre of straight line on to the
-            // target (the heuristic's price of the unmapped remainder).
-            let price = |points: &[DVec2]| {
-                let end = *points.last()?;
-                let (cost, _) = planner.price_polyline(&astar_grid, points, entry.as_ref()).ok()??;
-                Some(cost + planner.config().min_cell_cost() * end.distance(target_point))
-            };
-            // Only over ground the map has rated: a path kept through unknown ground would
-            // take the robot where the planner no longer goes (a pit whose floor its rim
-            // hides), on the strength of an old guess.
-            let passable = |rest: &[DVec2]| {
-                let check = FootprintReplan { goal: *rest.last().unwrap_or(&goal_on_map), ..check };
-                rest.iter().skip(1).all(|p| astar_grid.value_at(*p).is_some_and(|v| !v.is_nan()))
-                    && reactive::first_blocked_along(&check, rest, g.resolution_m).is_none()
-            };
-            let decision = choose_route(rest, &path.points_world, self.robot.width_m, nav.plan_hysteresis, price, passable);
-            match decision {
-                Route::Kept(rest) => {
-                    self.remainder_m = rest.last().map_or(0.0, |e| e.distance(target_point));
-                    self.path = rest;
-                }
-                _ => {
-                    self.path.clone_from(&path.points_world);
-                    self.remainder_m = remainder;
-                }
-            }
-        } else {
-            self.path.clear();
-        }
-        Ok(outcome)
-    }
 
     fn output(&mut self, v: f64, w: f64, plan: Option<PlanOutcome>, mpc: Option<MpcOutput>, local_risk: f64, timings: NavigatorTimings) -> NavigatorOutput {
         let transitions = self.recovery.transitions()[self.transitions_seen..].to_vec();
@@ -778,61 +534,6 @@ impl Navigator {
             safety: None,
         }
     }
-}
-
-/// What step 3 does with a new plan while a path is being followed.
-#[derive(Debug, PartialEq)]
-enum Route {
-    /// No path was being followed: the plan is the path.
-    New,
-    /// The plan runs along the path being followed (within the robot's width): it replaces
-    /// it, as a refreshed copy of the same route.
-    Same,
-    /// The plan takes another route, and the rest of the path being followed is still
-    /// traversable, within the budget, passable for the footprint and at most
-    /// `1 + plan_hysteresis` times the plan's price: the rest is kept.
-    Kept(Vec<DVec2>),
-    /// The plan takes another route, clearly better or the only one left: it replaces the path.
-    Switched,
-}
-
-/// Step 3's choice between `rest`, the rest of the path being followed (if any), and `new`,
-/// the plan just found: the same route if every vertex of `rest` lies within `width_m` of
-/// `new`; else `rest` is kept if `price` prices both, `rest` at most `1 + hysteresis` times
-/// `new`, and the footprint can follow it (`passable`).
-fn choose_route(
-    rest: Option<Vec<DVec2>>,
-    new: &[DVec2],
-    width_m: f64,
-    hysteresis: f64,
-    price: impl Fn(&[DVec2]) -> Option<f64>,
-    passable: impl Fn(&[DVec2]) -> bool,
-) -> Route {
-    let Some(rest) = rest else { return Route::New };
-    if max_deviation(&rest, new) <= width_m {
-        return Route::Same;
-    }
-    let cheap_enough = matches!((price(&rest), price(new)), (Some(old), Some(new)) if old <= (1.0 + hysteresis) * new);
-    if hysteresis > 0.0 && cheap_enough && passable(&rest) { Route::Kept(rest) } else { Route::Switched }
-}
-
-/// The rest of `path` from the robot at `position`: the robot, then the path from its vertex
-/// nearest the robot; `None` if that vertex is farther than `within_m` (the robot is not
-/// following the path) or is the path's end.
-fn rest_of_path(path: &[DVec2], position: DVec2, within_m: f64) -> Option<Vec<DVec2>> {
-    let (nearest, d2) = path.iter().enumerate().map(|(i, p)| (i, p.distance_squared(position))).min_by(|a, b| a.1.total_cmp(&b.1))?;
-    if d2 > within_m * within_m || nearest + 1 >= path.len() {
-        return None;
-    }
-    let mut rest = Vec::with_capacity(path.len() - nearest + 1);
-    rest.push(position);
-    rest.extend_from_slice(&path[nearest..]);
-    Some(rest)
-}
-
-/// The largest distance from a vertex of `a` to the nearest vertex of `b` [m].
-fn max_deviation(a: &[DVec2], b: &[DVec2]) -> f64 {
-    a.iter().map(|p| b.iter().map(|q| p.distance_squared(*q)).fold(f64::INFINITY, f64::min)).fold(0.0, f64::max).sqrt()
 }
 
 /// What a motion is checked against ([`Navigator::safety_view`]), from the navigator's
@@ -870,76 +571,4 @@ fn safety_view<'a>(
 fn yaw_of(pose: &Isometry3) -> f64 {
     let x = pose.rotation * glam::DVec3::X;
     wrap_angle(x.y.atan2(x.x))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// 30 x 15 cells of 0.2 m with a block across the middle (x 10-19, y 4-10): two routes
-    /// round it, over (rows 11-14) and under (rows 0-3); `top_risk` on the upper band.
-    fn two_routes(top_risk: f32) -> Vec<f32> {
-        let mut risk = vec![0.0f32; 30 * 15];
-        for y in 0..15 {
-            for x in 0..30 {
-                if (10..20).contains(&x) && (4..11).contains(&y) {
-                    risk[y * 30 + x] = 0.95;
-                } else if y >= 11 && (8..22).contains(&x) {
-                    risk[y * 30 + x] = top_risk;
-                }
-            }
-        }
-        risk
-    }
-
-    fn plan(risk: &[f32]) -> (RiskAStarConfig, Vec<DVec2>) {
-        let grid = RiskGrid::new(risk, 30, 15, 0.2, DVec2::ZERO).unwrap();
-        let config = RiskAStarConfig { r_total: 1.0, ..RiskAStarConfig::default() };
-        let out = RiskAStar::new(config).unwrap().plan(&grid, DVec2::new(0.5, 1.5), DVec2::new(5.7, 1.5)).unwrap();
-        (config, out.found().expect("a path").points_world.clone())
-    }
-
-    #[test]
-    fn a_route_is_kept_unless_the_new_one_is_clearly_better() {
-        // The robot follows the route over the block (planned when the under route was risky).
-        let mut under_risky = two_routes(0.0);
-        for y in 0..4 {
-            for x in 8..22 {
-                under_risky[y * 30 + x] = 0.3;
-            }
-        }
-        let (config, over) = plan(&under_risky);
-        assert!(over.iter().any(|p| p.y > 2.2), "the first plan goes over the block");
-        let rest = rest_of_path(&over, over[3], 0.3).unwrap();
-        let judge = |risk: &[f32], hysteresis: f64| {
-            let (_, new) = plan(risk);
-            let grid = RiskGrid::new(risk, 30, 15, 0.2, DVec2::ZERO).unwrap();
-            let price = |points: &[DVec2]| config.polyline_cost(&grid, points).map(|(c, _)| c);
-            (choose_route(Some(rest.clone()), &new, 0.67, hysteresis, price, |_| true), new)
-        };
-        // Now the under route is clear and the over one slightly risky: the new plan goes
-        // under, a little cheaper; the route over is kept.
-        let (route, new) = judge(&two_routes(0.02), 0.2);
-        assert!(new.iter().all(|p| p.y < 2.2), "the new plan goes under");
-        assert!(matches!(route, Route::Kept(_)), "{route:?}");
-        // Without hysteresis, or when the route over became clearly worse, it switches.
-        assert_eq!(judge(&two_routes(0.02), 0.0).0, Route::Switched);
-        assert_eq!(judge(&two_routes(0.4), 0.2).0, Route::Switched);
-        // A route the footprint cannot follow any more is not kept.
-        let grid = RiskGrid::new(&under_risky, 30, 15, 0.2, DVec2::ZERO).unwrap();
-        let price = |points: &[DVec2]| config.polyline_cost(&grid, points).map(|(c, _)| c);
-        assert_eq!(choose_route(Some(rest.clone()), &plan(&two_routes(0.02)).1, 0.67, 0.2, price, |_| false), Route::Switched);
-        // The same route found again replaces the old path; no path followed: the plan.
-        assert_eq!(choose_route(Some(rest.clone()), &over, 0.67, 0.2, price, |_| true), Route::Same);
-        assert_eq!(choose_route(None, &over, 0.67, 0.2, price, |_| true), Route::New);
-    }
-
-    #[test]
-    fn the_rest_of_a_path_starts_at_the_robot_and_needs_it_near() {
-        let path = [DVec2::new(0.0, 0.0), DVec2::new(1.0, 0.0), DVec2::new(2.0, 0.0)];
-        assert_eq!(rest_of_path(&path, DVec2::new(1.1, 0.1), 0.3).unwrap(), vec![DVec2::new(1.1, 0.1), DVec2::new(1.0, 0.0), DVec2::new(2.0, 0.0)]);
-        assert_eq!(rest_of_path(&path, DVec2::new(1.0, 1.0), 0.3), None, "off the path");
-        assert_eq!(rest_of_path(&path, DVec2::new(2.0, 0.0), 0.3), None, "at its end");
-        assert!((max_deviation(&path, &[DVec2::new(0.0, 0.5), DVec2::new(2.0, 0.5)]) - 1.0f64.hypot(0.5)).abs() < 1e-12);
-    }
 }
