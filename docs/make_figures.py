@@ -122,7 +122,7 @@ def plan_figures() -> None:
     risk = random_risk_grid(n, 0)
     ax = axes[1]
     image = ax.imshow(risk, origin="lower", extent=(0, n * 0.1, 0, n * 0.1), cmap="magma_r", vmin=0, vmax=1)
-    result = subterra.RiskAStar(r_total=1.0).plan_cells(risk, (0, 0), (n - 1, n - 1), resolution=0.1)
+    result = subterra.RiskAStar({"r_total": 1.0}).plan_cells(risk, (0, 0), (n - 1, n - 1), resolution=0.1)
     ax.plot(*result.path_world.T, color="tab:cyan", lw=1.8)
     ax.set_title(f"benchmark grid 200x200 (seed 0): cost {result.cost:.3f}, {result.length_m:.1f} m,\n"
                  f"accumulated risk {result.accumulated_risk:.3f}, {result.expanded} cells expanded", fontsize=9)

@@ -615,7 +615,7 @@ def qmdp_act(data: bytes) -> None:
 
     fdp = atheris.FuzzedDataProvider(data)
     if "qmdp" not in _CACHE:
-        _CACHE["qmdp"] = subterra.Qmdp.default_config()
+        _CACHE["qmdp"] = subterra.QmdpConfig().to_dict()
     config = None if fdp.ConsumeIntInRange(0, 2) else mutate_tree(fdp, _CACHE["qmdp"], 3)
     try:
         p = subterra.DepthPerception(camera(), config=perception_config(fdp, edits=False), seed=0)
@@ -732,7 +732,7 @@ def _astar(fdp: atheris.FuzzedDataProvider) -> Any:
         kw["allow_corner_cutting"] = fdp.ConsumeBool()
     if fdp.ConsumeIntInRange(0, 3) == 0:
         kw["cost_model"] = text(fdp, ["risk", "additive"])
-    return subterra.RiskAStar(**kw)
+    return subterra.RiskAStar(kw)
 
 
 def _risk_grid(fdp: atheris.FuzzedDataProvider) -> Any:
@@ -791,7 +791,7 @@ def _mpc_config_dict(fdp: atheris.FuzzedDataProvider) -> Any:
     import subterra
 
     if "mpc" not in _CACHE:
-        _CACHE["mpc"] = subterra.MpcTracker.default_config()
+        _CACHE["mpc"] = subterra.MpcConfig().to_dict()
     if fdp.ConsumeIntInRange(0, 2):
         return None
     return mutate_tree(fdp, _CACHE["mpc"], 3)

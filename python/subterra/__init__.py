@@ -23,6 +23,13 @@ mapper, the planner, the MPC tracker and the recovery behaviours for a robot's o
 Path tracking (STEP, Fan et al. 2021): ``MpcTracker`` follows a reference path with a kinodynamic MPC
 (risk-limited speed, obstacle half-planes, a backup stop); ``solve`` returns an
 ``MpcResult`` with the command ``(v, ω)`` to send (the QP: ``plan/mpc.rs`` module docs).
+
+Configuration: every stage has a config class (``PerceptionConfig``, ``RobotConfig``,
+``TerrainConfig``, ``RiskAStarConfig``, ``MpcConfig``, ``NavigatorConfig``, ``HeroConfig``,
+``QmdpConfig``) with the same methods (``from_dict``, ``from_toml``, ``load``, ``to_dict``,
+``to_toml``), and every ``config`` argument takes ``None`` (the defaults), a partial nested
+dict laid over them, a config object or a TOML path. A bad or unknown field is a
+:class:`~subterra.errors.ConfigError` naming it (``coarse.resolution_m``).
 """
 
 from __future__ import annotations
@@ -36,11 +43,14 @@ from subterra._core import (
     Command,
     DepthPerception,
     Escape,
+    HeroConfig,
     MemoryOutput,
     MostProbableVoxel,
+    MpcConfig,
     MpcResult,
     MpcTracker,
     Navigator,
+    NavigatorConfig,
     NavigatorOutput,
     ObstacleMemory,
     OdometryMux,
@@ -54,7 +64,9 @@ from subterra._core import (
     PlanResult,
     Qmdp,
     QmdpAction,
+    QmdpConfig,
     RiskAStar,
+    RiskAStarConfig,
     RiskMap,
     RobotConfig,
     TerrainConfig,
@@ -69,11 +81,14 @@ __all__ = [
     "Command",
     "DepthPerception",
     "Escape",
+    "HeroConfig",
     "MemoryOutput",
     "MostProbableVoxel",
+    "MpcConfig",
     "MpcResult",
     "MpcTracker",
     "Navigator",
+    "NavigatorConfig",
     "NavigatorOutput",
     "ObstacleMemory",
     "PathFollower",
@@ -87,7 +102,9 @@ __all__ = [
     "PlanResult",
     "Qmdp",
     "QmdpAction",
+    "QmdpConfig",
     "RiskAStar",
+    "RiskAStarConfig",
     "RiskMap",
     "RobotConfig",
     "TerrainConfig",
@@ -101,17 +118,11 @@ __all__ = [
 
 
 def load_config(path: str | os.PathLike[str]) -> PerceptionConfig:
-    """Reads a perception config from a TOML file laid out like ``configs/flight.toml``.
+    """Reads a perception config from a TOML file laid out like ``configs/flight.toml``
+    (the same as :meth:`PerceptionConfig.load`).
 
     Raises :class:`~subterra.errors.FileFormatError` if the file cannot be read (missing,
     not a regular file, over 16 MiB, not UTF-8) and :class:`~subterra.errors.ConfigError`
-    if a value is invalid (the message names it).
+    if a value is invalid (the message names it and ends with the path).
     """
-    from subterra._files import read_regular_text
-
-    p = Path(path)
-    text = read_regular_text(p, "config file")  # a FIFO, a device or a folder fails at once
-    try:
-        return PerceptionConfig.from_toml(text)
-    except errors.ConfigError as exc:
-        raise errors.ConfigError(f"{exc}: {p}") from exc
+    return PerceptionConfig.load(Path(path))

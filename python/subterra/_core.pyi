@@ -3,7 +3,7 @@
 import os
 from collections.abc import Sequence
 from types import ModuleType
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -31,22 +31,61 @@ class PinholeCamera:
     @property
     def height(self) -> int: ...
 
-class PerceptionConfig:
-    """APF-PF settings: grid, transition, observation, filter, apf (layout of configs/flight.toml)."""
+class _Config:
+    """What every config class has. ``XConfig(config)`` takes ``None`` (the defaults), a
+    (partial, nested) dict laid over the defaults, an ``XConfig`` or the path of a TOML file
+    laid out like ``configs/<name>.toml``; every ``config`` argument of the library takes the
+    same four forms. A bad or unknown field is a ``ConfigError`` naming it."""
+
+    def __init__(self, config: _ConfigLike[Any] = None) -> None: ...
+    @classmethod
+    def from_dict(cls: type[_C], d: dict[str, Any]) -> _C: ...
+    @classmethod
+    def from_toml(cls: type[_C], text: str) -> _C: ...
+    @classmethod
+    def load(cls: type[_C], path: str | os.PathLike[str]) -> _C: ...
+    def to_dict(self) -> dict[str, Any]: ...
+    def to_toml(self) -> str: ...
+
+_C = TypeVar("_C", bound=_Config)
+_ConfigLike = Union[_C, dict[str, Any], str, os.PathLike[str], None]
+
+class PerceptionConfig(_Config):
+    """APF-PF settings: grid, transition, observation, filter, apf (layout of configs/flight.toml;
+    the defaults are the ``flight`` preset)."""
 
     @staticmethod
     def preset(name: str) -> PerceptionConfig: ...
     @staticmethod
-    def from_toml(text: str) -> PerceptionConfig: ...
-    @staticmethod
     def from_json(text: str) -> PerceptionConfig: ...
-    @staticmethod
-    def from_dict(d: dict[str, Any]) -> PerceptionConfig: ...
-    def to_toml(self) -> str: ...
     def to_json(self) -> str: ...
-    def to_dict(self) -> dict[str, Any]: ...
     @property
     def depth_bins(self) -> int: ...
+
+class RobotConfig(_Config):
+    """The ground robot: footprint, height, clearance [m], speed [m/s], tilt limits [deg] (Husky default)."""
+
+    @staticmethod
+    def husky() -> RobotConfig: ...
+
+class TerrainConfig(_Config):
+    """Terrain pipeline settings (layout of configs/terrain.toml)."""
+
+class RiskAStarConfig(_Config):
+    """Risk-aware A* settings (layout of configs/astar.toml)."""
+
+class MpcConfig(_Config):
+    """MPC tracker settings (layout of configs/mpc.toml)."""
+
+class NavigatorConfig(_Config):
+    """Ground navigation stack settings: sections ``planner``, ``tracker``, ``recovery``,
+    ``navigator`` (layout of configs/navigator.toml; defaults for the Husky-like robot)."""
+
+class HeroConfig(_Config):
+    """HeRO health checks (layout of configs/hero.toml)."""
+
+class QmdpConfig(_Config):
+    """QMDP controller settings (defaults: the authors')."""
 
 class MostProbableVoxel:
     @property
@@ -94,7 +133,7 @@ class DepthPerception:
         camera: PinholeCamera,
         preset: str = "flight",
         *,
-        config: PerceptionConfig | None = None,
+        config: _ConfigLike[PerceptionConfig] = None,
         body_from_camera: npt.ArrayLike | None = None,
         seed: int = 0,
         mode: Literal["particle", "histogram", "raw"] | None = None,
@@ -195,7 +234,7 @@ class Pilot:
         cameras: PinholeCamera | tuple[PinholeCamera, npt.ArrayLike] | list[PinholeCamera | tuple[PinholeCamera, npt.ArrayLike]],
         preset: str = "flight-escape",
         *,
-        config: PerceptionConfig | None = None,
+        config: _ConfigLike[PerceptionConfig] = None,
         controller: Literal["apf-pf", "apf-pf-histogram", "apf-pf-qmdp", "raw-apf"] = "apf-pf",
         seed: int = 0,
         qmdp: dict[str, Any] | None = None,
@@ -248,13 +287,11 @@ class QmdpAction:
 class Qmdp:
     """QMDP action selection over ``perception``'s belief (the APF-PF authors' follow-up):
     evasive velocities scored by their expected reward, ``act(output)`` per frame; ``config``
-    is a dict over ``Qmdp.default_config()`` (the authors' settings)."""
+    a ``QmdpConfig`` in any of the four forms (defaults: the authors' settings)."""
 
-    def __init__(self, perception: DepthPerception, config: dict[str, Any] | None = None) -> None: ...
-    @staticmethod
-    def default_config() -> dict[str, Any]: ...
+    def __init__(self, perception: DepthPerception, config: _ConfigLike[QmdpConfig] = None) -> None: ...
     @property
-    def config(self) -> dict[str, Any]: ...
+    def config(self) -> QmdpConfig: ...
     def act(self, output: PerceptionOutput) -> QmdpAction: ...
     def actions(self) -> npt.NDArray[np.float64]:
         """The action set, shape ``(A, 3)`` [m/s, body frame]."""
@@ -281,7 +318,7 @@ class EscapeOutput:
 class Escape:
     """Escape from local minima by boundary following (settings: the config's ``escape`` section)."""
 
-    def __init__(self, preset: str = "flight", *, config: PerceptionConfig | None = None) -> None: ...
+    def __init__(self, preset: str = "flight", *, config: _ConfigLike[PerceptionConfig] = None) -> None: ...
     def step(
         self,
         *,
@@ -330,7 +367,7 @@ class Command:
     def as_array(self) -> npt.NDArray[np.float64]: ...
 
 class ApfController:
-    def __init__(self, preset: str = "flight", *, config: PerceptionConfig | None = None) -> None: ...
+    def __init__(self, preset: str = "flight", *, config: _ConfigLike[PerceptionConfig] = None) -> None: ...
     def command(
         self,
         goal_body: Sequence[float] | npt.ArrayLike,
@@ -340,29 +377,6 @@ class ApfController:
     ) -> Command: ...
 
 _Matrix4 = npt.ArrayLike  # a 4x4 rigid transform (array or nested sequence)
-
-class RobotConfig:
-    """The ground robot: footprint, height, clearance [m], speed [m/s], tilt limits [deg] (Husky default)."""
-
-    def __init__(self, d: dict[str, Any] | None = None) -> None: ...
-    @staticmethod
-    def husky() -> RobotConfig: ...
-    @staticmethod
-    def from_dict(d: dict[str, Any]) -> RobotConfig: ...
-    def to_dict(self) -> dict[str, Any]: ...
-
-class TerrainConfig:
-    """Terrain pipeline settings (layout of configs/terrain.toml); partial dicts lie over the defaults."""
-
-    def __init__(self, d: dict[str, Any] | None = None) -> None: ...
-    @staticmethod
-    def from_toml(text: str) -> TerrainConfig: ...
-    @staticmethod
-    def load(path: str | os.PathLike[str]) -> TerrainConfig: ...
-    @staticmethod
-    def from_dict(d: dict[str, Any]) -> TerrainConfig: ...
-    def to_dict(self) -> dict[str, Any]: ...
-    def to_toml(self) -> str: ...
 
 class RiskMap:
     """A robot-centred, world-axis-aligned map; layers are float32 (ny, nx), row iy along world y."""
@@ -419,8 +433,8 @@ class TerrainMapper:
 
     def __init__(
         self,
-        robot: RobotConfig | dict[str, Any] | None = None,
-        config: TerrainConfig | dict[str, Any] | str | os.PathLike[str] | None = None,
+        robot: _ConfigLike[RobotConfig] = None,
+        config: _ConfigLike[TerrainConfig] = None,
     ) -> None: ...
     def update(
         self,
@@ -446,7 +460,7 @@ class TerrainMapper:
     def newest_points(self) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]] | None: ...
 
 def segment_ground(
-    points: npt.ArrayLike, *, sensor_height: float, config: TerrainConfig | dict[str, Any] | None = None
+    points: npt.ArrayLike, *, sensor_height: float, config: _ConfigLike[TerrainConfig] = None
 ) -> npt.NDArray[np.bool_]: ...
 
 class RiskAStar:
@@ -463,23 +477,14 @@ class RiskAStar:
     ``c = 1 + additive_weight * r`` (default 2.0, Nav2 Smac's ``cost_penalty``), cells with
     ``r >= r_inst`` blocked, no budget (always ``"found"`` when reachable). Cells with
     ``r >= lethal_risk`` are untraversable whatever ``r_inst`` is (the navigator sets it to the
-    terrain map's ``risk.lethal_risk``). Risks must lie in [0, 1] (NaN: unknown). Bad values
-    raise :class:`subterra.errors.ConfigError`.
+    terrain map's ``risk.lethal_risk``). Risks must lie in [0, 1] (NaN: unknown). ``config``: a
+    ``RiskAStarConfig`` in any of the four forms (``{"r_total": 1.0}``); bad values raise
+    :class:`subterra.errors.ConfigError`.
     """
 
-    def __init__(
-        self,
-        *,
-        lam: float = 0.1,
-        r_inst: float = 0.8,
-        r_total: float = 0.5,
-        carrot_m: float = 1.0,
-        unknown_risk: float = 0.15,
-        allow_corner_cutting: bool = False,
-        cost_model: Literal["risk", "additive"] = "risk",
-        additive_weight: float = 2.0,
-        lethal_risk: float = 1.0,
-    ) -> None: ...
+    def __init__(self, config: _ConfigLike[RiskAStarConfig] = None) -> None: ...
+    @property
+    def config(self) -> RiskAStarConfig: ...
     def plan(
         self,
         risk: RiskMap | npt.ArrayLike,
@@ -623,13 +628,11 @@ class MpcTracker:
     """Kinodynamic MPC path tracker of a ground robot (the QP is written out in the module docs of crates/subterra/src/plan/mpc.rs).
 
     ``config``: None (the ``configs/mpc.toml`` defaults), a partial nested dict laid over them
-    (``{"limits": {"max_speed_m_s": 0.5}}``), or a TOML path. Keeps its last plan to
-    warm-start the next solve; ``reset()`` forgets it.
+    (``{"limits": {"max_speed_m_s": 0.5}}``), an ``MpcConfig`` or a TOML path. Keeps its last
+    plan to warm-start the next solve; ``reset()`` forgets it.
     """
 
-    def __init__(self, config: dict[str, Any] | str | os.PathLike[str] | None = None) -> None: ...
-    @staticmethod
-    def default_config() -> dict[str, Any]: ...
+    def __init__(self, config: _ConfigLike[MpcConfig] = None) -> None: ...
     def solve(
         self,
         state: Sequence[float] | npt.ArrayLike,
@@ -649,7 +652,7 @@ class MpcTracker:
         """
     def reset(self) -> None: ...
     @property
-    def config(self) -> dict[str, Any]: ...
+    def config(self) -> MpcConfig: ...
     @property
     def horizon(self) -> int: ...
     @property
@@ -705,9 +708,10 @@ class Navigator:
     tracker and recovery behaviours, one ``step`` per control tick.
 
     ``goal``, ``home``: world (x, y) [m]; ``home`` defaults to the robot's position at the
-    first step. ``robot``: None (Husky), a dict or a ``RobotConfig``. ``terrain``: None, a
-    dict, a ``TerrainConfig`` or a TOML path. ``config``: a (partial) dict with sections
-    ``planner``, ``tracker``, ``recovery``, ``navigator`` laid over the defaults.
+    first step. ``robot``, ``terrain``, ``config``: a ``RobotConfig`` (default: Husky), a
+    ``TerrainConfig`` and a ``NavigatorConfig`` in any of the four forms; a ``config`` dict
+    (sections ``planner``, ``tracker``, ``recovery``, ``navigator``) is laid over the
+    defaults for the robot.
     """
 
     def __init__(
@@ -715,9 +719,9 @@ class Navigator:
         goal: Sequence[float],
         *,
         home: Sequence[float] | None = None,
-        robot: RobotConfig | dict[str, Any] | None = None,
-        terrain: TerrainConfig | dict[str, Any] | str | os.PathLike[str] | None = None,
-        config: dict[str, Any] | None = None,
+        robot: _ConfigLike[RobotConfig] = None,
+        terrain: _ConfigLike[TerrainConfig] = None,
+        config: _ConfigLike[NavigatorConfig] = None,
     ) -> None: ...
     def step(
         self,
@@ -757,7 +761,7 @@ class Navigator:
     @property
     def robot(self) -> RobotConfig: ...
     @property
-    def config(self) -> dict[str, Any]:
+    def config(self) -> NavigatorConfig:
         """Sections ``planner``, ``tracker``, ``recovery``, ``navigator``."""
     @property
     def transitions(self) -> list[dict[str, Any]]:
@@ -807,14 +811,12 @@ class OdometryMux:
     """HeRO, the odometry multiplexer: health checks on several odometry sources (stale,
     jump, covariance, consistency) and the most trusted usable one passed on as one
     continuous pose with a confidence (docs/hero.md). ``sources``: ``[(name, rate_hz), ...]``
-    most trusted first, or a dict in that order; ``config``: a dict over
-    ``OdometryMux.default_config()``."""
+    most trusted first, or a dict in that order; ``config``: a ``HeroConfig`` in any of the
+    four forms."""
 
-    def __init__(self, sources: Sequence[tuple[str, float]] | dict[str, float], config: dict[str, Any] | None = None) -> None: ...
-    @staticmethod
-    def default_config() -> dict[str, Any]: ...
+    def __init__(self, sources: Sequence[tuple[str, float]] | dict[str, float], config: _ConfigLike[HeroConfig] = None) -> None: ...
     @property
-    def config(self) -> dict[str, Any]: ...
+    def config(self) -> HeroConfig: ...
     @property
     def sources(self) -> list[str]: ...
     def push(

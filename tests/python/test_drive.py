@@ -145,7 +145,7 @@ def test_turn_room_price_keeps_the_plan_off_a_wall_where_there_is_room():
     paths = {}
     for price in (0.0, 1.0):
         nav = subterra.Navigator(goal=(8.0, 0.0), config={"navigator": {"turn_room_price": price}})
-        assert nav.config["navigator"]["turn_room_price"] == price
+        assert nav.config.to_dict()["navigator"]["turn_room_price"] == price
         out = nav.step(scan, stamp=0.0, world_from_body=np.eye(4), body_from_sensor=mount)
         path = np.asarray(out.path_world)
         assert len(path) > 10, price
@@ -154,7 +154,7 @@ def test_turn_room_price_keeps_the_plan_off_a_wall_where_there_is_room():
     assert np.abs(paths[0.0][:, 1]).max() < 0.06
     assert (0.45 - paths[1.0][:, 1]).min() > 0.5
     # Off by default; out of range is an error naming the field.
-    assert subterra.Navigator(goal=(8.0, 0.0)).config["navigator"]["turn_room_price"] == 0.0
+    assert subterra.Navigator(goal=(8.0, 0.0)).config.to_dict()["navigator"]["turn_room_price"] == 0.0
     for bad in (-0.1, float("nan"), 1e3):
         with pytest.raises(ConfigError, match="navigator.turn_room_price"):
             subterra.Navigator(goal=(8.0, 0.0), config={"navigator": {"turn_room_price": bad}})
@@ -189,7 +189,7 @@ def test_a_stale_lidar_or_lost_odometry_stops_the_robot_with_the_reason():
 
     mount = translation(z=0.7)
     nav = subterra.Navigator(goal=(6.0, 0.0))
-    assert nav.config["navigator"]["scan_timeout_s"] == 0.5
+    assert nav.config.to_dict()["navigator"]["scan_timeout_s"] == 0.5
     floor = _ground_scan((0.5, 8.0), (-3.0, 3.0))
     out = nav.step(floor, stamp=0.0, world_from_body=np.eye(4), body_from_sensor=mount)
     moving = [nav.step(floor if k % 2 else None, stamp=0.1 * k, world_from_body=np.eye(4), body_from_sensor=mount)

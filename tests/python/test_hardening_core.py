@@ -255,13 +255,12 @@ def test_camera_arguments_are_named(kwargs, name):
         (lambda p: subterra.DepthPerception(subterra.PinholeCamera.d435(), preset=None), "preset"),
         (lambda p: subterra.DepthPerception(subterra.PinholeCamera.d435(), mode=2), "mode"),
         (lambda p: p.voxel_centres(frame=b"camera"), "frame"),
-        (lambda p: subterra.RiskAStar(cost_model=1), "cost_model"),
         (lambda p: subterra.sim.World.scenario(None), "name"),
         (lambda p: subterra.sim.Lidar(preset=["vlp16"]), "preset"),
         (lambda p: subterra.TerrainMapper().update(np.ones((10, 3))).layer(0), "name"),
     ],
     ids=["float-index", "huge-index", "str-state", "str-scale", "none-confidence", "str-stamp", "none-yaw", "negative-seed", "list-lookahead", "complex-speed",
-         "int-preset-name", "surrogate-name", "none-preset", "int-mode", "bytes-frame", "int-cost-model", "none-scenario", "list-lidar-preset", "int-layer"],
+         "int-preset-name", "surrogate-name", "none-preset", "int-mode", "bytes-frame", "none-scenario", "list-lidar-preset", "int-layer"],
 )
 def test_a_value_of_the_wrong_type_is_an_input_error_naming_the_argument(call, name):
     # pyo3's own conversion raised a bare TypeError or OverflowError ("while processing 'x'"
@@ -373,4 +372,4 @@ def test_a_section_config_names_its_fields_alike_for_nan_and_out_of_range():
         with pytest.raises(ConfigError, match=r"`robot\.length_m`"):
             subterra.RobotConfig({"length_m": value})
         with pytest.raises(ConfigError, match=r"`ground\.bin_m`"):
-            segment_ground(np.zeros((10, 3), np.float32), sensor_height=0.7, config={"bin_m": value})
+            segment_ground(np.zeros((10, 3), np.float32), sensor_height=0.7, config={"ground": {"bin_m": value}})

@@ -92,10 +92,10 @@ def test_the_covariance_bound_and_the_confidence():
 
 
 def test_the_committed_defaults_are_the_defaults():
-    committed = tomllib.loads((ROOT / "configs" / "hero.toml").read_text(encoding="utf-8"))["hero"]
-    assert committed == subterra.OdometryMux.default_config()
+    committed = tomllib.loads((ROOT / "configs" / "hero.toml").read_text(encoding="utf-8"))
+    assert committed == subterra.HeroConfig().to_dict()
     mux = subterra.OdometryMux([("vio", 10)], config={"recover_s": 0.5})
-    assert mux.config["recover_s"] == 0.5 and mux.config["jump_m"] == committed["jump_m"]
+    assert mux.config.to_dict()["recover_s"] == 0.5 and mux.config.to_dict()["jump_m"] == committed["jump_m"]
 
 
 def test_bad_input_names_the_argument():

@@ -92,7 +92,7 @@ def test_counts_pictures_and_occupancy_grid_agree(hole):
 
 def test_the_astar_never_enters_the_hole_even_with_raised_thresholds(hole):
     m, cells = hole["map"], hole["cells"]
-    planner = subterra.RiskAStar(r_inst=1.0, r_total=1.0, lethal_risk=m.lethal_risk)
+    planner = subterra.RiskAStar({"r_inst": 1.0, "r_total": 1.0, "lethal_risk": m.lethal_risk})
     goal = hole["centre"] + 4.0 * hole["direction"]
     result = planner.plan(m, hole["robot"], goal)
     assert result.status == "found", result.status
@@ -103,7 +103,7 @@ def test_the_astar_never_enters_the_hole_even_with_raised_thresholds(hole):
 
 def test_the_mpc_keeps_the_hole_inside_its_obstacle_polygons(hole):
     m, cells = hole["map"], hole["cells"]
-    config = subterra.MpcTracker.default_config()
+    config = subterra.MpcConfig().to_dict()
     config["risk"]["lethal_risk"] = float(m.lethal_risk)
     tracker = subterra.MpcTracker(config)
     path = np.array([hole["robot"] + s * hole["direction"] for s in np.linspace(0.0, 2.0, 21)])

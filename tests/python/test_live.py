@@ -799,8 +799,8 @@ def test_probe_findings_on_the_bridge_are_clear_errors(tmp_path):
         NodeConfig.from_dict({"drone": {"preset": "nope"}})
     with pytest.raises(FileFormatError, match="not a path"):
         NodeConfig.load(0)
-    with pytest.raises(InputError, match="config"):
-        make_node("ground", {"node": {}})
+    with pytest.raises(ConfigError, match="argument `config` must be None, a dict, a NodeConfig or a TOML path"):
+        make_node("ground", 42)
     # MAVLink: a huge finite command killed the streaming thread; a bad port; strings and complex.
     with pytest.raises(ConfigError, match="port"):
         MavlinkBridge("udpout:127.0.0.1:99999")
@@ -832,10 +832,12 @@ def test_probe_findings_on_the_bridge_are_clear_errors(tmp_path):
             view.publish("/a", "std_msgs/msg/Header", None)
     # sil: checked before anything starts.
     for kwargs, field in (({"reply_timeout_s": float("nan")}, "reply_timeout_s"), ({"time_limit_s": "10"}, "time_limit_s"),
-                          ({"node_config": {"node": {}}}, "node_config"), ({"domain_id": 999}, "domain_id"),
+                          ({"domain_id": 999}, "domain_id"),
                           ({"out": tmp_path / "deep.toml"}, "out"), ({"robot": ["ground"]}, "robot")):
         with pytest.raises(InputError, match=field):
             sil(**{"robot": "ground", **kwargs})
+    with pytest.raises(ConfigError, match="argument `node_config` must be None, a dict, a NodeConfig or a TOML path"):
+        sil(robot="ground", node_config=42)
 
 
 def test_probe_findings_on_the_ros_encoders_are_clear_errors():

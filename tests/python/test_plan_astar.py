@@ -63,7 +63,7 @@ def test_cost_equals_mcp_geometric_with_corner_cutting(seed):
     risk = mixed_grid(rng, ny, nx) if seed % 2 else random_risk_grid(int(nx), seed)
     res = float(rng.uniform(0.05, 0.5))
     params = {"lam": float(rng.uniform(0.02, 1.0)), "r_inst": float(rng.uniform(0.6, 1.0)), "unknown_risk": 0.2}
-    planner = subterra.RiskAStar(**params, r_total=1.0, allow_corner_cutting=True)
+    planner = subterra.RiskAStar({**params, "r_total": 1.0, "allow_corner_cutting": True})
     cells = traversable_cells(risk, params["r_inst"], params["unknown_risk"])
     found = 0
     for _ in range(6):
@@ -93,7 +93,7 @@ def test_cost_equals_scipy_dijkstra_on_the_exact_rules(seed, allow_corner_cuttin
     risk = mixed_grid(rng, ny, nx)
     res = float(rng.uniform(0.05, 1.0))
     params = {"lam": float(rng.uniform(0.01, 2.0)), "r_inst": float(rng.uniform(0.5, 1.0)), "unknown_risk": float(rng.uniform(0.0, 0.5))}
-    planner = subterra.RiskAStar(**params, r_total=1.0, allow_corner_cutting=allow_corner_cutting)
+    planner = subterra.RiskAStar({**params, "r_total": 1.0, "allow_corner_cutting": allow_corner_cutting})
     origin = tuple(rng.uniform(-50, 50, 2))
     outcomes = set()
     for _ in range(8):
@@ -127,7 +127,7 @@ def test_plan_toward_leaves_by_the_cheapest_border_cell(seed):
     ny, nx, res, origin = 12, 15, 0.4, (-2.0, 1.0)
     risk = mixed_grid(rng, ny, nx)
     params = {"lam": 0.1, "r_inst": 0.8, "unknown_risk": 0.15}
-    planner = subterra.RiskAStar(**params, r_total=1.0)
+    planner = subterra.RiskAStar({**params, "r_total": 1.0})
     s = next((x, y) for x, y in zip(rng.integers(0, nx, 50), rng.integers(0, ny, 50)) if np.isfinite(risk[y, x]) and risk[y, x] < 0.8)
     start = np.asarray(origin) + (np.asarray(s) + 0.5) * res
     target = start + 12.0 * np.array([math.cos(seed * 2.1), math.sin(seed * 2.1)])
@@ -158,7 +158,7 @@ def test_corner_cutting_rule_by_hand():
     strict = subterra.RiskAStar().plan_cells(risk, (0, 0), (1, 1), resolution=1.0)
     assert strict.path_cells.tolist() == [[0, 0], [0, 1], [1, 1]]
     assert strict.length_m == pytest.approx(2.0)
-    cutting = subterra.RiskAStar(allow_corner_cutting=True).plan_cells(risk, (0, 0), (1, 1), resolution=1.0)
+    cutting = subterra.RiskAStar({"allow_corner_cutting": True}).plan_cells(risk, (0, 0), (1, 1), resolution=1.0)
     assert cutting.path_cells.tolist() == [[0, 0], [1, 1]]
     assert cutting.length_m == pytest.approx(math.sqrt(2.0))
 
@@ -166,7 +166,7 @@ def test_corner_cutting_rule_by_hand():
 def test_cost_by_hand():
     # Two cells 0.5 m apart with risks 0.2 and 0.5, lam 0.1: 0.5 * (0.1 - ln 0.8 + 0.1 - ln 0.5) / 2.
     risk = np.array([[0.2, 0.5]], np.float32)
-    result = subterra.RiskAStar(r_total=1.0).plan(risk, (0.1, 0.2), (0.9, 0.4), resolution=0.5)
+    result = subterra.RiskAStar({"r_total": 1.0}).plan(risk, (0.1, 0.2), (0.9, 0.4), resolution=0.5)
     r0, r1 = float(np.float32(0.2)), float(np.float32(0.5))
     assert result.cost == pytest.approx(0.5 * (0.2 - math.log(1 - r0) - math.log(1 - r1)) / 2, rel=1e-12)
     integral = 0.5 * (-math.log(1 - r0) - math.log(1 - r1)) / 2
@@ -181,7 +181,7 @@ def test_cost_by_hand():
 def test_paths_never_enter_untraversable_cells_on_benchmark_grids():
     risk = random_risk_grid(150, 3)
     for r_inst in (0.3, 0.6, 0.9, 1.0):
-        result = subterra.RiskAStar(r_inst=r_inst, r_total=1.0).plan_cells(risk, (0, 0), (149, 149), resolution=0.1)
+        result = subterra.RiskAStar({"r_inst": r_inst, "r_total": 1.0}).plan_cells(risk, (0, 0), (149, 149), resolution=0.1)
         assert result.status in ("found", "no_path")
         if result.found:
             check_legal(result, risk, r_inst=r_inst, unknown_risk=0.15, allow_corner_cutting=False)
@@ -190,12 +190,12 @@ def test_paths_never_enter_untraversable_cells_on_benchmark_grids():
 def test_budget_rejection_is_exact_at_the_boundary():
     rng = np.random.default_rng(7)
     risk = (rng.uniform(0.0, 0.3, (30, 40))).astype(np.float32)
-    probe = subterra.RiskAStar(r_total=1.0).plan(risk, (0.05, 0.05), (3.9, 2.9), resolution=0.1)
+    probe = subterra.RiskAStar({"r_total": 1.0}).plan(risk, (0.05, 0.05), (3.9, 2.9), resolution=0.1)
     r = probe.accumulated_risk
     assert 0.0 < r < 1.0
-    at = subterra.RiskAStar(r_total=r).plan(risk, (0.05, 0.05), (3.9, 2.9), resolution=0.1)
+    at = subterra.RiskAStar({"r_total": r}).plan(risk, (0.05, 0.05), (3.9, 2.9), resolution=0.1)
     assert at.status == "found" and at.carrot is not None
-    below = subterra.RiskAStar(r_total=float(np.nextafter(r, 0.0))).plan(risk, (0.05, 0.05), (3.9, 2.9), resolution=0.1)
+    below = subterra.RiskAStar({"r_total": float(np.nextafter(r, 0.0))}).plan(risk, (0.05, 0.05), (3.9, 2.9), resolution=0.1)
     assert below.status == "budget_exceeded" and not below.found
     # The rejected least-cost path is still reported; no carrot to follow.
     assert below.accumulated_risk == r and below.cost == probe.cost and below.carrot is None
@@ -206,7 +206,7 @@ def test_budget_rejection_is_exact_at_the_boundary():
 @pytest.mark.parametrize("allow_corner_cutting", [False, True])
 def test_zero_risk_grids_give_shortest_paths(lam, allow_corner_cutting):
     rng = np.random.default_rng(int(lam * 1000))
-    planner = subterra.RiskAStar(lam=lam, allow_corner_cutting=allow_corner_cutting)
+    planner = subterra.RiskAStar({"lam": lam, "allow_corner_cutting": allow_corner_cutting})
     risk = np.zeros((40, 70), np.float32)
     for _ in range(10):
         (sx, gx), (sy, gy) = rng.integers(0, 70, 2), rng.integers(0, 40, 2)
@@ -230,21 +230,21 @@ def test_small_lam_trades_length_for_risk_and_large_lam_the_reverse():
     # A risky band across the straight line, with a riskless detour around its end.
     risk = np.zeros((30, 60), np.float32)
     risk[0:25, 28:32] = 0.3
-    short = subterra.RiskAStar(lam=100.0, r_total=1.0).plan_cells(risk, (5, 5), (55, 5), resolution=0.1)
-    safe = subterra.RiskAStar(lam=0.01, r_total=1.0).plan_cells(risk, (5, 5), (55, 5), resolution=0.1)
+    short = subterra.RiskAStar({"lam": 100.0, "r_total": 1.0}).plan_cells(risk, (5, 5), (55, 5), resolution=0.1)
+    safe = subterra.RiskAStar({"lam": 0.01, "r_total": 1.0}).plan_cells(risk, (5, 5), (55, 5), resolution=0.1)
     assert short.length_m == pytest.approx(5.0) and short.accumulated_risk > 0
     assert safe.accumulated_risk == 0.0 and safe.length_m > short.length_m
 
 
 def test_carrot_along_the_path():
     risk = np.zeros((5, 40), np.float32)
-    planner = subterra.RiskAStar(carrot_m=1.0)
+    planner = subterra.RiskAStar({"carrot_m": 1.0})
     # Straight along x from the centre of (0, 2) to (30, 2): carrot 1 m ahead.
     result = planner.plan(risk, (0.05, 0.25), (3.05, 0.25), resolution=0.1)
     assert result.carrot == pytest.approx((1.05, 0.25))
     # Interpolated between centres, and the goal when the path is shorter than carrot_m.
-    assert subterra.RiskAStar(carrot_m=0.37).plan(risk, (0.05, 0.25), (3.05, 0.25), resolution=0.1).carrot == pytest.approx((0.42, 0.25))
-    assert subterra.RiskAStar(carrot_m=10.0).plan(risk, (0.05, 0.25), (3.05, 0.25), resolution=0.1).carrot == pytest.approx((3.05, 0.25))
+    assert subterra.RiskAStar({"carrot_m": 0.37}).plan(risk, (0.05, 0.25), (3.05, 0.25), resolution=0.1).carrot == pytest.approx((0.42, 0.25))
+    assert subterra.RiskAStar({"carrot_m": 10.0}).plan(risk, (0.05, 0.25), (3.05, 0.25), resolution=0.1).carrot == pytest.approx((3.05, 0.25))
     # A pure diagonal: the carrot lies on it, 1 m from the start centre.
     square = np.zeros((30, 30), np.float32)
     diag = planner.plan(square, (0.05, 0.05), (2.95, 2.95), resolution=0.1)
@@ -267,17 +267,17 @@ def test_outcomes_are_told_apart():
     assert blocked.path_cells.shape == (0, 2) and blocked.length_m is None and blocked.cost is None
     # NaN is unknown: traversable at unknown_risk < r_inst, untraversable at >= r_inst.
     assert planner.plan_cells(risk, (2, 2), (0, 0), resolution=0.1).status == "found"
-    assert subterra.RiskAStar(unknown_risk=0.8).plan_cells(risk, (2, 2), (0, 0), resolution=0.1).status == "start_blocked"
+    assert subterra.RiskAStar({"unknown_risk": 0.8}).plan_cells(risk, (2, 2), (0, 0), resolution=0.1).status == "start_blocked"
     assert "no_path" in repr(blocked)
 
 
 def test_deterministic_and_buffers_reused_across_grid_sizes():
     big, small = random_risk_grid(120, 1), random_risk_grid(30, 2)
-    planner = subterra.RiskAStar(r_total=1.0)
+    planner = subterra.RiskAStar({"r_total": 1.0})
     first = planner.plan_cells(big, (0, 0), (119, 119), resolution=0.1)
     planner.plan_cells(small, (0, 0), (29, 29), resolution=0.1)
     again = planner.plan_cells(big, (0, 0), (119, 119), resolution=0.1)
-    fresh = subterra.RiskAStar(r_total=1.0).plan_cells(big, (0, 0), (119, 119), resolution=0.1)
+    fresh = subterra.RiskAStar({"r_total": 1.0}).plan_cells(big, (0, 0), (119, 119), resolution=0.1)
     for other in (again, fresh):
         np.testing.assert_array_equal(other.path_cells, first.path_cells)
         assert (other.cost, other.expanded) == (first.cost, first.expanded)
@@ -285,7 +285,7 @@ def test_deterministic_and_buffers_reused_across_grid_sizes():
 
 def test_array_layouts_and_dtypes_give_the_same_plan():
     risk = random_risk_grid(50, 4)
-    planner = subterra.RiskAStar(r_total=1.0)
+    planner = subterra.RiskAStar({"r_total": 1.0})
     base = planner.plan_cells(risk, (0, 0), (49, 49), resolution=0.1)
     for variant in (risk.astype(np.float64), np.asfortranarray(risk), risk.T.copy().T, risk[::1, ::1]):
         other = planner.plan_cells(variant, (0, 0), (49, 49), resolution=0.1)
@@ -322,7 +322,7 @@ def test_array_layouts_and_dtypes_give_the_same_plan():
 )
 def test_bad_config_raises_config_error_naming_it(kwargs, name):
     with pytest.raises(ConfigError, match=name) as info:
-        subterra.RiskAStar(**kwargs)
+        subterra.RiskAStar(kwargs)
     assert isinstance(info.value, SubterraError) and isinstance(info.value, ValueError)
 
 
@@ -464,8 +464,8 @@ def test_additive_baseline_cost_model():
     risk = np.zeros((40, 40), np.float32)
     risk[:, 19:23] = 0.88
     risk[38:, 19:23] = 0.0  # the gap at the top
-    aware = subterra.RiskAStar(r_inst=0.9, r_total=0.99).plan(risk, (0.5, 0.5), (3.5, 0.5), resolution=0.1)
-    additive = subterra.RiskAStar(r_inst=0.9, r_total=0.01, cost_model="additive").plan(risk, (0.5, 0.5), (3.5, 0.5), resolution=0.1)
+    aware = subterra.RiskAStar({"r_inst": 0.9, "r_total": 0.99}).plan(risk, (0.5, 0.5), (3.5, 0.5), resolution=0.1)
+    additive = subterra.RiskAStar({"r_inst": 0.9, "r_total": 0.01, "cost_model": "additive"}).plan(risk, (0.5, 0.5), (3.5, 0.5), resolution=0.1)
     assert aware.status == "found" and additive.status == "found"
     assert aware.length_m > 6.0 and additive.length_m < 3.5
     assert additive.accumulated_risk > 0.01  # over the budget, yet found: the baseline has none
@@ -474,6 +474,6 @@ def test_additive_baseline_cost_model():
     expected = 3.0 + 2.0 * float(np.float32(0.88)) * 0.4  # 3 m of length plus k·r over the band's 0.4 m
     assert additive.cost == pytest.approx(expected, rel=1e-12)
     with pytest.raises(subterra.errors.ConfigError, match="cost_model"):
-        subterra.RiskAStar(cost_model="nav2")
+        subterra.RiskAStar({"cost_model": "nav2"})
     with pytest.raises(subterra.errors.ConfigError, match="additive_weight"):
-        subterra.RiskAStar(cost_model="additive", additive_weight=-1.0)
+        subterra.RiskAStar({"cost_model": "additive", "additive_weight": -1.0})

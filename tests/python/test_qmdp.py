@@ -11,7 +11,7 @@ import pytest
 
 import subterra
 from subterra import flight, sim
-from subterra.errors import ConfigError, InputError
+from subterra.errors import ConfigError, FileFormatError, InputError
 from worlds import EASY_ROOM
 
 
@@ -37,8 +37,8 @@ def _potential(c: dict, x: np.ndarray) -> np.ndarray:
 
 
 def test_the_reward_table_is_the_formula_over_the_voxel_points(perception, qmdp):
-    c = qmdp.config
-    assert c == subterra.Qmdp.default_config()
+    assert qmdp.config == subterra.QmdpConfig()
+    c = qmdp.config.to_dict()
     actions, rewards = qmdp.actions(), qmdp.rewards()
     assert actions.shape == (405, 3) and rewards.shape == (perception.state_count, 405)
     assert (actions == 0).all(axis=1).sum() == 1
@@ -85,8 +85,10 @@ def test_outputs_of_another_perception_and_bad_settings_are_refused(qmdp):
         subterra.Qmdp(p, {"lookahead_s": math.inf})
     with pytest.raises(ConfigError, match=r"nope"):
         subterra.Qmdp(p, {"nope": 1})
-    with pytest.raises(ConfigError, match=r"argument `config`"):
-        subterra.Qmdp(p, "qmdp.toml")
+    with pytest.raises(ConfigError, match=r"argument `config` must be None, a dict, a QmdpConfig or a TOML path"):
+        subterra.Qmdp(p, 42)
+    with pytest.raises(FileFormatError, match="no-such-qmdp.toml"):
+        subterra.Qmdp(p, "no-such-qmdp.toml")
     # A coarser action set is smaller and still holds 0.
     q = subterra.Qmdp(p, {"action_step_m_s": [0.4, 0.8, 0.8]})
     assert len(q.actions()) == 3 * 3 * 3 and (q.actions() == 0).all(axis=1).any()

@@ -22,6 +22,9 @@ def _stub_classes() -> dict[str, set[str]]:
                     names.add(item.name)
                 elif isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name):
                     names.add(item.target.id)
+            for base in node.bases:  # members a stub class inherits from a stub base (`_Config`)
+                if isinstance(base, ast.Name) and base.id in classes:
+                    names |= classes[base.id]
             classes[node.name] = names
     return classes
 

@@ -179,7 +179,7 @@ def test_segment_ground_plane_and_box():
     assert (~labels[high]).mean() >= 0.95
     # A stricter line threshold from a dict, and a TerrainConfig, give the same labels as the default here.
     assert (subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=subterra.TerrainConfig()) == labels).all()
-    strict = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config={"max_dist_to_line_m": 0.01})
+    strict = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config={"ground": {"max_dist_to_line_m": 0.01}})
     assert strict[~is_box].mean() >= 0.99
 
 
@@ -306,7 +306,7 @@ def test_absurd_configs_are_config_errors(tmp_path):
     with pytest.raises(ConfigError, match="robot"):
         subterra.TerrainMapper(robot=3)
     with pytest.raises(ConfigError, match="max_slope"):
-        subterra.segment_ground(plane(), sensor_height=0.7, config={"max_slope": -1.0})
+        subterra.segment_ground(plane(), sensor_height=0.7, config={"ground": {"max_slope": -1.0}})
     with pytest.raises(FileFormatError, match="missing.toml"):
         subterra.TerrainMapper(config=tmp_path / "missing.toml")
     bad = tmp_path / "bad.toml"

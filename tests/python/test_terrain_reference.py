@@ -60,7 +60,7 @@ def test_labels_match_with_a_changed_config(scans, config):
     """A config change reaches both the same way (and changes the labels)."""
     cfg = {**config, "ground": {**config["ground"], "max_slope": 0.2, "max_dist_to_line_m": 0.05, "sectors": 90, "bin_m": 0.5}}
     points = scans[0]
-    rust = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg["ground"])
+    rust = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config={"ground": cfg["ground"]})
     ref = reference.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg)
     np.testing.assert_array_equal(rust, ref)
     assert (rust != subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M)).any()
@@ -466,7 +466,7 @@ def test_unseen_rise_makes_a_plateau_ground_and_leaves_box_tops_obstacles(config
     # The default (off): the plateau is a level line far above the ground, an obstacle's top.
     assert (~off[plateau]).mean() > 0.95
     cfg = {**config, "ground": {**config["ground"], "unseen_rise_min_length_m": 2.0}}
-    on = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg["ground"])
+    on = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config={"ground": cfg["ground"]})
     np.testing.assert_array_equal(on, reference.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg))
     assert on[plateau].mean() > 0.99
     # A box top behind a hidden face spans 1 m (< 2 m): still an obstacle; so is the one whose face is seen.
@@ -475,12 +475,12 @@ def test_unseen_rise_makes_a_plateau_ground_and_leaves_box_tops_obstacles(config
     floor = ~plateau & ~box
     assert on[floor].mean() > 0.99 and off[floor].mean() > 0.99
     with pytest.raises(subterra.errors.ConfigError, match="unseen_rise_min_length_m"):
-        subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config={"unseen_rise_min_length_m": -1.0})
+        subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config={"ground": {"unseen_rise_min_length_m": -1.0}})
 
 
 @pytest.mark.parametrize("seed", SEEDS[:3])
 def test_labels_match_reference_with_unseen_rises_on(scans, config, seed):
     cfg = {**config, "ground": {**config["ground"], "unseen_rise_min_length_m": 1.0}}
     points = scans[seed]
-    rust = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg["ground"])
+    rust = subterra.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config={"ground": cfg["ground"]})
     np.testing.assert_array_equal(rust, reference.segment_ground(points, sensor_height=SENSOR_HEIGHT_M, config=cfg))

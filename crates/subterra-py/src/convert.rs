@@ -300,7 +300,7 @@ pub mod arg {
         }
     }
 
-    texts!(s_name => name, s_text => text, s_preset => preset, s_frame => frame, s_cost_model => cost_model, s_noise => noise,
+    texts!(s_name => name, s_text => text, s_preset => preset, s_frame => frame, s_noise => noise,
            s_dtype => dtype, s_vehicle => vehicle, s_cause => cause, s_depth_dtype => depth_dtype, s_layer => layer, s_controller => controller);
 
     reals!(stamp, remaining_m, lookahead_m, confidence, speed, x, y, alpha, min_range_m, max_range_m, yaw, radius_m, dt, compute_time_s, sensor_height);

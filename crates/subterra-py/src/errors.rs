@@ -1,9 +1,11 @@
-//! Maps every core error to a class of `subterra.errors`.
+//! Maps every core and simulator error to a class of `subterra.errors`: the one place
+//! where a Rust error becomes a Python exception.
 
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyType;
 use subterra::Error;
+use subterra_sim::SimError;
 
 /// The `subterra.errors` class for a core error.
 fn class_name(err: &Error) -> &'static str {
@@ -51,5 +53,27 @@ pub trait IntoPyResult<T> {
 impl<T> IntoPyResult<T> for subterra::Result<T> {
     fn py_err(self, py: Python<'_>) -> PyResult<T> {
         self.map_err(|e| to_py(py, e))
+    }
+}
+
+/// Maps a simulator error to `subterra.errors`.
+pub fn sim_err(py: Python<'_>, err: SimError) -> PyErr {
+    match err {
+        SimError::Core(e) => to_py(py, e),
+        SimError::InvalidConfig { .. } | SimError::Unknown { .. } => raise(py, "ConfigError", err.to_string()),
+        SimError::InvalidWorld { .. } => raise(py, "FileFormatError", err.to_string()),
+        _ => raise(py, "InputError", err.to_string()),
+    }
+}
+
+/// `result.map_err(sim_err)` with the GIL token.
+pub trait SimPyResult<T> {
+    /// Converts the error, if any.
+    fn sim_err(self, py: Python<'_>) -> PyResult<T>;
+}
+
+impl<T> SimPyResult<T> for Result<T, SimError> {
+    fn sim_err(self, py: Python<'_>) -> PyResult<T> {
+        self.map_err(|e| sim_err(py, e))
     }
 }

@@ -8,20 +8,9 @@ use subterra::hero::{Fault, HeroConfig, MuxEvent, MuxOutput, OdometryMux, Odomet
 use subterra::Isometry3;
 
 use crate::convert::{isometry, real, real_vector, text, type_name};
-use crate::errors::{config_error, input_error, IntoPyResult};
+use crate::errors::{input_error, IntoPyResult};
 use crate::shared::Shared;
-use crate::terrain::{from_json_value, merged};
-
-fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<HeroConfig> {
-    let Some(d) = config else { return Ok(HeroConfig::default()) };
-    if d.cast::<PyDict>().is_err() {
-        return Err(config_error(py, format!("argument `config` must be None or a dict of hero settings, got {}", type_name(d))));
-    }
-    let base = merged(py, "config", serde_json::to_value(HeroConfig::default()), d)?;
-    let config: HeroConfig = from_json_value(py, "config", base)?;
-    config.validate().py_err(py)?;
-    Ok(config)
-}
+use crate::config::{resolve, PyHeroConfig};
 
 fn matrix<'py>(py: Python<'py>, p: &Isometry3) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let r = p.rotation;
@@ -179,24 +168,16 @@ impl PyOdometryMux {
     #[new]
     #[pyo3(signature = (sources, config = None))]
     fn new(py: Python<'_>, sources: &Bound<'_, PyAny>, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
-        let config = resolve_config(py, config)?;
+        let config = resolve::<PyHeroConfig>(py, "config", config, || Ok(HeroConfig::default()))?;
         let specs = specs(py, sources)?;
         let mux = OdometryMux::new(config, &specs).py_err(py)?;
         Ok(Self { inner: Shared::new(mux), names: specs.into_iter().map(|s| s.name).collect() })
     }
 
-    /// The default settings as a dict (`configs/hero.toml`).
-    #[staticmethod]
-    fn default_config(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
-        let text = serde_json::to_string(&HeroConfig::default()).map_err(|e| config_error(py, e.to_string()))?;
-        py.import("json")?.call_method1("loads", (text,))
-    }
-
-    /// The settings in use as a dict.
+    /// The settings in use.
     #[getter]
-    fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let text = serde_json::to_string(self.inner.lock().config()).map_err(|e| config_error(py, e.to_string()))?;
-        py.import("json")?.call_method1("loads", (text,))
+    fn config(&self) -> PyHeroConfig {
+        PyHeroConfig::from_core(self.inner.lock().config().clone())
     }
 
     /// The source names, most trusted first.

@@ -3,6 +3,7 @@
 //! Conversions, error mapping and GIL release only; every algorithm lives in the core crate.
 
 mod codec;
+mod config;
 mod convert;
 mod errors;
 mod hero;
@@ -18,7 +19,7 @@ mod terrain;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use subterra::config::{FilterMode, PerceptionConfig, PRESET_NAMES};
+use subterra::config::{FilterMode, PerceptionConfig};
 use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, VoxelIndex};
 use subterra::apf::carrot::{CarrotOutput, PathFollower};
 use subterra::apf::escape::{Escape, EscapeMode, EscapeOutput};
@@ -26,6 +27,7 @@ use subterra::apf::forces::BeliefForces;
 use subterra::apf::memory::{MemoryOutput, ObstacleMemory};
 use subterra::{ApfController, Command, Isometry3, PinholeCamera};
 
+use crate::config::PyPerceptionConfig;
 use crate::shared::Shared;
 use crate::convert::{arg, integer, isometry, real, vec3, with_depth};
 use crate::errors::{config_error, input_error, IntoPyResult};
@@ -100,79 +102,6 @@ impl PyPinholeCamera {
     fn __repr__(&self) -> String {
         let c = &self.inner;
         format!("PinholeCamera(fx={}, fy={}, cx={}, cy={}, width={}, height={})", c.fx, c.fy, c.cx, c.cy, c.width, c.height)
-    }
-}
-
-/// The APF-PF configuration: grid, transition, observation, filter and APF settings.
-#[pyclass(name = "PerceptionConfig", module = "subterra._core", frozen, eq)]
-#[derive(Clone, PartialEq)]
-struct PyPerceptionConfig {
-    inner: PerceptionConfig,
-}
-
-#[pymethods]
-impl PyPerceptionConfig {
-    /// A named preset (`flight`, `cable`).
-    #[staticmethod]
-    fn preset(py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String) -> PyResult<Self> {
-        Ok(Self { inner: PerceptionConfig::preset(&name).py_err(py)? })
-    }
-
-    /// Parses and validates a TOML document laid out like `configs/flight.toml`.
-    #[staticmethod]
-    fn from_toml(py: Python<'_>, #[pyo3(from_py_with = arg::s_text)] text: String) -> PyResult<Self> {
-        Ok(Self { inner: PerceptionConfig::from_toml_str(&text).py_err(py)? })
-    }
-
-    /// Parses and validates a JSON document with the same layout.
-    #[staticmethod]
-    fn from_json(py: Python<'_>, #[pyo3(from_py_with = arg::s_text)] text: String) -> PyResult<Self> {
-        let mut de = serde_json::Deserializer::from_str(&text);
-        let inner: PerceptionConfig = serde_path_to_error::deserialize(&mut de).map_err(|e| {
-            let path = e.path().to_string();
-            let at = if path.is_empty() || path == "." { String::new() } else { format!("field `{path}`: ") };
-            let hint = if e.inner().is_syntax() && (text.contains("NaN") || text.contains("Infinity")) { " (JSON has no NaN or Infinity: a value must be a finite number)" } else { "" };
-            config_error(py, format!("config could not be parsed: {at}{}{hint}", e.inner()))
-        })?;
-        inner.validate().py_err(py)?;
-        Ok(Self { inner })
-    }
-
-    /// Builds and validates a config from a nested dict laid out like the TOML file.
-    #[staticmethod]
-    fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
-        crate::terrain::check_config_value(py, "d", "", d, 0)?;
-        let text: String = py
-            .import("json")?
-            .call_method1("dumps", (d,))
-            .map_err(|e| config_error(py, format!("config dict cannot be serialised: {e}")))?
-            .extract()?;
-        Self::from_json(py, text)
-    }
-
-    /// The config as a nested dict laid out like the TOML file.
-    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        py.import("json")?.call_method1("loads", (self.to_json(),))
-    }
-
-    /// The config as TOML text.
-    fn to_toml(&self) -> String {
-        self.inner.to_toml_string()
-    }
-
-    /// The config as JSON text.
-    fn to_json(&self) -> String {
-        serde_json::to_string(&self.inner).unwrap_or_default()
-    }
-
-    /// Number of depth bins N_d.
-    #[getter]
-    fn depth_bins(&self) -> usize {
-        self.inner.depth_bins()
-    }
-
-    fn __repr__(&self) -> String {
-        format!("PerceptionConfig.from_json({:?})", self.to_json())
     }
 }
 
@@ -296,11 +225,10 @@ impl PyPerceptionOutput {
     }
 }
 
-fn resolve_config(py: Python<'_>, preset: &str, config: Option<&PyPerceptionConfig>) -> PyResult<PerceptionConfig> {
-    match config {
-        Some(c) => Ok(c.inner),
-        None => PerceptionConfig::preset(preset).py_err(py),
-    }
+/// The perception config of argument `config` (any of the four forms): a dict is laid over
+/// the preset `preset`, `None` is the preset.
+fn resolve_config(py: Python<'_>, preset: &str, config: Option<&Bound<'_, PyAny>>) -> PyResult<PerceptionConfig> {
+    config::resolve::<PyPerceptionConfig>(py, "config", config, || PerceptionConfig::preset(preset).py_err(py))
 }
 
 /// APF-PF perception of one depth camera: `update(depth)` per frame.
@@ -323,7 +251,7 @@ impl PyDepthPerception {
         py: Python<'_>,
         camera: &PyPinholeCamera,
         #[pyo3(from_py_with = arg::s_preset)] preset: String,
-        config: Option<&PyPerceptionConfig>,
+        config: Option<&Bound<'_, PyAny>>,
         body_from_camera: Option<&Bound<'_, PyAny>>,
         seed: Option<&Bound<'_, PyAny>>,
         #[pyo3(from_py_with = arg::opt_mode)] mode: Option<String>,
@@ -373,7 +301,7 @@ impl PyDepthPerception {
     /// The config.
     #[getter]
     fn config(&self) -> PyPerceptionConfig {
-        PyPerceptionConfig { inner: *self.inner.lock().config() }
+        PyPerceptionConfig::from_core(*self.inner.lock().config())
     }
     /// `body_from_camera` as a 4x4 matrix.
     #[getter]
@@ -662,7 +590,7 @@ struct PyApfController {
 impl PyApfController {
     #[new]
     #[pyo3(signature = (preset = "flight".to_owned(), *, config = None), text_signature = "(preset='flight', *, config=None)")]
-    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::s_preset)] preset: String, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
+    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::s_preset)] preset: String, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
         let config = resolve_config(py, &preset, config)?;
         config.validate().py_err(py)?;
         Ok(Self { inner: ApfController::new(config.apf) })
@@ -761,7 +689,7 @@ impl PyEscape {
     /// An escape with the `escape` settings of `preset` (or of `config`).
     #[new]
     #[pyo3(signature = (preset = "flight".to_owned(), *, config = None), text_signature = "(preset='flight', *, config=None)")]
-    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::s_preset)] preset: String, config: Option<&PyPerceptionConfig>) -> PyResult<Self> {
+    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::s_preset)] preset: String, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
         let config = resolve_config(py, &preset, config)?;
         Ok(Self { inner: Shared::new(Escape::new(config.escape, &config.apf).py_err(py)?) })
     }
@@ -883,17 +811,11 @@ impl PyPathFollower {
     }
 }
 
-/// Names of the built-in presets, the default first.
-#[pyfunction]
-fn preset_names() -> Vec<&'static str> {
-    PRESET_NAMES.to_vec()
-}
-
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<PyPinholeCamera>()?;
-    m.add_class::<PyPerceptionConfig>()?;
+    config::register(m)?;
     m.add_class::<PyDepthPerception>()?;
     m.add_class::<PyPerceptionOutput>()?;
     m.add_class::<PyMostProbableVoxel>()?;
@@ -905,7 +827,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyEscapeOutput>()?;
     m.add_class::<PyPathFollower>()?;
     m.add_class::<PyCarrotOutput>()?;
-    m.add_function(wrap_pyfunction!(preset_names, m)?)?;
     sim::register(m)?;
     terrain::register(m)?;
     plan_astar::register(m)?;

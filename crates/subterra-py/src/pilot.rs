@@ -14,7 +14,8 @@ use subterra::Isometry3;
 use crate::convert::{arg, isometry, type_name, vec3, with_depth, DepthPixels};
 use crate::errors::{input_error, IntoPyResult};
 use crate::shared::Shared;
-use crate::{array3, resolve_config, voxel_centres_array, PyCommand, PyEscapeOutput, PyPerceptionConfig, PyPerceptionOutput, PyPinholeCamera};
+use crate::config::PyPerceptionConfig;
+use crate::{array3, resolve_config, voxel_centres_array, PyCommand, PyEscapeOutput, PyPerceptionOutput, PyPinholeCamera};
 
 /// What one `Pilot.step` gives.
 #[pyclass(name = "PilotOutput", module = "subterra._core", frozen)]
@@ -178,7 +179,7 @@ impl PyPilot {
         py: Python<'_>,
         cameras: &Bound<'_, PyAny>,
         #[pyo3(from_py_with = arg::s_preset)] preset: String,
-        config: Option<&PyPerceptionConfig>,
+        config: Option<&Bound<'_, PyAny>>,
         #[pyo3(from_py_with = arg::s_controller)] controller: String,
         #[pyo3(from_py_with = arg::seed_u64)] seed: u64,
         qmdp: Option<&Bound<'_, PyAny>>,
@@ -274,7 +275,7 @@ impl PyPilot {
     /// The perception settings in force (with the controller's filter mode).
     #[getter]
     fn config(&self) -> PyPerceptionConfig {
-        PyPerceptionConfig { inner: *self.inner.lock().config() }
+        PyPerceptionConfig::from_core(*self.inner.lock().config())
     }
 
     /// The controller's name.

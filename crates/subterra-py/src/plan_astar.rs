@@ -7,21 +7,14 @@ use std::borrow::Cow;
 use glam::DVec2;
 use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use subterra::plan::{CostModel, PlanOutcome, RiskAStar, RiskAStarConfig, RiskGrid};
+use subterra::plan::{PlanOutcome, RiskAStar, RiskAStarConfig, RiskGrid};
 use subterra::terrain::{CellIndex, RiskMap};
 
 use crate::shared::Shared;
-use crate::convert::{arg, check_elements, small_vector, type_name, MAX_GRID_CELLS};
-use crate::errors::{config_error, input_error, IntoPyResult};
+use crate::convert::{check_elements, small_vector, type_name, MAX_GRID_CELLS};
+use crate::config::{resolve, PyRiskAStarConfig};
+use crate::errors::{input_error, IntoPyResult};
 use crate::terrain::PyRiskMap;
-
-/// A float config argument, or its default; a non-number is a `ConfigError` naming it.
-fn float_arg(py: Python<'_>, argument: &str, value: Option<&Bound<'_, PyAny>>, default: f64) -> PyResult<f64> {
-    match value {
-        None => Ok(default),
-        Some(v) => v.extract::<f64>().map_err(|_| config_error(py, format!("argument `{argument}` must be a number, got {}", type_name(v)))),
-    }
-}
 
 /// Two numbers `(x, y)` from any sequence or array; finiteness is checked by the core.
 fn point2(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<DVec2> {
@@ -158,45 +151,12 @@ impl PyRiskAStar {
 
 #[pymethods]
 impl PyRiskAStar {
+    /// `config`: None (the `configs/astar.toml` defaults), a (partial) dict laid over them
+    /// (`{"lam": 0.5, "cost_model": "additive"}`), a `RiskAStarConfig` or a TOML path.
     #[new]
-    #[pyo3(signature = (*, lam = None, r_inst = None, r_total = None, carrot_m = None, unknown_risk = None, allow_corner_cutting = None, cost_model = "risk".to_owned(), additive_weight = None, lethal_risk = None),
-        text_signature = "(*, lam=None, r_inst=None, r_total=None, carrot_m=None, unknown_risk=None, allow_corner_cutting=None, cost_model='risk', additive_weight=None, lethal_risk=None)"
-    )]
-    fn new(
-        py: Python<'_>,
-        lam: Option<&Bound<'_, PyAny>>,
-        r_inst: Option<&Bound<'_, PyAny>>,
-        r_total: Option<&Bound<'_, PyAny>>,
-        carrot_m: Option<&Bound<'_, PyAny>>,
-        unknown_risk: Option<&Bound<'_, PyAny>>,
-        allow_corner_cutting: Option<&Bound<'_, PyAny>>,
-        #[pyo3(from_py_with = arg::s_cost_model)] cost_model: String,
-        additive_weight: Option<&Bound<'_, PyAny>>,
-        lethal_risk: Option<&Bound<'_, PyAny>>,
-    ) -> PyResult<Self> {
-        let d = RiskAStarConfig::default();
-        let cost_model = match cost_model.as_str() {
-            "risk" => CostModel::Risk,
-            "additive" => CostModel::Additive,
-            other => return Err(config_error(py, format!("argument `cost_model` must be \"risk\" or \"additive\", got {other:?}"))),
-        };
-        let allow_corner_cutting = match allow_corner_cutting {
-            None => d.allow_corner_cutting,
-            Some(v) => v
-                .extract::<bool>()
-                .map_err(|_| config_error(py, format!("argument `allow_corner_cutting` must be a bool, got {}", type_name(v))))?,
-        };
-        let config = RiskAStarConfig {
-            lam: float_arg(py, "lam", lam, d.lam)?,
-            r_inst: float_arg(py, "r_inst", r_inst, d.r_inst)?,
-            r_total: float_arg(py, "r_total", r_total, d.r_total)?,
-            carrot_m: float_arg(py, "carrot_m", carrot_m, d.carrot_m)?,
-            unknown_risk: float_arg(py, "unknown_risk", unknown_risk, d.unknown_risk)?,
-            allow_corner_cutting,
-            cost_model,
-            additive_weight: float_arg(py, "additive_weight", additive_weight, d.additive_weight)?,
-            lethal_risk: float_arg(py, "lethal_risk", lethal_risk, d.lethal_risk)?,
-        };
+    #[pyo3(signature = (config = None))]
+    fn new(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let config = resolve::<PyRiskAStarConfig>(py, "config", config, || Ok(RiskAStarConfig::default()))?;
         Ok(Self { inner: Shared::new(RiskAStar::new(config).py_err(py)?) })
     }
 
@@ -254,6 +214,12 @@ impl PyRiskAStar {
     }
 
     /// λ, the length weight [1/m].
+    /// The config in use.
+    #[getter]
+    fn config(&self) -> PyRiskAStarConfig {
+        PyRiskAStarConfig::from_core(*self.inner.lock().config())
+    }
+
     #[getter]
     fn lam(&self) -> f64 {
         self.inner.lock().config().lam

@@ -7,44 +7,15 @@ use std::borrow::Cow;
 use glam::DVec2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyString};
 use subterra::plan::mpc::{ConvexPolygon, MpcConfig, MpcOutput, MpcTracker, RiskGrid, UnicycleState};
 
 use crate::shared::Shared;
 use crate::convert::{arg, check_elements, real_array, small_vector, type_name, MAX_GRID_CELLS, MAX_PATH_POINTS};
-use crate::errors::{config_error, input_error, raise, IntoPyResult};
-use crate::terrain::{from_json_value, merged, PyRiskMap};
+use crate::errors::{input_error, IntoPyResult};
+use crate::config::{resolve, PyMpcConfig};
+use crate::terrain::PyRiskMap;
 
 // ---------------------------------------------------------------- config
-
-/// A `ConfigError` naming the first non-finite number in the nested dict `d` (JSON has no
-/// NaN, so the parser alone could only say where in the text it stopped).
-/// The default config with the (partial, nested) dict `d` laid over it, validated; unknown
-/// keys are a `ConfigError` naming them.
-fn config_from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<MpcConfig> {
-    let base = merged(py, "config", serde_json::to_value(MpcConfig::default()), d)?;
-    let config: MpcConfig = from_json_value(py, "config", base)?;
-    config.validate().py_err(py)?;
-    Ok(config)
-}
-
-fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<MpcConfig> {
-    let Some(config) = config else { return Ok(MpcConfig::default()) };
-    if config.cast::<PyDict>().is_ok() {
-        return config_from_dict(py, config);
-    }
-    if config.is_instance_of::<PyString>() || config.hasattr("__fspath__")? {
-        let path: String = py.import("os")?.call_method1("fspath", (config,))?.extract()?;
-        let text = crate::terrain::read_config_text(py, &path)?;
-        return MpcConfig::from_toml_str(&text).map_err(|e| raise(py, "ConfigError", format!("{e}: {path}")));
-    }
-    Err(config_error(py, format!("argument `config` must be None, a dict or a TOML path, got {}", type_name(config))))
-}
-
-fn config_dict<'py>(py: Python<'py>, config: &MpcConfig) -> PyResult<Bound<'py, PyAny>> {
-    let text = serde_json::to_string(config).map_err(|e| config_error(py, e.to_string()))?;
-    py.import("json")?.call_method1("loads", (text,))
-}
 
 // ---------------------------------------------------------------- inputs
 
@@ -274,18 +245,12 @@ pub struct PyMpcTracker {
 #[pymethods]
 impl PyMpcTracker {
     /// `config`: None (the `configs/mpc.toml` defaults), a partial nested dict laid over
-    /// them (`{"limits": {"max_speed_m_s": 0.5}}`), or a TOML path.
+    /// them (`{"limits": {"max_speed_m_s": 0.5}}`), an `MpcConfig` or a TOML path.
     #[new]
     #[pyo3(signature = (config = None))]
     fn new(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
-        let config = resolve_config(py, config)?;
+        let config = resolve::<PyMpcConfig>(py, "config", config, || Ok(MpcConfig::default()))?;
         Ok(Self { inner: Shared::new(MpcTracker::new(config).py_err(py)?) })
-    }
-
-    /// The default config as a nested dict.
-    #[staticmethod]
-    fn default_config(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
-        config_dict(py, &MpcConfig::default())
     }
 
     /// One solve from `state` `[x, y, heading, speed]` along `reference_path` `(M, 2)`
@@ -329,10 +294,10 @@ impl PyMpcTracker {
         self.inner.lock().reset();
     }
 
-    /// The config as a nested dict.
+    /// The config in use.
     #[getter]
-    fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        config_dict(py, self.inner.lock().config())
+    fn config(&self) -> PyMpcConfig {
+        PyMpcConfig::from_core(self.inner.lock().config().clone())
     }
 
     /// Steps N of the horizon.

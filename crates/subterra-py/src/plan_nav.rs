@@ -13,7 +13,8 @@ use subterra::Isometry3;
 use crate::shared::Shared;
 use crate::convert::{arg, isometry, small_vector};
 use crate::errors::IntoPyResult;
-use crate::terrain::{merged, from_json_value, resolve_config, resolve_robot, to_py_dict, with_points, PyRiskMap, PyRobotConfig};
+use crate::config::{resolve, PyNavigatorConfig, PyRobotConfig};
+use crate::terrain::{resolve_config, resolve_robot, with_points, PyRiskMap};
 
 /// Two finite numbers `(x, y)`.
 fn xy(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<DVec2> {
@@ -164,9 +165,9 @@ pub struct PyNavigator {
 impl PyNavigator {
     /// `goal`, `home`: world (x, y) [m]; `home` (where the robot returns when it gives up
     /// the goal) defaults to its position at the first step. `robot`: None (Husky), a dict or a
-    /// `RobotConfig`. `terrain`: None, a dict, a `TerrainConfig` or a TOML path. `config`: a
-    /// (partial) dict with sections `planner`, `tracker`, `recovery`, `navigator` laid over
-    /// the defaults for the robot.
+    /// `RobotConfig` or a TOML path. `terrain`: None, a dict, a `TerrainConfig` or a TOML path.
+    /// `config`: None (the defaults for the robot), a (partial) dict with sections `planner`,
+    /// `tracker`, `recovery`, `navigator` laid over them, a `NavigatorConfig` or a TOML path.
     #[new]
     #[pyo3(signature = (goal, *, home = None, robot = None, terrain = None, config = None))]
     fn new(
@@ -183,15 +184,8 @@ impl PyNavigator {
             _ => None,
         };
         let robot = resolve_robot(py, robot)?;
-        let terrain = resolve_config(py, terrain)?;
-        let defaults = NavigatorConfig::for_robot(&robot);
-        let config = match config {
-            Some(d) if !d.is_none() => {
-                let value = merged(py, "config", serde_json::to_value(&defaults), d)?;
-                from_json_value::<NavigatorConfig>(py, "config", value)?
-            }
-            _ => defaults,
-        };
+        let terrain = resolve_config(py, "terrain", terrain)?;
+        let config = resolve::<PyNavigatorConfig>(py, "config", config, || Ok(NavigatorConfig::for_robot(&robot)))?;
         let inner = Navigator::new(robot, terrain, config, goal, home).py_err(py)?;
         Ok(Self { inner: Shared::new(inner), last_stamp: Shared::new(None) })
     }
@@ -287,10 +281,10 @@ impl PyNavigator {
         PyRobotConfig::from_core(*self.inner.lock().robot())
     }
 
-    /// The configuration as a dict (sections `planner`, `tracker`, `recovery`, `navigator`).
+    /// The configuration in use (sections `planner`, `tracker`, `recovery`, `navigator`).
     #[getter]
-    fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py_dict(py, serde_json::to_string(self.inner.lock().config()))
+    fn config(&self) -> PyNavigatorConfig {
+        PyNavigatorConfig::from_core(self.inner.lock().config().clone())
     }
 
     /// Every transition of the recovery machine so far (dicts, oldest first).

@@ -2,24 +2,16 @@
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
 use subterra::apf::qmdp::{Qmdp, QmdpAction, QmdpConfig};
 
-use crate::convert::type_name;
-use crate::errors::{config_error, IntoPyResult};
+use crate::errors::IntoPyResult;
 use crate::shared::Shared;
-use crate::terrain::{from_json_value, merged};
+use crate::config::{resolve, PyQmdpConfig};
 use crate::{array3, PyDepthPerception, PyPerceptionOutput};
 
+/// The QMDP config of argument `config` (any of the four forms).
 pub(crate) fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<QmdpConfig> {
-    let Some(d) = config else { return Ok(QmdpConfig::default()) };
-    if d.cast::<PyDict>().is_err() {
-        return Err(config_error(py, format!("argument `config` must be None or a dict of qmdp settings, got {}", type_name(d))));
-    }
-    let base = merged(py, "config", serde_json::to_value(QmdpConfig::default()), d)?;
-    let config: QmdpConfig = from_json_value(py, "config", base)?;
-    config.validate().py_err(py)?;
-    Ok(config)
+    resolve::<PyQmdpConfig>(py, "config", config, || Ok(QmdpConfig::default()))
 }
 
 /// What one `Qmdp.act` gives.
@@ -70,18 +62,10 @@ impl PyQmdp {
         Ok(Self { inner: Shared::new(py.detach(|| Qmdp::new(&p, config)).py_err(py)?) })
     }
 
-    /// The default settings (the authors') as a dict.
-    #[staticmethod]
-    fn default_config(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
-        let text = serde_json::to_string(&QmdpConfig::default()).map_err(|e| config_error(py, e.to_string()))?;
-        py.import("json")?.call_method1("loads", (text,))
-    }
-
-    /// The settings in use as a dict.
+    /// The settings in use.
     #[getter]
-    fn config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let text = serde_json::to_string(self.inner.lock().config()).map_err(|e| config_error(py, e.to_string()))?;
-        py.import("json")?.call_method1("loads", (text,))
+    fn config(&self) -> PyQmdpConfig {
+        PyQmdpConfig::from_core(*self.inner.lock().config())
     }
 
     /// The best action under `output`'s belief (a `PerceptionOutput` of the perception

@@ -17,31 +17,11 @@ use rand::SeedableRng;
 
 use crate::shared::Shared;
 use crate::convert::{arg, isometry, vec3};
-use crate::errors::{input_error, raise, to_py};
+use crate::errors::{input_error, sim_err, SimPyResult};
 use crate::PyPinholeCamera;
 
 mod xoshiro {
     pub use rand_xoshiro::Xoshiro256PlusPlus;
-}
-
-/// Maps a simulator error to `subterra.errors`.
-fn sim_err(py: Python<'_>, err: SimError) -> PyErr {
-    match err {
-        SimError::Core(e) => to_py(py, e),
-        SimError::InvalidConfig { .. } | SimError::Unknown { .. } => raise(py, "ConfigError", err.to_string()),
-        SimError::InvalidWorld { .. } => raise(py, "FileFormatError", err.to_string()),
-        _ => raise(py, "InputError", err.to_string()),
-    }
-}
-
-trait SimPyResult<T> {
-    fn sim_err(self, py: Python<'_>) -> PyResult<T>;
-}
-
-impl<T> SimPyResult<T> for Result<T, SimError> {
-    fn sim_err(self, py: Python<'_>) -> PyResult<T> {
-        self.map_err(|e| sim_err(py, e))
-    }
 }
 
 fn matrix<'py>(py: Python<'py>, t: &Isometry3) -> PyResult<Bound<'py, PyArray2<f64>>> {

@@ -8,14 +8,14 @@ use std::borrow::Cow;
 use glam::DVec2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyString};
-use serde_json::Value;
+use pyo3::types::PyDict;
 use subterra::terrain::{segment_ground as core_segment_ground, GroundConfig, Layer, MissionItem, RiskMap, RobotConfig, TerrainConfig, TerrainMapper, TerrainStats, TerrainTimings};
 use subterra::Isometry3;
 
 use crate::shared::Shared;
 use crate::convert::{arg, check_rows, isometry, real_array, type_name, MAX_POINTS};
-use crate::errors::{config_error, input_error, raise, IntoPyResult};
+use crate::config::{resolve, PyRobotConfig, PyTerrainConfig};
+use crate::errors::{input_error, IntoPyResult};
 
 /// Time between scans when `update` is not given a stamp [s] (a 10 Hz lidar).
 const DEFAULT_SCAN_PERIOD_S: f64 = 0.1;
@@ -26,252 +26,14 @@ const LETHAL_RGB: [f64; 3] = [220.0, 0.0, 0.0];
 /// Colour of an unobserved cell (grey).
 const UNKNOWN_RGB: [u8; 3] = [128, 128, 128];
 
-// ---------------------------------------------------------------- dict / JSON conversions
-
-/// Deepest nesting of a config dict accepted (the deepest config has 3 levels).
-const MAX_CONFIG_DEPTH: usize = 16;
-
-/// Checks a config value before it is serialised: every float finite (JSON has no NaN) and
-/// dicts and lists nested at most [`MAX_CONFIG_DEPTH`] deep, with errors naming the field.
-pub(crate) fn check_config_value(py: Python<'_>, argument: &str, field: &str, value: &Bound<'_, PyAny>, depth: usize) -> PyResult<()> {
-    let name = |f: &str| if f.is_empty() { format!("argument `{argument}`") } else { format!("config field `{f}`") };
-    if depth > MAX_CONFIG_DEPTH {
-        return Err(config_error(py, format!("{} is nested deeper than {MAX_CONFIG_DEPTH} levels", name(field))));
-    }
-    if let Ok(dict) = value.cast::<PyDict>() {
-        for (key, v) in dict.iter() {
-            let key = key.str()?.to_string();
-            let sub = if field.is_empty() { key } else { format!("{field}.{key}") };
-            check_config_value(py, argument, &sub, &v, depth + 1)?;
-        }
-    } else if let Ok(list) = value.cast::<pyo3::types::PyList>() {
-        for (i, v) in list.iter().enumerate() {
-            check_config_value(py, argument, &format!("{field}[{i}]"), &v, depth + 1)?;
-        }
-    } else if value.is_instance_of::<pyo3::types::PyFloat>() {
-        let x: f64 = value.extract()?;
-        if !x.is_finite() {
-            return Err(config_error(py, format!("{} is invalid: must be finite (got {x})", name(field))));
-        }
-    }
-    Ok(())
-}
-
-/// Deserialises a config from JSON, naming the field of an error (`planner.lam`).
-pub(crate) fn from_json_value<T: serde::de::DeserializeOwned>(py: Python<'_>, argument: &str, value: Value) -> PyResult<T> {
-    serde_path_to_error::deserialize(value).map_err(|e| {
-        let path = e.path().to_string();
-        let at = if path.is_empty() || path == "." { String::new() } else { format!(" field `{path}`") };
-        config_error(py, format!("argument `{argument}`{at}: config could not be parsed: {}", e.inner()))
-    })
-}
-
-/// A Python value as JSON through `json.dumps` (numpy scalars become numbers); `section`
-/// prefixes the fields an error names (`robot` for `robot.length_m`), as the core's
-/// validation names them.
-fn to_json_value(py: Python<'_>, argument: &str, section: &str, value: &Bound<'_, PyAny>) -> PyResult<Value> {
-    check_config_value(py, argument, section, value, 0)?;
-    let text: String = py
-        .import("json")?
-        .call_method1("dumps", (value,))
-        .map_err(|e| config_error(py, format!("argument `{argument}` cannot be serialised to JSON: {e}")))?
-        .extract()?;
-    serde_json::from_str(&text).map_err(|e| config_error(py, format!("argument `{argument}` could not be parsed: {e}")))
-}
-
-/// Overlays `patch` on `base`: objects merge key by key (recursively), anything else replaces.
-fn merge(base: &mut Value, patch: Value) {
-    match (base, patch) {
-        (Value::Object(b), Value::Object(p)) => {
-            for (k, v) in p {
-                match b.get_mut(&k) {
-                    Some(slot) => merge(slot, v),
-                    None => {
-                        b.insert(k, v);
-                    }
-                }
-            }
-        }
-        (slot, v) => *slot = v,
-    }
-}
-
-/// `base` (a config as JSON) with the (partial, nested) dict `d` laid over it; the caller
-/// deserialises the result, so unknown keys are a `ConfigError` naming them.
-pub(crate) fn merged(py: Python<'_>, argument: &str, base: serde_json::Result<Value>, d: &Bound<'_, PyAny>) -> PyResult<Value> {
-    merged_section(py, argument, "", base, d)
-}
-
-/// [`merged`] for a config that is one section of a larger one (`robot`, `ground`): its
-/// errors name `section.field`.
-fn merged_section(py: Python<'_>, argument: &str, section: &str, base: serde_json::Result<Value>, d: &Bound<'_, PyAny>) -> PyResult<Value> {
-    let mut base = base.map_err(|e| config_error(py, e.to_string()))?;
-    let patch = to_json_value(py, argument, section, d)?;
-    if !patch.is_object() {
-        return Err(config_error(py, format!("argument `{argument}` must be a dict, got {}", type_name(d))));
-    }
-    merge(&mut base, patch);
-    Ok(base)
-}
-
-/// A config as a Python dict (through JSON).
-pub(crate) fn to_py_dict<'py>(py: Python<'py>, json: serde_json::Result<String>) -> PyResult<Bound<'py, PyAny>> {
-    let text = json.map_err(|e| config_error(py, e.to_string()))?;
-    py.import("json")?.call_method1("loads", (text,))
-}
-
-/// The path of a `str` or `os.PathLike`, else `None`.
-fn as_path(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<Option<String>> {
-    if value.is_instance_of::<PyString>() || value.hasattr("__fspath__")? {
-        let p = py.import("os")?.call_method1("fspath", (value,))?;
-        return Ok(Some(p.extract()?));
-    }
-    Ok(None)
-}
-
-/// The text of a config file, read by `subterra._files` like every other file: regular files
-/// only (a FIFO or a device is a FileFormatError, never a hang), bounded, UTF-8.
-pub(crate) fn read_config_text(py: Python<'_>, path: &str) -> PyResult<String> {
-    py.import("subterra._files")?.call_method1("read_regular_text", (path, "config file"))?.extract()
-}
-
-fn read_config_file(py: Python<'_>, path: &str) -> PyResult<TerrainConfig> {
-    let text = read_config_text(py, path)?;
-    TerrainConfig::from_toml_str(&text).map_err(|e| raise(py, "ConfigError", format!("{e}: {path}")))
-}
-
-// ---------------------------------------------------------------- configs
-
-/// The ground robot: footprint, height, clearance, speed, tilt limits (Husky by default).
-#[pyclass(name = "RobotConfig", module = "subterra._core", frozen, eq)]
-#[derive(Clone, PartialEq)]
-pub struct PyRobotConfig {
-    inner: RobotConfig,
-}
-
-impl PyRobotConfig {
-    /// A Python config around a core one.
-    pub(crate) fn from_core(inner: RobotConfig) -> Self {
-        Self { inner }
-    }
-}
-
-#[pymethods]
-impl PyRobotConfig {
-    /// The Husky-like default, with the fields of the optional dict `d` changed.
-    #[new]
-    #[pyo3(signature = (d = None))]
-    fn new(py: Python<'_>, d: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
-        match d {
-            None => Ok(Self::husky()),
-            Some(d) => Self::from_dict(py, d),
-        }
-    }
-
-    /// The Clearpath Husky-like robot (Clearpath Husky A200) (0.99 x 0.67 x 0.4 m, clearance 0.13 m).
-    #[staticmethod]
-    fn husky() -> Self {
-        Self { inner: RobotConfig::husky() }
-    }
-
-    /// Validates a (partial) dict of fields laid over the Husky default.
-    #[staticmethod]
-    fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
-        let value = merged_section(py, "robot", "robot", serde_json::to_value(RobotConfig::husky()), d)?;
-        let inner: RobotConfig = from_json_value(py, "robot", value)?;
-        inner.validate().py_err(py)?;
-        Ok(Self { inner })
-    }
-
-    /// The fields as a dict (`length_m`, `width_m`, `height_m`, ...).
-    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py_dict(py, serde_json::to_string(&self.inner))
-    }
-
-    fn __repr__(&self) -> String {
-        format!("RobotConfig({})", serde_json::to_string(&self.inner).unwrap_or_default())
-    }
-}
-
-/// Settings of the terrain pipeline (layout of `configs/terrain.toml`).
-#[pyclass(name = "TerrainConfig", module = "subterra._core", frozen, eq)]
-#[derive(Clone, PartialEq)]
-pub struct PyTerrainConfig {
-    inner: TerrainConfig,
-}
-
-#[pymethods]
-impl PyTerrainConfig {
-    /// The default, with the fields of the optional nested dict `d` changed.
-    #[new]
-    #[pyo3(signature = (d = None))]
-    fn new(py: Python<'_>, d: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
-        match d {
-            None => Ok(Self { inner: TerrainConfig::default() }),
-            Some(d) => Self::from_dict(py, d),
-        }
-    }
-
-    /// Parses and validates a TOML document laid out like `configs/terrain.toml` (all fields).
-    #[staticmethod]
-    fn from_toml(py: Python<'_>, #[pyo3(from_py_with = arg::s_text)] text: String) -> PyResult<Self> {
-        Ok(Self { inner: TerrainConfig::from_toml_str(&text).py_err(py)? })
-    }
-
-    /// Reads and validates a TOML file; errors end with the path.
-    #[staticmethod]
-    fn load(py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<Self> {
-        let path = as_path(py, path)?.ok_or_else(|| input_error(py, format!("argument `path` must be a str or os.PathLike, got {}", type_name(path))))?;
-        Ok(Self { inner: read_config_file(py, &path)? })
-    }
-
-    /// Validates a (partial, nested) dict laid over the default: `{"coarse": {"resolution_m": 0.2}}`.
-    #[staticmethod]
-    fn from_dict(py: Python<'_>, d: &Bound<'_, PyAny>) -> PyResult<Self> {
-        let value = merged(py, "config", serde_json::to_value(TerrainConfig::default()), d)?;
-        let inner: TerrainConfig = from_json_value(py, "config", value)?;
-        inner.validate().py_err(py)?;
-        Ok(Self { inner })
-    }
-
-    /// The config as a nested dict laid out like the TOML file.
-    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py_dict(py, serde_json::to_string(&self.inner))
-    }
-
-    /// The config as TOML text.
-    fn to_toml(&self) -> String {
-        self.inner.to_toml_string()
-    }
-
-    fn __repr__(&self) -> String {
-        format!("TerrainConfig({})", serde_json::to_string(&self.inner).unwrap_or_default())
-    }
-}
-
+/// The robot of argument `robot` (any of the four forms; `None` is the Husky-like default).
 pub(crate) fn resolve_robot(py: Python<'_>, robot: Option<&Bound<'_, PyAny>>) -> PyResult<RobotConfig> {
-    let Some(robot) = robot else { return Ok(RobotConfig::husky()) };
-    if let Ok(r) = robot.cast::<PyRobotConfig>() {
-        return Ok(r.get().inner);
-    }
-    if robot.cast::<PyDict>().is_ok() {
-        return Ok(PyRobotConfig::from_dict(py, robot)?.inner);
-    }
-    Err(config_error(py, format!("argument `robot` must be None, a dict or a RobotConfig, got {}", type_name(robot))))
+    resolve::<PyRobotConfig>(py, "robot", robot, || Ok(RobotConfig::husky()))
 }
 
-pub(crate) fn resolve_config(py: Python<'_>, config: Option<&Bound<'_, PyAny>>) -> PyResult<TerrainConfig> {
-    let Some(config) = config else { return Ok(TerrainConfig::default()) };
-    if let Ok(c) = config.cast::<PyTerrainConfig>() {
-        return Ok(c.get().inner);
-    }
-    if config.cast::<PyDict>().is_ok() {
-        return Ok(PyTerrainConfig::from_dict(py, config)?.inner);
-    }
-    if let Some(path) = as_path(py, config)? {
-        return read_config_file(py, &path);
-    }
-    Err(config_error(py, format!("argument `config` must be None, a dict, a TerrainConfig or a TOML path, got {}", type_name(config))))
+/// The terrain config of argument `argument` (any of the four forms).
+pub(crate) fn resolve_config(py: Python<'_>, argument: &str, config: Option<&Bound<'_, PyAny>>) -> PyResult<TerrainConfig> {
+    resolve::<PyTerrainConfig>(py, argument, config, || Ok(TerrainConfig::default()))
 }
 
 // ---------------------------------------------------------------- points
@@ -576,7 +338,7 @@ impl PyTerrainMapper {
     #[pyo3(signature = (robot = None, config = None))]
     fn new(py: Python<'_>, robot: Option<&Bound<'_, PyAny>>, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
         let robot = resolve_robot(py, robot)?;
-        let config = resolve_config(py, config)?;
+        let config = resolve_config(py, "config", config)?;
         let inner = TerrainMapper::new(robot, config).py_err(py)?;
         Ok(Self { inner: Shared::new(inner), last_stamp: Shared::new(None), last_coarse: Shared::new(None), last_fine: Shared::new(None) })
     }
@@ -684,13 +446,13 @@ impl PyTerrainMapper {
     /// The robot model.
     #[getter]
     fn robot(&self) -> PyRobotConfig {
-        PyRobotConfig { inner: *self.inner.lock().robot() }
+        PyRobotConfig::from_core(*self.inner.lock().robot())
     }
 
     /// The config.
     #[getter]
     fn config(&self) -> PyTerrainConfig {
-        PyTerrainConfig { inner: *self.inner.lock().config() }
+        PyTerrainConfig::from_core(*self.inner.lock().config())
     }
 
     /// The newest scan's kept points relative to the body origin, world-aligned axes
@@ -713,27 +475,13 @@ impl PyTerrainMapper {
 
 /// Labels each point of `points` (`(N, 3)` [m], sensor-centred, z up) ground (True) or
 /// obstacle (False) by line fits in cylindrical coordinates (Himmelsbach et al. 2010).
-/// `sensor_height` [m]: the sensor's height above the ground near it. `config`: None, a
-/// `TerrainConfig` (its `ground` section) or a dict of `ground` fields over the defaults.
+/// `sensor_height` [m]: the sensor's height above the ground near it. `config`: a terrain
+/// config (None, a dict, a `TerrainConfig` or a TOML path) whose `ground` section is used.
 /// Releases the GIL while it runs.
 #[pyfunction]
 #[pyo3(signature = (points, *, sensor_height, config = None))]
 fn segment_ground<'py>(py: Python<'py>, points: &Bound<'_, PyAny>, #[pyo3(from_py_with = arg::sensor_height)] sensor_height: f64, config: Option<&Bound<'_, PyAny>>) -> PyResult<Bound<'py, PyArray1<bool>>> {
-    let ground: GroundConfig = match config {
-        None => GroundConfig::default(),
-        Some(c) => {
-            if let Ok(t) = c.cast::<PyTerrainConfig>() {
-                t.get().inner.ground
-            } else if c.cast::<PyDict>().is_ok() {
-                let value = merged_section(py, "config", "ground", serde_json::to_value(GroundConfig::default()), c)?;
-                let g: GroundConfig = from_json_value(py, "config", value)?;
-                g.validate().py_err(py)?;
-                g
-            } else {
-                return Err(config_error(py, format!("argument `config` must be None, a TerrainConfig or a dict of ground fields, got {}", type_name(c))));
-            }
-        }
-    };
+    let ground: GroundConfig = resolve_config(py, "config", config)?.ground;
     let sensor_height = finite(py, "sensor_height", sensor_height)?;
     let labels = with_points(py, "points", points, |flat| py.detach(|| core_segment_ground(flat, &ground, sensor_height)))?.py_err(py)?;
     Ok(labels.into_pyarray(py))
@@ -741,8 +489,6 @@ fn segment_ground<'py>(py: Python<'py>, points: &Bound<'_, PyAny>, #[pyo3(from_p
 
 /// Adds the terrain classes and functions to the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<PyRobotConfig>()?;
-    m.add_class::<PyTerrainConfig>()?;
     m.add_class::<PyRiskMap>()?;
     m.add_class::<PyTerrainMapper>()?;
     m.add_function(wrap_pyfunction!(segment_ground, m)?)?;

@@ -456,18 +456,6 @@ impl PerceptionConfig {
         }
     }
 
-    /// Parses and validates a TOML document of the same layout as `configs/flight.toml`.
-    pub fn from_toml_str(text: &str) -> Result<Self> {
-        let config: Self = crate::error::parse_toml(text)?;
-        config.validate()?;
-        Ok(config)
-    }
-
-    /// The configuration as a TOML document.
-    pub fn to_toml_string(&self) -> String {
-        // Serialising plain structs of numbers and enums cannot fail.
-        toml::to_string(self).unwrap_or_default()
-    }
 
     /// Number of depth bins `N_d = round((d_max - d_min)/k_d)`.
     pub fn depth_bins(&self) -> usize {
@@ -569,6 +557,7 @@ impl PerceptionConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Config;
 
     fn committed(name: &str) -> String {
         let path = format!("{}/../../configs/{name}.toml", env!("CARGO_MANIFEST_DIR"));

@@ -9,7 +9,8 @@
 //! - [`plan`]: planning and control for the ground robot (STEP, Fan et al. 2021).
 //! - [`hero`]: the odometry multiplexer (HeRO): several odometry sources, health checks,
 //!   one continuous pose with a confidence.
-//! - [`camera`], [`frames`], [`config`]: the shared vocabulary.
+//! - [`camera`], [`frames`], [`config`]: the shared vocabulary; [`settings`]: the [`Config`]
+//!   trait every configuration implements (TOML in and out, checks naming the field).
 //!
 //! No I/O, no printing, no global state: every stage takes arrays and returns values,
 //! and every random stream is seeded by the caller.
@@ -24,6 +25,7 @@ pub mod error;
 pub mod frames;
 pub mod hero;
 pub mod plan;
+pub mod settings;
 pub mod terrain;
 
 pub use apf::{ApfController, Command};
@@ -32,4 +34,5 @@ pub use config::PerceptionConfig;
 pub use depth::{DepthImage, DepthPerception, PerceptionOutput};
 pub use error::{Error, Result};
 pub use frames::Isometry3;
+pub use settings::Config;
 pub use terrain::{RobotConfig, TerrainConfig};

@@ -10,7 +10,7 @@ use proptest::prelude::*;
 use subterra::plan::mpc::MpcConfig;
 use subterra::plan::navigator::NavigatorConfig;
 use subterra::plan::RiskAStarConfig;
-use subterra::{PerceptionConfig, TerrainConfig};
+use subterra::{Config, PerceptionConfig, TerrainConfig};
 
 fn committed(name: &str) -> String {
     let path = format!("{}/../../configs/{name}.toml", env!("CARGO_MANIFEST_DIR"));

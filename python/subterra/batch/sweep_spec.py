@@ -133,7 +133,7 @@ def _config_paths(kind: str, preset: str) -> dict[str, list[str]]:
         return {"perception": list(_flat(PerceptionConfig.preset(preset).to_dict()))}
     from subterra import Navigator, TerrainConfig
 
-    nav = _flat(Navigator((1.0, 0.0), config={}).config)
+    nav = _flat(Navigator((1.0, 0.0)).config.to_dict())
     paths = {s: [p.partition(".")[2] for p in nav if p.startswith(s + ".")] for s in DRIVE_SECTIONS if s != "terrain"}
     paths["terrain"] = list(_flat(TerrainConfig().to_dict()))
     return paths

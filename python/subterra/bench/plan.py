@@ -136,8 +136,8 @@ def _astar_case(n: int, repeats: int, seed: int) -> dict[str, Any]:
     risk = random_risk_grid(n, seed)
     start, goal = (0, 0), (n - 1, n - 1)
     params = {"lam": 0.1, "r_inst": 0.8, "unknown_risk": 0.15}
-    cutting = subterra.RiskAStar(**params, r_total=1.0, allow_corner_cutting=True)
-    default = subterra.RiskAStar(**params, r_total=1.0)
+    cutting = subterra.RiskAStar({**params, "r_total": 1.0, "allow_corner_cutting": True})
+    default = subterra.RiskAStar({**params, "r_total": 1.0})
 
     def plan(planner):
         return lambda: planner.plan_cells(risk, start, goal, resolution=RESOLUTION_M)
@@ -228,7 +228,7 @@ def _mine_case(repeats: int, seed: int) -> dict[str, Any]:
     start = (float(position[0]), float(position[1]))
     goals = [(start[0] + 8.0 * math.cos(yaw + a), start[1] + 8.0 * math.sin(yaw + a)) for a in np.radians(np.arange(0, 360, 45))]
     planner = subterra.RiskAStar()
-    cutting = subterra.RiskAStar(r_total=1.0, allow_corner_cutting=True)
+    cutting = subterra.RiskAStar({"r_total": 1.0, "allow_corner_cutting": True})
     times, statuses, expanded = [], [], []
     for goal in goals:
         t, result = _time(lambda goal=goal: planner.plan(risk_map, start, goal), repeats)

@@ -7,6 +7,7 @@ range is a :class:`~subterra.errors.ConfigError` naming the dotted field
 
 >>> from subterra.live.config import NodeConfig
 >>> cfg = NodeConfig.load("robot.toml")          # or NodeConfig.from_dict({...}), NodeConfig()
+>>> cfg = NodeConfig.resolve(value)              # None, a dict, a NodeConfig or a TOML path
 >>> cfg.topics.cmd_vel, cfg.qos.sensors
 ('/cmd_vel', 'sensor_data')
 """
@@ -168,6 +169,18 @@ class NodeConfig:
         config = cls(**built)
         config.validate()
         return config
+
+    @classmethod
+    def resolve(cls, value: NodeConfig | dict[str, Any] | str | os.PathLike[str] | None, argument: str = "config") -> NodeConfig:
+        """A config in any of the library's four forms: ``None`` (the defaults), a dict of
+        tables laid over them, a :class:`NodeConfig`, or the path of a TOML file."""
+        if value is None or isinstance(value, cls):
+            return value or cls()
+        if isinstance(value, dict):
+            return cls.from_dict(value)
+        if isinstance(value, (str, os.PathLike)):
+            return cls.load(value)
+        raise ConfigError(f"argument `{argument}` must be None, a dict, a NodeConfig or a TOML path, got {type(value).__name__}")
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> NodeConfig:

@@ -132,18 +132,15 @@ class LiveNode(abc.ABC):
 
     robot = ""
 
-    def __init__(self, config: NodeConfig | None = None, *, loopback: bool = False, mavlink: Any = None, view: Any = None) -> None:
+    def __init__(self, config: NodeConfig | dict[str, Any] | str | os.PathLike[str] | None = None, *, loopback: bool = False, mavlink: Any = None, view: Any = None) -> None:
         from subterra.live.mavlink import MavlinkBridge
         from subterra.live.view import FoxgloveView
 
-        if config is not None and not isinstance(config, NodeConfig):
-            raise InputError(f"argument `config` must be a NodeConfig (NodeConfig.load(path), NodeConfig.from_dict(d)), "
-                             f"got {type(config).__name__}")
         if mavlink is not None and not isinstance(mavlink, MavlinkBridge):
             raise InputError(f"argument `mavlink` must be a MavlinkBridge, got {type(mavlink).__name__}")
         if view is not None and not isinstance(view, FoxgloveView):
             raise InputError(f"argument `view` must be a FoxgloveView, got {type(view).__name__}")
-        self.config = config or NodeConfig()
+        self.config = NodeConfig.resolve(config)
         #: A :class:`~subterra.live.mavlink.MavlinkBridge` that gets every command too (or None).
         self.mavlink = mavlink
         #: A :class:`~subterra.live.view.FoxgloveView` that shows every published message (or None).

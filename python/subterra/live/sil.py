@@ -75,7 +75,7 @@ def sil(
     out: str | os.PathLike[str] = "runs/sil",
     domain_id: int | None = None,
     time_limit_s: float | None = None,
-    node_config: NodeConfig | None = None,
+    node_config: NodeConfig | dict[str, Any] | str | os.PathLike[str] | None = None,
     reply_timeout_s: float = 5.0,
     progress: bool = False,
 ) -> dict[str, Any]:
@@ -103,8 +103,7 @@ def sil(
             continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and 0 < value <= top):
             raise InputError(f"argument `{name}` must be a number of seconds in (0, {top:.0f}], got {value!r:.40}")
-    if node_config is not None and not isinstance(node_config, NodeConfig):
-        raise InputError(f"argument `node_config` must be a NodeConfig (NodeConfig.load(path) reads a file), got {type(node_config).__name__}")
+    node_config = None if node_config is None else NodeConfig.resolve(node_config, "node_config")
     if not isinstance(out, (str, os.PathLike)) or "\x00" in os.fspath(out):
         raise InputError(f"argument `out` must be a folder path, got {out!r:.60}")
     out_dir = Path(out)

@@ -498,18 +498,6 @@ impl MapConfig {
 }
 
 impl TerrainConfig {
-    /// Parses and validates a TOML document of this layout.
-    pub fn from_toml_str(text: &str) -> Result<Self> {
-        let config: Self = crate::error::parse_toml(text)?;
-        config.validate()?;
-        Ok(config)
-    }
-
-    /// The configuration as a TOML document.
-    pub fn to_toml_string(&self) -> String {
-        // Serialising plain structs of numbers cannot fail.
-        toml::to_string(self).unwrap_or_default()
-    }
 
     /// Checks every field, naming it on error (`ground.bin_m`, `risk.step_m.lethal`, ...).
     pub fn validate(&self) -> Result<()> {
@@ -589,6 +577,7 @@ impl TerrainConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Config;
 
     #[test]
     fn defaults_hold_the_design_values() {

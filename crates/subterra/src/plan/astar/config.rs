@@ -115,13 +115,6 @@ impl RiskAStarConfig {
         Ok(())
     }
 
-    /// Parses and validates a TOML document laid out like `configs/astar.toml`.
-    pub fn from_toml_str(text: &str) -> Result<Self> {
-        let config: Self = crate::error::parse_toml(text)?;
-        config.validate()?;
-        Ok(config)
-    }
-
     /// The hazard `-ln(1 - r)` [1/m] of a cell of risk `r`, or `None` if it is untraversable.
     #[inline]
     pub fn hazard(&self, risk: f32) -> Option<f64> {

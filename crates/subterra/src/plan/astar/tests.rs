@@ -91,12 +91,6 @@ fn the_way_out_is_the_least_over_every_border_cell() {
 }
 
 #[test]
-fn defaults_equal_the_committed_config() {
-    let text = include_str!("../../../../../configs/astar.toml");
-    assert_eq!(RiskAStarConfig::from_toml_str(text).unwrap(), RiskAStarConfig::default());
-}
-
-#[test]
 fn one_diagonal_and_one_straight_move_by_hand() {
     // 3 x 2 grid, res 0.5, λ = 0.1: path (0,0) -> (1,1) -> (2,1) with risks 0.2, 0.5, 0.
     // Costs c = 0.1 - ln(0.8) = 0.3231435513, 0.1 - ln(0.5) = 0.7931471806, 0.1.

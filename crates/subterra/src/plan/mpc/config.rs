@@ -217,18 +217,6 @@ impl MpcConfig {
         }
     }
 
-    /// Parses and validates a TOML document of this layout.
-    pub fn from_toml_str(text: &str) -> Result<Self> {
-        let config: Self = crate::error::parse_toml(text)?;
-        config.validate()?;
-        Ok(config)
-    }
-
-    /// The configuration as a TOML document.
-    pub fn to_toml_string(&self) -> String {
-        // Serialising plain structs of numbers cannot fail.
-        toml::to_string(self).unwrap_or_default()
-    }
 
     /// Checks every field, naming it on error (`limits.max_speed_m_s`, `weights.contour`, ...).
     pub fn validate(&self) -> Result<()> {
@@ -313,6 +301,7 @@ impl MpcConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Config;
 
     #[test]
     fn defaults_hold_the_design_values() {

@@ -258,10 +258,3 @@ fn bad_inputs_name_the_argument_and_leave_the_tracker_alone() {
     assert_eq!(a, b);
 }
 
-#[test]
-fn committed_config_file_is_the_default() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs/mpc.toml");
-    let text = std::fs::read_to_string(path).unwrap();
-    assert_eq!(MpcConfig::from_toml_str(&text).unwrap(), MpcConfig::default());
-}
-

@@ -310,7 +310,10 @@ impl NavigatorSettings {
 }
 
 /// Everything a [`Navigator`](super::Navigator) is configured by.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+///
+/// [`Default`] is [`NavigatorConfig::for_robot`] of the default (Husky-like) robot; a TOML
+/// document's missing fields keep those values.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct NavigatorConfig {
     /// The planner (its `r_inst`/`r_total` are replaced by the recovery machine's, its
@@ -324,6 +327,12 @@ pub struct NavigatorConfig {
     pub navigator: NavigatorSettings,
 }
 
+impl Default for NavigatorConfig {
+    fn default() -> Self {
+        Self::for_robot(&RobotConfig::default())
+    }
+}
+
 impl NavigatorConfig {
     /// The defaults for `robot`: the MPC's footprint and limits follow the robot; the
     /// planner prices unobserved cells at [`UNSEEN_RISK_PER_M`].
@@ -331,7 +340,8 @@ impl NavigatorConfig {
         Self {
             planner: RiskAStarConfig { unknown_risk: UNSEEN_RISK_PER_M, ..RiskAStarConfig::default() },
             tracker: MpcConfig::for_robot(robot),
-            ..Self::default()
+            recovery: RecoveryConfig::default(),
+            navigator: NavigatorSettings::default(),
         }
     }
 
@@ -342,14 +352,6 @@ impl NavigatorConfig {
         self.recovery.validate()?;
         self.navigator.validate()
     }
-
-    /// Parses and validates a TOML document laid out like `configs/navigator.toml` (missing
-    /// fields keep the defaults of [`NavigatorConfig::default`]).
-    pub fn from_toml_str(text: &str) -> Result<Self> {
-        let config: Self = crate::error::parse_toml(text)?;
-        config.validate()?;
-        Ok(config)
-    }
 }
 
 #[cfg(test)]
@@ -357,10 +359,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_committed_defaults_are_the_defaults() {
-        let text = include_str!("../../../../../configs/navigator.toml");
-        let committed = NavigatorConfig::from_toml_str(text).unwrap();
-        assert_eq!(committed, NavigatorConfig::for_robot(&RobotConfig::default()));
+    fn the_default_is_the_default_robots() {
+        assert_eq!(NavigatorConfig::default(), NavigatorConfig::for_robot(&RobotConfig::default()));
     }
 
     #[test]
