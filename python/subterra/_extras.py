@@ -3,10 +3,11 @@
 =============  ==================================================  ============================
 extra          packages                                            for
 =============  ==================================================  ============================
-``io``         rosbags, mcap, pillow, pyyaml                       bags, MCAP, PNG depth, YAML
+``io``         rosbags, mcap, pillow, pyyaml, scipy                bags, MCAP, PNG depth, YAML,
+                                                                   odometry and tf rotations
 ``viz``        matplotlib, rerun-sdk, foxglove-sdk                 plots, Rerun, the live view
 ``sim``        matplotlib, tqdm                                    run folders with plots, bars
-``ros``        cyclonedds, rosbags                                 ``subterra node``, ``sil``
+``ros``        cyclonedds, rosbags, scipy                          ``subterra node``, ``sil``
 ``mavlink``    pymavlink, pyserial                                 the MAVLink offboard bridge
 ``cluster``    ray                                                 ``--engine ray``
 ``bench``      scipy, scikit-image, mujoco                         the peers of ``subterra bench``

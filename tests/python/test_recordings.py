@@ -258,6 +258,45 @@ def test_odometry_round_trip_and_quaternions() -> None:
         ros.matrix_from_quaternion(0, 0, 0, 0)
 
 
+def test_rotations_match_the_closed_forms() -> None:
+    """matrix_from_quaternion, quaternion_from_matrix and interpolate_pose (SciPy's Rotation)
+    against the textbook formulas, and their errors."""
+
+    def closed_form(x, y, z, w):
+        return np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ])
+
+    rng = np.random.default_rng(7)
+    for q in rng.standard_normal((50, 4)):
+        m = ros.matrix_from_quaternion(*q)
+        np.testing.assert_allclose(m, closed_form(*(q / np.linalg.norm(q))), atol=1e-12)
+        back = ros.quaternion_from_matrix(m)
+        assert back[3] >= 0 and abs(np.linalg.norm(back) - 1) < 1e-12
+        np.testing.assert_allclose(np.abs(back), np.abs(q / np.linalg.norm(q)), atol=1e-12)  # q or -q
+    for bad in ((0, 0, 0, 0), (np.nan, 0, 0, 1), (np.inf, 0, 0, 1)):
+        with pytest.raises(errors.InputError, match=r"quaternion: expected a finite, non-zero \(x, y, z, w\)"):
+            ros.matrix_from_quaternion(*bad)
+    for bad in (np.diag([1.0, 1.0, -1.0]), np.full((3, 3), np.nan)):
+        with pytest.raises(errors.InputError, match="rotation: expected a"):
+            ros.quaternion_from_matrix(bad)
+
+    def yaw(a, xyz=(0.0, 0.0, 0.0)):
+        return _pose(a, xyz)
+
+    a, b = yaw(0.0), yaw(np.pi / 2, (2.0, -4.0, 1.0))
+    np.testing.assert_allclose(ros.interpolate_pose(a, b, 0.5), yaw(np.pi / 4, (1.0, -2.0, 0.5)), atol=1e-12)
+    np.testing.assert_allclose(ros.interpolate_pose(a, b, 0.0), a, atol=1e-12)
+    np.testing.assert_allclose(ros.interpolate_pose(a, b, 1.0), b, atol=1e-12)
+    np.testing.assert_allclose(ros.interpolate_pose(a, b, 1.5), yaw(3 * np.pi / 4, (3.0, -6.0, 1.5)), atol=1e-12)
+    # The shorter way round: from +170 deg to -170 deg passes 180 deg, not 0.
+    np.testing.assert_allclose(ros.interpolate_pose(yaw(np.radians(170)), yaw(np.radians(-170)), 0.5), yaw(np.pi), atol=1e-12)
+    with pytest.raises(errors.InputError, match="fraction"):
+        ros.interpolate_pose(a, b, float("nan"))
+
+
 def test_transform_buffer_static_chain_and_interpolation() -> None:
     buf = ros.TransformBuffer()
     base_from_mount = _pose(0.0, (0.2, 0.0, 0.5))

@@ -377,6 +377,33 @@ def test_cli_writes_every_file(tmp_path):
         args.handler(args)
 
 
+def test_body_from_sensor_roll_pitch_yaw_is_rz_ry_rx():
+    """``x,y,z,roll,pitch,yaw`` [m, deg] is REP 103's fixed-axis rotation Rz(yaw) Ry(pitch) Rx(roll)."""
+    from subterra.terrain.cli import parse_body_from_sensor
+
+    def rx(a):
+        c, s = np.cos(a), np.sin(a)
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+    def ry(a):
+        c, s = np.cos(a), np.sin(a)
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+    def rz(a):
+        c, s = np.cos(a), np.sin(a)
+        return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+    m = parse_body_from_sensor("0.1,-0.2,0.7,10,-20,135")
+    roll, pitch, yaw = np.radians([10, -20, 135])
+    np.testing.assert_allclose(m[:3, :3], rz(yaw) @ ry(pitch) @ rx(roll), atol=1e-12)
+    np.testing.assert_array_equal(m[:3, 3], [0.1, -0.2, 0.7])
+    np.testing.assert_array_equal(m[3], [0, 0, 0, 1])
+    # A quarter turn of yaw takes the sensor's x axis to the body's y axis.
+    np.testing.assert_allclose(parse_body_from_sensor("0,0,0,0,0,90")[:3, 0], [0, 1, 0], atol=1e-12)
+    with pytest.raises(InputError, match="3, 6, 12 or 16 numbers"):
+        parse_body_from_sensor("1,2,3,4")
+
+
 def test_overview_figure(tmp_path):
     from PIL import Image
 

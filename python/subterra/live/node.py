@@ -157,6 +157,10 @@ class LiveNode(abc.ABC):
         # thread reads them under this lock, never while the pipeline runs.
         self._inputs = threading.RLock()
         self._stopping = threading.Event()
+        # SciPy's Rotation (tf, odometry) is imported now rather than by the first tf message on
+        # the receive thread: the import takes about a second on a busy machine, and frames
+        # waiting behind it would trip the watchdog.
+        ros._transform_module()
         self._tf = ros.TransformBuffer(max_history_ns=_HISTORY_NS)
         self._tracks = {topic: ros.PoseTrack(max_history_ns=_HISTORY_NS) for topic in c.topics.odometry}
         self._twist: dict[str, tuple[int, np.ndarray]] = {}

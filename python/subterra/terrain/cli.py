@@ -100,13 +100,10 @@ def parse_body_from_sensor(text: str) -> np.ndarray:
 
 
 def _rotation_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (REP 103 fixed-axis roll, pitch, yaw) [rad]."""
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (REP 103 fixed-axis roll, pitch, yaw) [rad]:
+    SciPy's extrinsic ``"xyz"`` Euler angles."""
+    transform = require("scipy.spatial.transform", "io", "A sensor mounting with roll, pitch and yaw")
+    return transform.Rotation.from_euler("xyz", [roll, pitch, yaw]).as_matrix()
 
 
 def _orthonormalised(pose: np.ndarray) -> np.ndarray:
