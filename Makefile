@@ -36,6 +36,7 @@ test-rust:
 # Two workers (pytest-xdist): the suite on the 2-core CI machine in about 6 minutes instead of 9.5.
 PYTEST_WORKERS ?= 2
 test-python: $(STAMP)
+	$(PY) -m ruff check --no-cache python tests fuzz docs
 	$(PY) -m pytest -q -n $(PYTEST_WORKERS)
 
 bench: $(STAMP)

@@ -124,7 +124,7 @@ def poses(out: Path) -> None:
     tum = "# timestamp tx ty tz qx qy qz qw\n" + "".join(
         f"{1.0 + 0.1 * i:.6f} {0.1 * i:.4f} 0.0 0.5 0.0 0.0 {np.sin(0.05 * i):.6f} {np.cos(0.05 * i):.6f}\n" for i in range(5))
     _put(out, "poses_tum", "tum.txt", tum.encode())
-    _put(out, "poses_tum", "nostamp.txt", "0 0 0 0 0 0 1\n1,0,0,0,0,0,1\n".encode())
+    _put(out, "poses_tum", "nostamp.txt", b"0 0 0 0 0 0 1\n1,0,0,0,0,0,1\n")
     kitti = "".join(f"1 0 0 {0.5 * i:g} 0 1 0 0 0 0 1 {0.1 * i:g}\n" for i in range(4))
     _put(out, "poses_kitti", "kitti.txt", kitti.encode())
     c, s = np.cos(0.3), np.sin(0.3)
@@ -135,8 +135,7 @@ def poses(out: Path) -> None:
 def recordings(out: Path) -> None:
     from mcap.writer import CompressionType, Writer
 
-    from subterra.io import McapWriter
-    from subterra.io import ros
+    from subterra.io import McapWriter, ros
 
     ts = ros.default_typestore()
     pts = _points(6)

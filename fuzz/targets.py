@@ -472,7 +472,7 @@ def ros_pointcloud2(data: bytes) -> None:
     u32 = lambda small: fdp.ConsumeIntInRange(0, 2**32 - 1) if fdp.ConsumeIntInRange(0, 15) == 0 else fdp.ConsumeIntInRange(0, small)  # noqa: E731
     fields = []
     offset = 0
-    for i in range(fdp.ConsumeIntInRange(0, 6)):
+    for _ in range(fdp.ConsumeIntInRange(0, 6)):
         name = text(fdp, ["x", "y", "z", "intensity", "ring", "t", "rgb", "_", ""], 6)
         datatype = fdp.ConsumeIntInRange(0, 255) if fdp.ConsumeIntInRange(0, 15) == 0 else fdp.ConsumeIntInRange(1, 8)
         count = u32(3) if fdp.ConsumeIntInRange(0, 3) == 0 else 1
@@ -1084,7 +1084,6 @@ def world_from_toml(data: bytes) -> None:
 
 def simulation_step(data: bytes) -> None:
     """``sim.Simulation`` of a small world stepped with fuzzed commands, time steps and goals."""
-    import subterra
     from subterra import sim
     from subterra.errors import SubterraError
 

@@ -3,7 +3,7 @@
 import os
 from collections.abc import Sequence
 from types import ModuleType
-from typing import Any, Literal, TypeVar, Union
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -48,7 +48,7 @@ class _Config:
     def to_toml(self) -> str: ...
 
 _C = TypeVar("_C", bound=_Config)
-_ConfigLike = Union[_C, dict[str, Any], str, os.PathLike[str], None]
+_ConfigLike = _C | dict[str, Any] | str | os.PathLike[str] | None
 
 class PerceptionConfig(_Config):
     """APF-PF settings: grid, transition, observation, filter, apf (layout of configs/flight.toml;

@@ -226,3 +226,26 @@ def read_regular_text(path: PathLike, what: str, *, max_bytes: int = MAX_TEXT_BY
             f"cannot read {what}: not UTF-8 text (byte offset {exc.start}, line {line}: "
             f"{exc.reason}): {os.fspath(path)}"
         ) from exc
+
+
+def read_toml(path: PathLike, what: str) -> dict:
+    """The table of a TOML file, read by :func:`read_regular_text`.
+
+    Raises:
+        FileFormatError: the file cannot be read (see :func:`read_regular_text`).
+        ConfigError: the text is not TOML (the message gives the parser's reason, or says it
+            is nested too deeply, and ends with the path).
+    """
+    from ._compat import tomllib
+    from .errors import ConfigError
+
+    text = read_regular_text(path, what)
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        reason = str(exc)
+    except RecursionError:  # tomllib parses nested arrays and tables recursively
+        reason = "nested too deeply"
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits
+        reason = str(exc)
+    raise ConfigError(f"{what} is not valid TOML ({reason}): {os.fspath(path)}")

@@ -141,9 +141,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    from subterra.batch.cli import add_engine_options
     from subterra._core import Pilot
-    from subterra.sim import DEPTH_NOISE_PRESETS
+    from subterra.batch.cli import add_engine_options
+    from subterra.sim import DEFAULT_DEPTH_NOISE, DEPTH_NOISE_PRESETS
 
     p = _Parser(prog="subterra", description="Perception and planning for robots underground.")
     from subterra import __version__
@@ -209,7 +209,7 @@ def _parser() -> argparse.ArgumentParser:
     batch.add_argument("--controllers", default="apf-pf,raw-apf@flight",
                        help="comma-separated; name@preset flies that preset whatever --preset says "
                             "(default apf-pf,raw-apf@flight: the paper's raw-APF baseline beside --preset's APF-PF)")
-    batch.add_argument("--noise", default="d435-phantom", help="comma-separated noise models (default d435-phantom)")
+    batch.add_argument("--noise", default=DEFAULT_DEPTH_NOISE, help=f"comma-separated noise models (default {DEFAULT_DEPTH_NOISE})")
     batch.add_argument("--no-plots", action="store_true", help="skip the path figure")
     add_engine_options(batch, unit="flight")
 

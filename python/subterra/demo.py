@@ -13,6 +13,7 @@ from typing import Any
 
 from subterra.flight import fly, fly_batch
 from subterra.flight.cable import cable_test
+from subterra.sim import DEFAULT_DEPTH_NOISE
 from subterra.viz.flight import plot_flight_path
 
 __all__ = ["run_demo"]
@@ -20,7 +21,7 @@ __all__ = ["run_demo"]
 REALSENSE = "realsense-d435-room"
 #: The flight every controller flies in the demo.
 DEMO_ROUTE = "A-B"
-DEMO_NOISE = "d435-phantom"
+DEMO_NOISE = DEFAULT_DEPTH_NOISE
 DEMO_SEED = 1
 #: The demo's single flights: (controller, perception preset, run folder).
 DEMO_FLIGHTS = (("apf-pf", "flight-escape", "fly-apf-pf"), ("apf-pf", "acc2021", "fly-apf-pf-acc2021"),

@@ -17,8 +17,9 @@ from subterra.drive.batch import drive_batch
 from subterra.flight.batch import fly_batch
 
 try:
-    from subterra.batch.ray_engine import RayEngine
     import ray  # noqa: F401
+
+    from subterra.batch.ray_engine import RayEngine
 except ImportError:  # pragma: no cover - the suite installs it
     pytest.fail("Ray is not installed: pip install 'subterra[cluster]' (`make test` does)", pytrace=False)
 

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+
 import subterra
 from subterra.errors import ConfigError
 from subterra.live.config import NodeConfig

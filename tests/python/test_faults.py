@@ -8,11 +8,11 @@ import csv
 
 import numpy as np
 import pytest
+from worlds import EASY_ROOM
 
 from subterra.errors import ConfigError, InputError
 from subterra.sim.faults import FAULT_NAMES, FaultInjector, load_faults_config, parse_faults
 from subterra.watchdog import SensorWatchdog
-from worlds import EASY_ROOM
 
 
 def test_fault_names_parse_and_bad_ones_are_named():

@@ -10,9 +10,9 @@ import json
 
 import numpy as np
 import pytest
+from worlds import EASY_ROOM
 
 from subterra.errors import InputError
-from worlds import EASY_ROOM
 
 sim = pytest.importorskip("subterra.sim")
 flight = pytest.importorskip("subterra.flight")

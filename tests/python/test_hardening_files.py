@@ -248,9 +248,9 @@ def test_binary_ply_with_many_triangles_after_the_vertices_reads(tmp_path: Path)
 
 def test_pcd_lzf_size_that_no_stream_can_inflate_to_is_refused(tmp_path: Path) -> None:
     header = (
-        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1000000\nHEIGHT 1\n"
-        "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1000000\nDATA binary_compressed\n"
-    ).encode()
+        b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1000000\nHEIGHT 1\n"
+        b"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1000000\nDATA binary_compressed\n"
+    )
     path = tmp_path / "bomb.pcd"
     path.write_bytes(header + struct.pack("<II", 10, 12_000_000) + bytes(10))
     with pytest.raises(errors.FileFormatError, match=r"12000000 bytes cannot come from 10 LZF bytes"):

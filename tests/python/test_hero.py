@@ -4,11 +4,11 @@ continuous pose through a switch, the committed defaults and bad input."""
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+import tomllib
 
 import subterra
 from subterra.errors import ConfigError, InputError

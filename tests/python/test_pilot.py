@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from subterra import ApfController, DepthPerception, Escape, ObstacleMemory, PinholeCamera, Pilot, errors
+from subterra import ApfController, DepthPerception, Escape, ObstacleMemory, Pilot, PinholeCamera, errors
 from subterra.perceive import run_perception
 
 REPO = Path(__file__).resolve().parents[2]
@@ -167,8 +167,7 @@ def test_perceive_runs_the_presets_memory(preset: str, remembers: bool) -> None:
 def test_replay_runs_the_presets_memory(tmp_path: Path) -> None:
     pytest.importorskip("rosbags")
     pytest.importorskip("mcap")
-    from subterra.io import Intrinsics
-    from subterra.io import ros
+    from subterra.io import Intrinsics, ros
     from subterra.io.recordings import McapWriter
     from subterra.replay import replay
 

@@ -8,11 +8,11 @@ so the loops also check that the tracker copes with a model mismatch.
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+import tomllib
 
 import subterra
 from subterra.bench.reference.mpc import arc_step as plant_step

@@ -8,11 +8,11 @@ import math
 
 import numpy as np
 import pytest
+from worlds import EASY_ROOM
 
 import subterra
 from subterra import flight, sim
 from subterra.errors import ConfigError, FileFormatError, InputError
-from worlds import EASY_ROOM
 
 
 def _box_frame(depth_mm: int = 450) -> np.ndarray:

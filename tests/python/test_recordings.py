@@ -20,8 +20,10 @@ pytest.importorskip("rosbags")
 pytest.importorskip("mcap")
 
 from subterra import errors  # noqa: E402
-from subterra.io import Intrinsics  # noqa: E402
-from subterra.io import ros  # noqa: E402
+from subterra.io import (
+    Intrinsics,  # noqa: E402
+    ros,  # noqa: E402
+)
 from subterra.io.recordings import McapWriter, open_recording, write_bag  # noqa: E402
 
 T0 = 1_700_000_000_123_456_789

@@ -21,8 +21,14 @@ pytest.importorskip("mcap_ros2")
 
 import subterra  # noqa: E402
 from subterra import errors  # noqa: E402
-from subterra.io import Intrinsics, list_depth_files, read_depth, read_intrinsics, read_trajectory  # noqa: E402
-from subterra.io import ros  # noqa: E402
+from subterra.io import (  # noqa: E402
+    Intrinsics,
+    list_depth_files,
+    read_depth,
+    read_intrinsics,
+    read_trajectory,
+    ros,  # noqa: E402
+)
 from subterra.io.recordings import McapWriter, open_recording, write_bag  # noqa: E402
 from subterra.replay import replay  # noqa: E402
 from subterra.terrain import translation  # noqa: E402

@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 import pytest
+
 import subterra
 from subterra.bench.reference import terrain as reference
 from subterra.bench.terrain import random_terrain, synthetic_scan

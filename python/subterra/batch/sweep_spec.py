@@ -44,11 +44,10 @@ from typing import Any
 
 import numpy as np
 
-from subterra._files import read_regular_text
+from subterra._files import read_toml
 from subterra.batch.jobs import seed_list, seed_range
 from subterra.errors import ConfigError, InputError, SubterraError
-
-from subterra._compat import tomllib
+from subterra.sim import DEFAULT_DEPTH_NOISE
 
 __all__ = ["KINDS", "SweepSpec", "load_sweep"]
 
@@ -61,7 +60,7 @@ RUN_FIELDS = {"fly": ("preset", "rate_hz", "time_limit_s", "stall_window_s", "st
 DRIVE_SECTIONS = ("planner", "tracker", "recovery", "navigator", "terrain")
 _COMMON_KEYS = ("kind", "worlds", "noises", "seeds", "grid", "random", "time_limit_s", "rate_hz")
 _KIND_KEYS = {"fly": ("routes", "controllers", "preset"), "drive": ("planners", "lidar")}
-_DEFAULTS = {"fly": {"worlds": ["highbay"], "noises": ["d435-phantom"], "arms": ["apf-pf"]},
+_DEFAULTS = {"fly": {"worlds": ["highbay"], "noises": [DEFAULT_DEPTH_NOISE], "arms": ["apf-pf"]},
              "drive": {"worlds": ["mine"], "noises": ["os1_64"], "arms": ["risk-aware"]}}
 
 
@@ -276,13 +275,7 @@ def load_sweep(spec: str | os.PathLike[str] | Mapping[str, Any]) -> SweepSpec:
         table, where = dict(spec), "sweep"
     else:
         path = Path(spec)
-        text = read_regular_text(path, "sweep file")  # a FIFO, a device or a folder fails at once
-        try:
-            table = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"sweep file {path} is not valid TOML: {exc}") from exc
-        except RecursionError as exc:  # tomllib parses nested arrays and tables recursively
-            raise ConfigError(f"sweep file {path} is not valid TOML: nested too deeply") from exc
+        table = read_toml(path, "sweep file")  # a FIFO, a device or a folder fails at once
         where = str(path)
     kind = table.get("kind", "fly")
     if kind not in KINDS:

@@ -23,6 +23,7 @@ import numpy as np
 
 from subterra.batch import Job, ThreadsEngine, run_batch
 from subterra.errors import InputError
+from subterra.sim import DEFAULT_DEPTH_NOISE
 
 __all__ = ["bench_batch", "noop_job", "timed_flight"]
 
@@ -69,7 +70,7 @@ def bench_batch(*, flights: int = 20, noop_jobs: int = 200, workers: int | None 
     workers = workers or os.cpu_count() or 1
     seeds = list(range(seed, seed + max(1, -(-flights // 10))))
     routes = ("A-B", "B-C", "C-D", "D-C", "D-B")
-    settings = {"scenario": "highbay", "noise": "d435-phantom", "rate_hz": 15.0, "time_limit_s": None, "preset": "flight"}
+    settings = {"scenario": "highbay", "noise": DEFAULT_DEPTH_NOISE, "rate_hz": 15.0, "time_limit_s": None, "preset": "flight"}
     report: dict[str, Any] = {"workers": workers, "cpu_count": os.cpu_count(), "load_average_1min_start": os.getloadavg()[0],
                               "flights": {**settings, "routes": list(routes), "seeds": seeds,
                                           "controllers": ["apf-pf", "raw-apf"]}, "engines": {}}
@@ -103,7 +104,7 @@ def bench_batch(*, flights: int = 20, noop_jobs: int = 200, workers: int | None 
             engine.close()
     report["load_average_1min_end"] = os.getloadavg()[0]
     outcomes = []
-    for name, e in report["engines"].items():
+    for e in report["engines"].values():
         rows = e.pop("rows")
         outcomes.append({r["job"]: {k: v for k, v in r.items() if k not in TIMING_FIELDS} for r in rows})
         cpu = [r["cpu_s"] for r in rows]

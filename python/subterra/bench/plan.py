@@ -128,9 +128,9 @@ def _time(fn: Callable[[], Any], repeats: int) -> tuple[list[float], Any]:
 
 
 def _astar_case(n: int, repeats: int, seed: int) -> dict[str, Any]:
-    import subterra
     from skimage.graph import MCP_Geometric
 
+    import subterra
     from subterra.bench.reference.plan import cell_costs
 
     risk = random_risk_grid(n, seed)
@@ -210,9 +210,9 @@ def _mine_case(repeats: int, seed: int) -> dict[str, Any]:
     ``r_total`` 0.5) timed on all 8; the corner-cutting A* (``r_total`` 1) is checked against
     MCP_Geometric (set-up + ``find_costs`` + ``traceback``, one run per goal) and timed on
     every goal it reaches."""
-    import subterra
     from skimage.graph import MCP_Geometric
 
+    import subterra
     from subterra.bench.reference.plan import cell_costs
     from subterra.sim import Lidar, World
     from subterra.sim.render import pose_matrix, start_pose

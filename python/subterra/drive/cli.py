@@ -10,7 +10,6 @@ risk-aware planner and the additive-cost baseline side by side.
 from __future__ import annotations
 
 import argparse
-from subterra._compat import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -24,19 +23,13 @@ def _navigator_config(path: str | None) -> dict[str, Any] | None:
     ``navigator``); the navigator checks the keys."""
     if path is None:
         return None
-    from subterra._files import read_regular_text
+    from subterra._files import read_toml
     from subterra.errors import FileFormatError
 
-    p = Path(path)
     try:  # a regular file only (a FIFO or /dev/zero is refused at once), UTF-8, bounded
-        text = read_regular_text(p, "navigator config")
-    except FileFormatError as exc:
+        return read_toml(Path(path), "navigator config")
+    except (FileFormatError, ConfigError) as exc:
         raise ConfigError(f"argument --config: {exc}") from exc
-    try:
-        config = tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, RecursionError, ValueError) as exc:  # ValueError: an integer of > 4300 digits
-        raise ConfigError(f"argument --config: {p} is not valid TOML: {type(exc).__name__ if isinstance(exc, RecursionError) else exc}") from exc
-    return config
 
 
 def _merged(base: dict[str, Any], over: dict[str, Any] | None) -> dict[str, Any]:
@@ -132,11 +125,9 @@ def _drive(args: argparse.Namespace) -> int:
 
 
 def _drive_batch(args: argparse.Namespace) -> int:
-    from subterra.cli import fault_options
     from subterra.batch.cli import engine_options, out_dir, save_and_report
+    from subterra.cli import MAX_COUNT, fault_options
     from subterra.drive.batch import drive_batch
-
-    from subterra.cli import MAX_COUNT
 
     if not 1 <= args.seeds <= MAX_COUNT:
         raise InputError(f"argument --seeds must be >= 1 and <= {MAX_COUNT}, got {args.seeds}")

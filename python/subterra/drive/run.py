@@ -20,7 +20,6 @@ limit, or when the navigator gives up (``gave_up``), has returned home
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 import time
@@ -35,6 +34,7 @@ from subterra._core import OdometryMux
 from subterra.errors import InputError
 from subterra.sim import LIDAR_NOISE_PRESETS, Lidar, Simulation, World
 from subterra.sim.faults import ODOMETRY_SOURCES, FaultInjector, parse_faults
+from subterra.sim.outputs import plain, write_run_outputs
 from subterra.watchdog import SensorWatchdog
 
 __all__ = ["GROUND_SCENARIOS", "PLANNERS", "DriveResult", "drive", "true_risk", "true_terrain_risk"]
@@ -157,7 +157,7 @@ class DriveResult:
             "start": [float(v) for v in self.start],
             "goal": [float(v) for v in self.goal],
             "home": [float(v) for v in self.home],
-            **{k: _plain(v) for k, v in self.metrics.items()},
+            **{k: plain(v) for k, v in self.metrics.items()},
             "steps": int(total.size),
             "recoveries": sum(1 for e in self.events if e["to"] == "clear_map"),
             "behaviours_used": behaviours,
@@ -177,35 +177,20 @@ class DriveResult:
         ``compute-time.png`` (per stage). Returns the paths."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        written = {"trajectory": out / "trajectory.csv", "events": out / "events.csv", "metrics": out / "metrics.json"}
+        written = {"trajectory": out / "trajectory.csv"}
         _write_steps(self, written["trajectory"])
-        with written["events"].open("w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(["time_s", "from", "to", "reason", "r_inst", "r_total"])
-            for e in self.events:
-                w.writerow([f"{e['time_s']:.3f}", e["from"], e["to"], e["reason"], f"{e['r_inst']:.3f}", f"{e['r_total']:.3f}"])
-        written["metrics"].write_text(json.dumps(self.summary(), indent=2) + "\n", encoding="utf-8")
+        drawn = None
         if plots:
-            from subterra.viz.drive import (
-                plot_drive_compute,
-                plot_drive_map,
-                plot_speed_risk,
-            )
+            from subterra.viz.drive import plot_drive_compute, plot_drive_map, plot_speed_risk
 
-            written["map_plot"] = plot_drive_map(self, out / "map.png")
-            written["speed_plot"] = plot_speed_risk(self, out / "speed-risk.png")
-            written["compute_plot"] = plot_drive_compute(self, out / "compute-time.png")
-        if "rerun" in self.extra:
-            written["rerun"] = Path(self.extra["rerun"])
-        return written
-
-
-def _plain(v: Any) -> Any:
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    return v
+            drawn = {
+                "map_plot": (lambda p: plot_drive_map(self, p), "map.png"),
+                "speed_plot": (lambda p: plot_speed_risk(self, p), "speed-risk.png"),
+                "compute_plot": (lambda p: plot_drive_compute(self, p), "compute-time.png"),
+            }
+        events = ([f"{e['time_s']:.3f}", e["from"], e["to"], e["reason"], f"{e['r_inst']:.3f}", f"{e['r_total']:.3f}"] for e in self.events)
+        return write_run_outputs(out, written, events_header=["time_s", "from", "to", "reason", "r_inst", "r_total"], events=events,
+                                 summary=self.summary(), plots=drawn, rerun=self.extra.get("rerun"))
 
 
 def _write_steps(result: DriveResult, path: Path) -> None:

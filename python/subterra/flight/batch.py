@@ -21,7 +21,7 @@ import numpy as np
 from subterra.batch import BatchReport, Engine, Job, ProgressArg, check_workers, markdown_table, run_batch, seed_list
 from subterra.errors import InputError
 from subterra.flight.run import CONTROLLERS, FlightResult, fly, resolve_route
-from subterra.sim import DEPTH_NOISE_PRESETS, World
+from subterra.sim import DEFAULT_DEPTH_NOISE, DEPTH_NOISE_PRESETS, World
 
 __all__ = ["FLY_JOB", "BatchResult", "fly_batch", "fly_job", "perception_config", "summarise_rows"]
 
@@ -155,7 +155,7 @@ def fly_batch(
     seeds: int | Sequence[int] = 50,
     *,
     controllers: Sequence[str] = ("apf-pf", "raw-apf@flight"),
-    noises: Sequence[str] = ("d435-phantom",),
+    noises: Sequence[str] = (DEFAULT_DEPTH_NOISE,),
     preset: str | Sequence[str] = "flight-escape",
     rate_hz: float = 15.0,
     time_limit_s: float | None = None,

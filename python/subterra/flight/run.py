@@ -16,7 +16,6 @@ at the time limit, or when the robot has stalled (a local minimum of the potenti
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 import time
@@ -31,6 +30,7 @@ from subterra._core import OdometryMux, PerceptionConfig, Pilot
 from subterra.errors import InputError
 from subterra.sim import DEPTH_NOISE_PRESETS, DepthCamera, Simulation, World
 from subterra.sim.faults import ODOMETRY_SOURCES, FaultInjector, parse_faults
+from subterra.sim.outputs import plain, write_run_outputs
 from subterra.watchdog import SensorWatchdog
 
 __all__ = ["CONTROLLERS", "FlightResult", "fly", "resolve_path", "resolve_route"]
@@ -118,7 +118,7 @@ class FlightResult:
             "start": [float(v) for v in self.start],
             "goal": [float(v) for v in self.goal],
             "goal_radius_m": self.goal_radius_m,
-            **{k: _plain(v) for k, v in self.metrics.items()},
+            **{k: plain(v) for k, v in self.metrics.items()},
             "frames": int(compute.size),
             "compute_ms_median": float(np.median(compute)) if compute.size else None,
             "compute_ms_p99": float(np.percentile(compute, 99)) if compute.size else None,
@@ -138,36 +138,19 @@ class FlightResult:
         written = {
             "trajectory": _write_trajectory(self, out / "trajectory.csv"),
             "frames": _write_frames(self, out / "frames.csv"),
-            "events": out / "events.csv",
-            "metrics": out / "metrics.json",
         }
-        with written["events"].open("w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(["time_s", "event", "source", "reason"])
-            for e in self.events:
-                w.writerow([f"{e['time_s']:.3f}", e["event"], e.get("source") or "", e.get("reason") or ""])
-        written["metrics"].write_text(json.dumps(self.summary(), indent=2) + "\n", encoding="utf-8")
+        drawn = None
         if plots:
-            from subterra.viz.flight import (
-                plot_compute_time,
-                plot_flight_path,
-                plot_flight_trace,
-            )
+            from subterra.viz.flight import plot_compute_time, plot_flight_path, plot_flight_trace
 
-            written["path_plot"] = plot_flight_path(self, out / "path.png")
-            written["trace_plot"] = plot_flight_trace(self, out / "depth-trace.png")
-            written["compute_plot"] = plot_compute_time(self, out / "compute-time.png")
-        if "rerun" in self.extra:
-            written["rerun"] = Path(self.extra["rerun"])
-        return written
-
-
-def _plain(v: Any) -> Any:
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
+            drawn = {
+                "path_plot": (lambda p: plot_flight_path(self, p), "path.png"),
+                "trace_plot": (lambda p: plot_flight_trace(self, p), "depth-trace.png"),
+                "compute_plot": (lambda p: plot_compute_time(self, p), "compute-time.png"),
+            }
+        events = ([f"{e['time_s']:.3f}", e["event"], e.get("source") or "", e.get("reason") or ""] for e in self.events)
+        return write_run_outputs(out, written, events_header=["time_s", "event", "source", "reason"], events=events,
+                                 summary=self.summary(), plots=drawn, rerun=self.extra.get("rerun"))
 
 
 def _write_trajectory(result: FlightResult, path: Path) -> Path:

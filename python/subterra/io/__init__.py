@@ -55,6 +55,13 @@ from .intrinsics import (
     intrinsics_from_dict,
     read_intrinsics,
 )
+from .poses import (
+    DEFAULT_ROTATION_TOLERANCE,
+    POSE_FORMATS,
+    Trajectory,
+    read_poses,
+    read_trajectory,
+)
 from .recordings import McapWriter, RecordedMessage, Recording, TopicInfo, open_recording, write_bag
 from .ros import (
     CloudMessage,
@@ -66,13 +73,6 @@ from .ros import (
     decode_odometry,
     decode_pointcloud2,
     decode_transforms,
-)
-from .poses import (
-    DEFAULT_ROTATION_TOLERANCE,
-    POSE_FORMATS,
-    Trajectory,
-    read_poses,
-    read_trajectory,
 )
 
 __all__ = [

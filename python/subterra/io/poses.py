@@ -32,8 +32,8 @@ from typing import Union
 
 import numpy as np
 
-from ..errors import ConfigError, FileFormatError, InputError
 from .._files import read_regular_text
+from ..errors import ConfigError, FileFormatError, InputError
 from .depth import _as_path, _check_readable_file
 
 __all__ = [

@@ -20,8 +20,7 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
-from subterra._compat import tomllib
-from subterra._files import read_regular_text
+from subterra._files import read_toml
 from subterra.errors import ConfigError
 
 __all__ = ["NodeConfig"]
@@ -185,15 +184,7 @@ class NodeConfig:
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> NodeConfig:
         """Reads a TOML file (errors name the field and end with the path)."""
-        text = read_regular_text(path, "node config")
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"node config is not valid TOML ({exc}): {path}") from exc
-        except RecursionError:
-            raise ConfigError(f"node config is not valid TOML (nested too deeply): {path}") from None
-        except ValueError as exc:  # e.g. an integer of more than 4300 digits
-            raise ConfigError(f"node config is not valid TOML ({exc}): {path}") from exc
+        data = read_toml(path, "node config")
         try:
             return cls.from_dict(data)
         except ConfigError as exc:

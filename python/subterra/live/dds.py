@@ -119,7 +119,7 @@ def _raw_deserialize(cls: Any, data: Any, has_header: bool = True, use_version_2
     return _Cdr(data)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _idl_type(msgtype: str, raw: bool = True) -> Any:
     """The Cyclone DDS IDL struct of a ROS 2 message, built from its ``rosbags`` definition.
 

@@ -644,12 +644,13 @@ class DroneNode(LiveNode):
 def _navigator_config(path: str) -> dict[str, Any]:
     if not path:
         return {}
-    from subterra.drive.cli import _navigator_config as load
+    from subterra._files import read_toml
+    from subterra.errors import FileFormatError
 
     try:
-        return load(path) or {}
-    except ConfigError as exc:
-        raise ConfigError(str(exc).replace("argument --config", "ground.navigator_config", 1)) from exc
+        return read_toml(path, "navigator config")
+    except (FileFormatError, ConfigError) as exc:
+        raise ConfigError(f"ground.navigator_config: {exc}") from exc
 
 
 def make_node(robot: str, config: NodeConfig | None = None, *, loopback: bool = False, mavlink: Any = None,

@@ -29,10 +29,13 @@ scenario_names = _sim.scenario_names
 
 #: Depth noise presets of `DepthCamera.render(noise=...)` and `Simulation.add_depth_camera` (the core's list).
 DEPTH_NOISE_PRESETS: tuple[str, ...] = _sim.DEPTH_NOISE_PRESETS
+#: The depth noise of closed-loop flights unless one is named: a D435's phantom returns.
+DEFAULT_DEPTH_NOISE = "d435-phantom"
 #: Lidar noise presets (the core's list).
 LIDAR_NOISE_PRESETS: tuple[str, ...] = _sim.LIDAR_NOISE_PRESETS
 
 __all__ = [
+    "DEFAULT_DEPTH_NOISE",
     "DEPTH_NOISE_PRESETS",
     "LIDAR_NOISE_PRESETS",
     "DepthCamera",

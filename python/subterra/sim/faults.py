@@ -98,16 +98,9 @@ def load_faults_config(path: str | os.PathLike[str]) -> dict[str, dict[str, Any]
     """The ``[faults]`` table of a TOML file: ``{name: {field: value}}``. Raises
     :class:`~subterra.errors.FileFormatError` for a file that cannot be read or parsed and
     :class:`ConfigError` for a table that is not one."""
-    from subterra._compat import tomllib
+    from subterra._files import read_toml
 
-    from subterra._files import read_regular_text
-    from subterra.errors import FileFormatError
-
-    text = read_regular_text(path, "faults config")
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise FileFormatError(f"faults config could not be parsed: {exc}: {os.fspath(path)}") from exc
+    doc = read_toml(path, "faults config")
     table = doc.get("faults", {})
     if not isinstance(table, dict) or not all(isinstance(v, dict) for v in table.values()):
         raise ConfigError(f"config field `faults` must be a table of [faults.<name>] tables: {os.fspath(path)}")

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import math
 import os
-from subterra._compat import tomllib
 import uuid
 from pathlib import Path
 from types import ModuleType, TracebackType
@@ -39,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from subterra._compat import tomllib
 from subterra.errors import ConfigError, InputError
 
 __all__ = ["RerunRecorder", "rerun_available"]

@@ -29,11 +29,12 @@ The transition matrix is kept dense here, ``(S, S)`` float64: fine for the prese
 from __future__ import annotations
 
 import math
-from subterra._compat import tomllib
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+
+from subterra._compat import tomllib
 
 __all__ = [
     "DEFAULT_BODY_FROM_CAMERA",

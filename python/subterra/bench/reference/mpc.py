@@ -65,12 +65,13 @@ from __future__ import annotations
 
 import math
 import time
-from subterra._compat import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from subterra._compat import tomllib
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",

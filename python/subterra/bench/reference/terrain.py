@@ -87,13 +87,14 @@ library.
 from __future__ import annotations
 
 import math
-from subterra._compat import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from statistics import NormalDist
 from typing import Any
 
 import numpy as np
+
+from subterra._compat import tomllib
 
 __all__ = [
     "DEFAULT_CONFIG_PATH",
