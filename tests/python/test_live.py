@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import math
 import os
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -947,3 +949,13 @@ def test_second_probe_findings_are_clear_errors(tmp_path):
         NodeConfig.from_dict({"rates": {"odometry_hz": 1e-300}})
     with pytest.raises(ConfigError, match="watchdog_s"):
         NodeConfig.from_dict({"safety": {"watchdog_s": 5e-324}})
+
+
+def test_the_node_imports_nothing_of_the_simulation_harness():
+    """What a robot runs (``subterra.live.node``) does not pull in the simulator, the
+    closed-loop runs or the batch engine."""
+    code = ("import sys, subterra.live.node, subterra.live.mavlink\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[:2] in "
+            "[['subterra', p] for p in ('drive', 'flight', 'sim', 'batch', 'scenarios')]))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
