@@ -111,15 +111,17 @@ def _median_ms(values: Sequence[float]) -> float | None:
     return float(np.median(values) * 1e3) if len(values) else None
 
 
-def _timing(read: list[float], decode: list[float], pipeline: list[float], write: list[float]) -> dict[str, Any]:
+def _timing(times: list[tuple[float, float, float, float]]) -> dict[str, Any]:
+    """The medians of the per-message (read, decode, pipeline, write) seconds, in ms."""
+    read, decode, pipeline, write = (np.array([t[i] for t in times]) for i in range(4))
     out = {
         "read_ms_median": _median_ms(read),
         "decode_ms_median": _median_ms(decode),
         "pipeline_ms_median": _median_ms(pipeline),
         "write_ms_median": _median_ms(write),
     }
-    if read and pipeline:
-        ingest = np.asarray(read) + np.asarray(decode)
+    if times:
+        ingest = read + decode
         out["read_decode_ms_median"] = float(np.median(ingest) * 1e3)
         out["read_decode_percent_of_pipeline"] = float(100.0 * np.median(ingest) / np.median(pipeline))
     return out
@@ -268,11 +270,12 @@ def replay(
             raise InputError(f"argument --preset: unknown preset {preset!r} (known: {', '.join(preset_names())})")
     out = Path(out)
     with open_recording(recording) as rec:
+        steps: _Steps
         if pipeline == "depth":
-            return _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, config, scale, seed,
-                                 world_frame, body_frame, max_messages, rerun, plots, progress)
-        return _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_frame, body_frame, sensor_height,
-                               layers, max_messages, rerun, plots, progress)
+            steps = _DepthSteps(rec, depth_topic, info_topic, odom_topic, goal, preset, config, scale, seed, world_frame, body_frame)
+        else:
+            steps = _TerrainSteps(rec, cloud_topic, odom_topic, terrain_config, world_frame, body_frame, sensor_height, layers)
+        return _run(rec, out, steps, max_messages=max_messages, rerun=rerun, plots=plots, progress=progress)
 
 
 @functools.cache
@@ -302,141 +305,71 @@ def _pipeline(pipeline: str | None, depth_topic: str | None, info_topic: str | N
     return pipeline
 
 
-# ---------------------------------------------------------------------- depth
+# ---------------------------------------------------------------------- the replay loop
 
 
-def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, config, scale, seed,
-                  world_frame, body_frame, max_messages, rerun, plots, progress) -> dict[str, Any]:
-    from subterra import Pilot
-    from subterra.io.ros import decode_camera_info, decode_depth_image
-    from subterra.perceive import summarise
+class _Steps:
+    """What differs between the pipelines; :func:`_run` owns the loop around it.
+
+    ``__init__`` checks the topics and runs the pre-pass, before anything is written. Then, for
+    each message of ``topic``: ``decode(msg, stamp, where)`` (timed as decode) gives the data;
+    ``prepare(msg, data, log_ns, stamp, writer)`` sets up on the first message and finds the
+    pose; ``run(data, stamp)`` (timed as pipeline) gives the result;
+    ``write(writer, recorder, index, log_ns, stamp, data, result)`` (timed as write) writes it to
+    ``replay.mcap`` and ``replay.rrd`` (``recorder`` None: none) and returns the message's record.
+    At the end ``summary(records, out, plots)`` writes the figures and gives the pipeline's keys
+    of the summary: those on what was used, and those on what came out (ending with ``figures``).
+    """
+
+    pipeline: str  # the summary's "pipeline"; the progress bar says "replay <pipeline>"
+    layers: Sequence[str] | None = ()  # terrain layers written as images to replay.mcap (None: all)
+    allow_nan = True  # json.dumps's allow_nan for summary.json
+
+    def __init__(self, rec: Any, topic: str, count: int, topics: dict[str, str | None], odom_topic: str | None,
+                 world_frame: str | None, body_frame: str | None) -> None:
+        self.path: Path = rec.path
+        self.topic, self.count, self.topics = topic, count, topics
+        self.odom = odom_topic is not None
+        self.ctx = _pre_pass(rec, odom_topic)
+        self.world, self.body = _frames(self.ctx, world_frame, body_frame)
+
+
+def _run(rec: Any, out: Path, steps: _Steps, *, max_messages: int | None, rerun: bool | None, plots: bool,
+         progress: bool) -> dict[str, Any]:
+    """Runs ``steps`` over the messages of ``steps.topic``, writes the run folder ``out``; returns the summary.
+
+    A :class:`SubterraError` (a truncated recording, a bad message) ends the replay: ``replay.mcap``
+    is finished and ``summary.json`` written (``"completed": false``) first, then the error raised."""
     from subterra.viz.foxglove import FoxgloveWriter
 
-    images = rec.topic(depth_topic, [_IMAGE], role="--depth-topic")
-    rec.topic(info_topic, [_INFO], role="--info-topic")
-    if odom_topic is not None:
-        rec.topic(odom_topic, [_ODOM], role="--odom-topic")
-    # The camera: the first CameraInfo.
-    first_info = next(iter(rec.messages([info_topic])), None)
-    if first_info is None:
-        raise InputError(f"--info-topic {info_topic!r} has no messages: {rec.path}")
-    intrinsics = decode_camera_info(first_info.message, where=f"{info_topic} at log time {first_info.stamp_ns} ns")
-    camera = intrinsics.to_camera()
-    ctx = _pre_pass(rec, odom_topic)
-    world, body = _frames(ctx, world_frame, body_frame)
-    odom = odom_topic is not None
-
     out.mkdir(parents=True, exist_ok=True)
-    writer = FoxgloveWriter(out / "replay.mcap", world_frame=world, body_frame=body, layers=())
+    writer = FoxgloveWriter(out / "replay.mcap", world_frame=steps.world, body_frame=steps.body, layers=steps.layers)
     recorder = _rerun_recorder(out, rerun)
     records: list[dict[str, Any]] = []
-    read_s: list[float] = []
-    decode_s: list[float] = []
-    pipeline_s: list[float] = []
-    write_s: list[float] = []
-    pilot = None
-    goal_world = goal_body_fixed = None
-    last_pose = None
-    last_stamp_s = -np.inf
-    frames_out_of_order = 0
-    body_from_camera = None
-    mount_source = "default: forward-looking camera (optical z = body x)"
-    frames_without_pose = 0
+    times: list[tuple[float, float, float, float]] = []  # read, decode, pipeline, write [s]
     error: SubterraError | None = None
-    first_log = None
-    bar = _progress(images.count if max_messages is None else min(images.count, max_messages), "replay depth", progress)
+    bar = _progress(steps.count if max_messages is None else min(steps.count, max_messages), f"replay {steps.pipeline}", progress)
     try:
-        for (topic, log_ns, msg), dt_read in _timed(rec.messages([depth_topic])):
+        for (topic, log_ns, msg), dt_read in _timed(rec.messages([steps.topic])):
             stamp = _stamp(msg, log_ns)
             where = f"{topic} at stamp {stamp} ns"
             t0 = time.perf_counter()
-            depth = decode_depth_image(msg, scale=scale, where=where)
-            if depth.data.shape != (camera.height, camera.width):
-                raise InputError(
-                    f"--depth-topic {topic!r}: the image at stamp {stamp} ns is {depth.data.shape[1]}x{depth.data.shape[0]} "
-                    f"but --info-topic {info_topic!r} says {camera.width}x{camera.height}: {rec.path}"
-                )
+            data = steps.decode(msg, stamp, where)
             t1 = time.perf_counter()
-            if pilot is None:  # the first image: its frame gives the mounting
-                first_log = log_ns
-                frame = str(msg.header.frame_id).lstrip("/")
-                body_from_camera = _mount(ctx, body, frame)
-                if body_from_camera is not None:
-                    mount_source = f"tf_static: {body} <- {frame}"
-                else:
-                    body_from_camera = _FORWARD_OPTICAL
-                pilot = Pilot([(camera, body_from_camera)], preset, config=config, controller="apf-pf", seed=seed)
-                centres_body = pilot.voxel_centres("body")
-                free_state = pilot.free_state()
-                if frame and frame != body:
-                    writer.static_transform(log_ns, stamp, body, frame, body_from_camera)
-                if odom:
-                    first = ctx.track.first
-                    goal_world = goal if goal is not None else (first @ np.array([DEFAULT_GOAL_AHEAD_M, 0, 0, 1.0]))[:3]
-                    last_pose = first
-                else:
-                    # No odometry: a camera standing still at the origin, the goal fixed in its body frame.
-                    goal_world = goal_body_fixed = goal if goal is not None else np.array([DEFAULT_GOAL_AHEAD_M, 0.0, 0.0])
-                    last_pose = np.eye(4)
-                pilot.set_goal(goal_world)
-            pose = _pose(ctx, world, body, stamp, odom) if odom else None
-            if odom and pose is None:
-                frames_without_pose += 1  # flown on at the last pose known
-            elif pose is not None:
-                last_pose = pose
-            # The memory and the escape need time to run forward: a stamp older than the last
-            # is taken at the last one (and counted).
-            stamp_s = stamp / 1e9
-            if stamp_s < last_stamp_s:
-                frames_out_of_order += 1
-                stamp_s = last_stamp_s
-            last_stamp_s = stamp_s
+            steps.prepare(msg, data, log_ns, stamp, writer)
             try:
                 t2 = time.perf_counter()
-                step = pilot.step(depth.data, stamp=stamp_s, world_from_body=last_pose,
-                                  scale=depth.scale_m_per_unit if depth.data.dtype == np.uint16 else None)
-                result, cmd = step.perceptions[0], step.command
+                result = steps.run(data, stamp)
                 t3 = time.perf_counter()
             except SubterraError as exc:
                 raise _with_context(exc, where) from exc
-            goal_body = step.goal_body
-            states = np.asarray(result.belief_states, dtype=np.int64)
-            probs = np.asarray(result.belief_probabilities, dtype=np.float64)
-            grid = states != free_state
-            centres = centres_body[states[grid]] if grid.any() else np.zeros((0, 3))
-            writer.command(log_ns, stamp, cmd.v_x, cmd.v_y, cmd.v_z, cmd.yaw_rate)
-            writer.belief(log_ns, stamp, centres, probs[grid], p_free=result.p_free)
-            if pose is not None:
-                writer.pose(log_ns, stamp, pose)
-            t4 = time.perf_counter()
-            if recorder is not None:
-                _rerun_frame(recorder, (log_ns - first_log) / 1e9, depth, camera, centres, probs[grid], pose,
-                             body_from_camera, cmd, result.p_free)
-            mp = result.most_probable
-            records.append({
-                "frame": len(records), "name": f"{stamp}", "stamp_ns": stamp, "log_time_ns": log_ns,
-                "p_free": result.p_free,
-                "map_depth_m": None if mp is None else mp.depth_m,
-                "map_probability": None if mp is None else mp.probability,
-                "map_voxel": None if mp is None else list(mp.voxel),
-                "closest_depth_m": result.closest_depth_m,
-                "valid_pixels": result.valid_pixels, "in_range_pixels": result.in_range_pixels,
-                "repulsive_body": result.repulsive_body.tolist(),
-                "memory_repulsive_body": step.memory_repulsive_body.tolist(),
-                "memory_cells": step.memory_cells,
-                "goal_body": [float(v) for v in goal_body],
-                "command": {"v_x": cmd.v_x, "v_y": cmd.v_y, "v_z": cmd.v_z, "yaw_rate": cmd.yaw_rate, "reached": cmd.reached},
-                "timings_s": {**result.timings, "pilot_s": step.timings["total_s"]},
-            })
-            read_s.append(dt_read)
-            decode_s.append(t1 - t0)
-            pipeline_s.append(t3 - t2)
-            write_s.append(t4 - t3)
+            records.append(steps.write(writer, recorder, len(records), log_ns, stamp, data, result))
+            times.append((dt_read, t1 - t0, t3 - t2, time.perf_counter() - t3))
             bar.update(1)
             if max_messages is not None and len(records) >= max_messages:
                 break
         else:
-            error = ctx.error  # the pre-pass met a break (or a corrupt message) the main pass did not
+            error = steps.ctx.error  # the pre-pass met a break (or a corrupt message) the main pass did not
     except SubterraError as exc:
         error = exc
     finally:
@@ -445,33 +378,19 @@ def _replay_depth(rec, out, depth_topic, info_topic, odom_topic, goal, preset, c
         if recorder is not None:
             recorder.close()
 
+    used, found = steps.summary(records, out, plots)
     summary: dict[str, Any] = {
-        "recording": str(rec.path), "format": rec.format, "profile": rec.profile, "pipeline": "depth",
+        "recording": str(rec.path), "format": rec.format, "profile": rec.profile, "pipeline": steps.pipeline,
         "completed": error is None, "error": None if error is None else str(error),
-        "topics": {"depth": depth_topic, "info": info_topic, "odom": odom_topic},
-        "frame_ids": {"world": world, "body": body},
-        "body_from_camera": None if body_from_camera is None else body_from_camera.tolist(),
-        "body_from_camera_source": mount_source,
-        "goal": {"frame": world if odom else body, "xyz_m": None if (goal_world if odom else goal_body_fixed) is None
-                 else [float(v) for v in (goal_world if odom else goal_body_fixed)]},
-        "frames_without_pose": frames_without_pose,
-        "frames_out_of_order": frames_out_of_order,
+        "topics": steps.topics,
+        "frame_ids": {"world": steps.world, "body": steps.body},
+        **used,
         "output_mcap": str(writer.path), "output_counts": writer.counts,
-        "replay_timing": _timing(read_s, decode_s, pipeline_s, write_s),
+        "rerun": str(recorder.path) if recorder is not None else None,
+        "replay_timing": _timing(times),
+        **found,
     }
-    if pilot is not None:
-        summary = {**summary, **summarise(pilot, records, source=str(rec.path), preset=preset)}
-    else:
-        summary["records"] = records
-    figures = []
-    if plots and records:
-        from subterra.viz.plots import plot_depth_trace
-
-        plot_depth_trace(records, out / "perception.png", title=f"APF-PF ({preset}) on {rec.path.name} {depth_topic}")
-        figures.append("perception.png")
-    summary["figures"] = figures
-    summary["rerun"] = str(out / "replay.rrd") if recorder is not None else None
-    (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=steps.allow_nan), encoding="utf-8")
     if error is not None:
         error.partial_summary = summary  # type: ignore[attr-defined]  # for the CLI's report
         raise error
@@ -491,6 +410,136 @@ def _rerun_recorder(out: Path, rerun: bool | None):
     return RerunRecorder(out / "replay.rrd", application_id="subterra-replay", depth_every=RERUN_DEPTH_EVERY)
 
 
+# ---------------------------------------------------------------------- depth
+
+
+class _DepthSteps(_Steps):
+    """APF-PF (:class:`subterra.Pilot`, one camera) on every depth image."""
+
+    pipeline = "depth"
+
+    def __init__(self, rec, depth_topic, info_topic, odom_topic, goal, preset, config, scale, seed, world_frame, body_frame) -> None:
+        from subterra.io.ros import decode_camera_info
+
+        images = rec.topic(depth_topic, [_IMAGE], role="--depth-topic")
+        rec.topic(info_topic, [_INFO], role="--info-topic")
+        if odom_topic is not None:
+            rec.topic(odom_topic, [_ODOM], role="--odom-topic")
+        # The camera: the first CameraInfo.
+        first_info = next(iter(rec.messages([info_topic])), None)
+        if first_info is None:
+            raise InputError(f"--info-topic {info_topic!r} has no messages: {rec.path}")
+        intrinsics = decode_camera_info(first_info.message, where=f"{info_topic} at log time {first_info.stamp_ns} ns")
+        self.camera = intrinsics.to_camera()
+        super().__init__(rec, depth_topic, images.count, {"depth": depth_topic, "info": info_topic, "odom": odom_topic},
+                         odom_topic, world_frame, body_frame)
+        self.info_topic, self.goal, self.preset, self.config, self.scale, self.seed = info_topic, goal, preset, config, scale, seed
+        self.pilot: Any = None
+        self.goal_world = self.pose = self.last_pose = None
+        self.last_stamp_s = -np.inf
+        self.frames_out_of_order = self.frames_without_pose = self.first_log = 0
+        self.body_from_camera, self.mount_source = None, "default: forward-looking camera (optical z = body x)"
+
+    def decode(self, msg: Any, stamp: int, where: str) -> Any:
+        from subterra.io.ros import decode_depth_image
+
+        depth = decode_depth_image(msg, scale=self.scale, where=where)
+        if depth.data.shape != (self.camera.height, self.camera.width):
+            raise InputError(
+                f"--depth-topic {self.topic!r}: the image at stamp {stamp} ns is {depth.data.shape[1]}x{depth.data.shape[0]} "
+                f"but --info-topic {self.info_topic!r} says {self.camera.width}x{self.camera.height}: {self.path}"
+            )
+        return depth
+
+    def prepare(self, msg: Any, depth: Any, log_ns: int, stamp: int, writer: Any) -> None:
+        ctx, body, goal = self.ctx, self.body, self.goal
+        if self.pilot is None:  # the first image: its frame gives the mounting
+            from subterra import Pilot
+
+            self.first_log = log_ns
+            frame = str(msg.header.frame_id).lstrip("/")
+            self.body_from_camera = _mount(ctx, body, frame)
+            if self.body_from_camera is not None:
+                self.mount_source = f"tf_static: {body} <- {frame}"
+            else:
+                self.body_from_camera = _FORWARD_OPTICAL
+            self.pilot = Pilot([(self.camera, self.body_from_camera)], self.preset, config=self.config, controller="apf-pf",
+                               seed=self.seed)
+            self.centres_body = self.pilot.voxel_centres("body")
+            self.free_state = self.pilot.free_state()
+            if frame and frame != body:
+                writer.static_transform(log_ns, stamp, body, frame, self.body_from_camera)
+            # No odometry: a camera standing still at the origin, the goal fixed in its body frame.
+            self.last_pose = ctx.track.first if self.odom else np.eye(4)
+            self.goal_world = goal if goal is not None else (self.last_pose @ np.array([DEFAULT_GOAL_AHEAD_M, 0, 0, 1.0]))[:3]
+            self.pilot.set_goal(self.goal_world)
+        self.pose = _pose(ctx, self.world, body, stamp, self.odom) if self.odom else None
+        if self.odom and self.pose is None:
+            self.frames_without_pose += 1  # flown on at the last pose known
+        elif self.pose is not None:
+            self.last_pose = self.pose
+        # The memory and the escape need time to run forward: a stamp older than the last
+        # is taken at the last one (and counted).
+        if stamp / 1e9 < self.last_stamp_s:
+            self.frames_out_of_order += 1
+        else:
+            self.last_stamp_s = stamp / 1e9
+
+    def run(self, depth: Any, stamp: int) -> Any:
+        return self.pilot.step(depth.data, stamp=self.last_stamp_s, world_from_body=self.last_pose,
+                               scale=depth.scale_m_per_unit if depth.data.dtype == np.uint16 else None)
+
+    def write(self, writer: Any, recorder: Any, index: int, log_ns: int, stamp: int, depth: Any, step: Any) -> dict[str, Any]:
+        result, cmd = step.perceptions[0], step.command
+        states = np.asarray(result.belief_states, dtype=np.int64)
+        probs = np.asarray(result.belief_probabilities, dtype=np.float64)
+        grid = states != self.free_state
+        centres = self.centres_body[states[grid]] if grid.any() else np.zeros((0, 3))
+        writer.command(log_ns, stamp, cmd.v_x, cmd.v_y, cmd.v_z, cmd.yaw_rate)
+        writer.belief(log_ns, stamp, centres, probs[grid], p_free=result.p_free)
+        if self.pose is not None:
+            writer.pose(log_ns, stamp, self.pose)
+        if recorder is not None:
+            _rerun_frame(recorder, (log_ns - self.first_log) / 1e9, depth, self.camera, centres, probs[grid], self.pose,
+                         self.body_from_camera, cmd, result.p_free)
+        mp = result.most_probable
+        return {
+            "frame": index, "name": f"{stamp}", "stamp_ns": stamp, "log_time_ns": log_ns,
+            "p_free": result.p_free,
+            "map_depth_m": None if mp is None else mp.depth_m,
+            "map_probability": None if mp is None else mp.probability,
+            "map_voxel": None if mp is None else list(mp.voxel),
+            "closest_depth_m": result.closest_depth_m,
+            "valid_pixels": result.valid_pixels, "in_range_pixels": result.in_range_pixels,
+            "repulsive_body": result.repulsive_body.tolist(),
+            "memory_repulsive_body": step.memory_repulsive_body.tolist(),
+            "memory_cells": step.memory_cells,
+            "goal_body": [float(v) for v in step.goal_body],
+            "command": {"v_x": cmd.v_x, "v_y": cmd.v_y, "v_z": cmd.v_z, "yaw_rate": cmd.yaw_rate, "reached": cmd.reached},
+            "timings_s": {**result.timings, "pilot_s": step.timings["total_s"]},
+        }
+
+    def summary(self, records: list[dict[str, Any]], out: Path, plots: bool) -> tuple[dict[str, Any], dict[str, Any]]:
+        from subterra.perceive import summarise
+
+        goal = self.goal_world  # with odometry in the world frame, else fixed in the body frame
+        used = {
+            "body_from_camera": None if self.body_from_camera is None else self.body_from_camera.tolist(),
+            "body_from_camera_source": self.mount_source,
+            "goal": {"frame": self.world if self.odom else self.body, "xyz_m": None if goal is None else [float(v) for v in goal]},
+            "frames_without_pose": self.frames_without_pose,
+            "frames_out_of_order": self.frames_out_of_order,
+        }
+        found = {"records": records} if self.pilot is None else summarise(self.pilot, records, source=str(self.path), preset=self.preset)
+        found["figures"] = []
+        if plots and records:
+            from subterra.viz.plots import plot_depth_trace
+
+            plot_depth_trace(records, out / "perception.png", title=f"APF-PF ({self.preset}) on {self.path.name} {self.topic}")
+            found["figures"].append("perception.png")
+        return used, found
+
+
 def _rerun_frame(recorder, time_s, depth, camera, centres_body, probs, pose, body_from_camera, cmd, p_free) -> None:
     world_from_body = pose if pose is not None else np.eye(4)
     data = depth.data
@@ -507,143 +556,105 @@ def _rerun_frame(recorder, time_s, depth, camera, centres_body, probs, pose, bod
 # ---------------------------------------------------------------------- terrain
 
 
-def _rerun_scan(recorder, time_s, points_sensor, world_from_sensor, world_from_body, risk_map) -> None:
-    """One scan into ``replay.rrd``: the cloud in the world frame, the robot's position and,
-    when given, the risk map's observed cells."""
-    points = points_sensor @ world_from_sensor[:3, :3].T.astype(np.float32) + world_from_sensor[:3, 3].astype(np.float32)
-    recorder.log_cloud(time_s, points)
-    recorder.log_drive_step(time_s, position=world_from_body[:3, 3], risk_map=risk_map)
+class _TerrainSteps(_Steps):
+    """:class:`subterra.TerrainMapper` on every cloud."""
 
+    pipeline = "terrain"
+    allow_nan = False
 
-def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_frame, body_frame, sensor_height,
-                    layers, max_messages, rerun, plots, progress) -> dict[str, Any]:
-    from subterra import TerrainMapper
-    from subterra.io.ros import decode_pointcloud2
-    from subterra.terrain import estimate_sensor_height, lethal_cells, translation
-    from subterra.viz.foxglove import FoxgloveWriter
+    def __init__(self, rec, cloud_topic, odom_topic, terrain_config, world_frame, body_frame, sensor_height, layers) -> None:
+        from subterra import TerrainMapper
 
-    clouds = rec.topic(cloud_topic, [_CLOUD], role="--cloud-topic")
-    if odom_topic is not None:
-        rec.topic(odom_topic, [_ODOM], role="--odom-topic")
-    if sensor_height is not None and not (math.isfinite(sensor_height) and sensor_height > 0):
-        raise InputError(f"argument `--sensor-height` must be a finite number > 0 m, got {sensor_height}")
-    ctx = _pre_pass(rec, odom_topic)
-    world, body = _frames(ctx, world_frame, body_frame)
-    odom = odom_topic is not None
-    if odom:
-        pose_kind, pose_source = "odom", f"odometry {odom_topic}"
-    elif world in ctx.tf.frames and body in ctx.tf.frames:
-        pose_kind, pose_source = "tf", f"tf: {world} <- {body}"
-    else:
-        pose_kind, pose_source = "none", "none: identity (the robot stands still at the world origin)"
-
-    mapper = TerrainMapper(config=terrain_config)
-    out.mkdir(parents=True, exist_ok=True)
-    writer = FoxgloveWriter(out / "replay.mcap", world_frame=world, body_frame=body, layers=layers)
-    recorder = _rerun_recorder(out, rerun)
-    scans: list[dict[str, Any]] = []
-    read_s: list[float] = []
-    decode_s: list[float] = []
-    pipeline_s: list[float] = []
-    write_s: list[float] = []
-    body_from_sensor = None
-    mount_source = None
-    first_stamp = None
-    risk_map = None
-    world_from_body = np.eye(4)
-    dropped_total = 0
-    error: SubterraError | None = None
-    bar = _progress(clouds.count if max_messages is None else min(clouds.count, max_messages), "replay terrain", progress)
-    try:
-        for (topic, log_ns, msg), dt_read in _timed(rec.messages([cloud_topic])):
-            stamp = _stamp(msg, log_ns)
-            where = f"{topic} at stamp {stamp} ns"
-            t0 = time.perf_counter()
-            cloud = decode_pointcloud2(msg, fields=(), where=where)
-            t1 = time.perf_counter()
-            if len(cloud) == 0:
-                raise InputError(
-                    f"--cloud-topic {topic!r}: the cloud at stamp {stamp} ns has no points "
-                    f"({cloud.width}x{cloud.height}, {cloud.dropped} non-finite dropped): {rec.path}"
-                )
-            if body_from_sensor is None:
-                body_from_sensor = _mount(ctx, body, cloud.frame_id)
-                if body_from_sensor is not None:
-                    mount_source = f"tf_static: {body} <- {cloud.frame_id}"
-                else:
-                    if sensor_height is None:
-                        sensor_height = estimate_sensor_height(cloud.points)
-                        mount_source = "estimated from the first cloud (level sensor)"
-                        if not sensor_height > 0:
-                            raise InputError(
-                                f"cannot estimate the height of the sensor above the ground from the first cloud on "
-                                f"{topic!r} (got {sensor_height:.2f} m) and tf has no {body} <- {cloud.frame_id or '?'}: "
-                                f"give --sensor-height or --body-frame: {rec.path}"
-                            )
-                    else:
-                        mount_source = "--sensor-height (level sensor)"
-                    body_from_sensor = translation(z=sensor_height)
-                if cloud.frame_id and cloud.frame_id.lstrip("/") != body:
-                    writer.static_transform(log_ns, stamp, body, cloud.frame_id.lstrip("/"), body_from_sensor)
-                first_stamp = stamp
-            pose = np.eye(4) if pose_kind == "none" else _pose(ctx, world, body, stamp, odom)
-            if pose is None:
-                raise InputError(f"no pose within {POSE_TOLERANCE_NS / 1e9:g} s of the cloud ({pose_source}): {rec.path}")
-            world_from_body = pose
-            try:
-                t2 = time.perf_counter()
-                risk_map = mapper.update(cloud.points, stamp=(stamp - first_stamp) / 1e9, world_from_body=world_from_body,
-                                         body_from_sensor=body_from_sensor)
-                t3 = time.perf_counter()
-            except SubterraError as exc:
-                raise _with_context(exc, where) from exc
-            writer.pose(log_ns, stamp, world_from_body)
-            writer.risk_map(log_ns, stamp, risk_map)
-            if mapper.last_fine is not None:
-                writer.risk_map(log_ns, stamp, mapper.last_fine, topic="/subterra/risk_fine", with_layers=False)
-            if recorder is not None:
-                _rerun_scan(recorder, (stamp - first_stamp) / 1e9, cloud.points, world_from_body @ body_from_sensor,
-                            world_from_body, risk_map if len(scans) % RERUN_RISK_EVERY == 0 else None)
-            t4 = time.perf_counter()
-            dropped_total += cloud.dropped
-            scans.append({
-                "stamp_ns": stamp, "log_time_ns": log_ns, "frame_id": cloud.frame_id, "points": len(cloud),
-                "dropped_non_finite": cloud.dropped, "organised": [cloud.height, cloud.width],
-                "position_m": world_from_body[:3, 3].tolist(), "stats": dict(risk_map.stats), "timings": dict(risk_map.timings),
-            })
-            read_s.append(dt_read)
-            decode_s.append(t1 - t0)
-            pipeline_s.append(t3 - t2)
-            write_s.append(t4 - t3)
-            bar.update(1)
-            if max_messages is not None and len(scans) >= max_messages:
-                break
+        clouds = rec.topic(cloud_topic, [_CLOUD], role="--cloud-topic")
+        if odom_topic is not None:
+            rec.topic(odom_topic, [_ODOM], role="--odom-topic")
+        if sensor_height is not None and not (math.isfinite(sensor_height) and sensor_height > 0):
+            raise InputError(f"argument `--sensor-height` must be a finite number > 0 m, got {sensor_height}")
+        super().__init__(rec, cloud_topic, clouds.count, {"cloud": cloud_topic, "odom": odom_topic}, odom_topic,
+                         world_frame, body_frame)
+        if self.odom:
+            self.pose_kind, self.pose_source = "odom", f"odometry {odom_topic}"
+        elif self.world in self.ctx.tf.frames and self.body in self.ctx.tf.frames:
+            self.pose_kind, self.pose_source = "tf", f"tf: {self.world} <- {self.body}"
         else:
-            error = ctx.error  # the pre-pass met a break (or a corrupt message) the main pass did not
-    except SubterraError as exc:
-        error = exc
-    finally:
-        bar.close()
-        writer.close()
-        if recorder is not None:
-            recorder.close()
+            self.pose_kind, self.pose_source = "none", "none: identity (the robot stands still at the world origin)"
+        self.mapper = TerrainMapper(config=terrain_config)
+        self.sensor_height, self.layers = sensor_height, layers
+        self.body_from_sensor = self.mount_source = self.risk_map = None
+        self.first_stamp, self.world_from_body = 0, np.eye(4)
 
-    summary: dict[str, Any] = {
-        "recording": str(rec.path), "format": rec.format, "profile": rec.profile, "pipeline": "terrain",
-        "completed": error is None, "error": None if error is None else str(error),
-        "topics": {"cloud": cloud_topic, "odom": odom_topic},
-        "frame_ids": {"world": world, "body": body},
-        "poses": pose_source,
-        "body_from_sensor": None if body_from_sensor is None else np.asarray(body_from_sensor).tolist(),
-        "body_from_sensor_source": mount_source,
-        "dropped_non_finite": dropped_total,
-        "output_mcap": str(writer.path), "output_counts": writer.counts,
-        "rerun": str(recorder.path) if recorder is not None else None,
-        "replay_timing": _timing(read_s, decode_s, pipeline_s, write_s),
-        "scans": scans,
-    }
-    figures: list[str] = []
-    if risk_map is not None:
+    def decode(self, msg: Any, stamp: int, where: str) -> Any:
+        from subterra.io.ros import decode_pointcloud2
+
+        cloud = decode_pointcloud2(msg, fields=(), where=where)
+        if len(cloud) == 0:
+            raise InputError(
+                f"--cloud-topic {self.topic!r}: the cloud at stamp {stamp} ns has no points "
+                f"({cloud.width}x{cloud.height}, {cloud.dropped} non-finite dropped): {self.path}"
+            )
+        return cloud
+
+    def prepare(self, msg: Any, cloud: Any, log_ns: int, stamp: int, writer: Any) -> None:
+        body = self.body
+        if self.body_from_sensor is None:  # the first cloud: its frame gives the mounting
+            from subterra.terrain import estimate_sensor_height, translation
+
+            self.body_from_sensor = _mount(self.ctx, body, cloud.frame_id)
+            if self.body_from_sensor is not None:
+                self.mount_source = f"tf_static: {body} <- {cloud.frame_id}"
+            else:
+                if self.sensor_height is None:
+                    self.sensor_height = estimate_sensor_height(cloud.points)
+                    self.mount_source = "estimated from the first cloud (level sensor)"
+                    if not self.sensor_height > 0:
+                        raise InputError(
+                            f"cannot estimate the height of the sensor above the ground from the first cloud on "
+                            f"{self.topic!r} (got {self.sensor_height:.2f} m) and tf has no {body} <- {cloud.frame_id or '?'}: "
+                            f"give --sensor-height or --body-frame: {self.path}"
+                        )
+                else:
+                    self.mount_source = "--sensor-height (level sensor)"
+                self.body_from_sensor = translation(z=self.sensor_height)
+            if cloud.frame_id and cloud.frame_id.lstrip("/") != body:
+                writer.static_transform(log_ns, stamp, body, cloud.frame_id.lstrip("/"), self.body_from_sensor)
+            self.first_stamp = stamp
+        pose = np.eye(4) if self.pose_kind == "none" else _pose(self.ctx, self.world, body, stamp, self.odom)
+        if pose is None:
+            raise InputError(f"no pose within {POSE_TOLERANCE_NS / 1e9:g} s of the cloud ({self.pose_source}): {self.path}")
+        self.world_from_body = pose
+
+    def run(self, cloud: Any, stamp: int) -> Any:
+        self.risk_map = self.mapper.update(cloud.points, stamp=(stamp - self.first_stamp) / 1e9,
+                                           world_from_body=self.world_from_body, body_from_sensor=self.body_from_sensor)
+        return self.risk_map
+
+    def write(self, writer: Any, recorder: Any, index: int, log_ns: int, stamp: int, cloud: Any, risk_map: Any) -> dict[str, Any]:
+        world_from_body = self.world_from_body
+        writer.pose(log_ns, stamp, world_from_body)
+        writer.risk_map(log_ns, stamp, risk_map)
+        if self.mapper.last_fine is not None:
+            writer.risk_map(log_ns, stamp, self.mapper.last_fine, topic="/subterra/risk_fine", with_layers=False)
+        if recorder is not None:
+            _rerun_scan(recorder, (stamp - self.first_stamp) / 1e9, cloud.points, world_from_body @ self.body_from_sensor,
+                        world_from_body, risk_map if index % RERUN_RISK_EVERY == 0 else None)
+        return {
+            "stamp_ns": stamp, "log_time_ns": log_ns, "frame_id": cloud.frame_id, "points": len(cloud),
+            "dropped_non_finite": cloud.dropped, "organised": [cloud.height, cloud.width],
+            "position_m": world_from_body[:3, 3].tolist(), "stats": dict(risk_map.stats), "timings": dict(risk_map.timings),
+        }
+
+    def summary(self, records: list[dict[str, Any]], out: Path, plots: bool) -> tuple[dict[str, Any], dict[str, Any]]:
+        from subterra.terrain import lethal_cells
+
+        used = {
+            "poses": self.pose_source,
+            "body_from_sensor": None if self.body_from_sensor is None else np.asarray(self.body_from_sensor).tolist(),
+            "body_from_sensor_source": self.mount_source,
+            "dropped_non_finite": sum(scan["dropped_non_finite"] for scan in records),
+        }
+        risk_map = self.risk_map
+        if risk_map is None:
+            return used, {"scans": records, "figures": []}
         layers_stats = {}
         for name in risk_map.layer_names:
             a = risk_map.layer(name)
@@ -652,22 +663,27 @@ def _replay_terrain(rec, out, cloud_topic, odom_topic, terrain_config, world_fra
                 {"min": float(finite.min()), "mean": float(finite.mean()), "max": float(finite.max()), "finite_cells": int(finite.size)}
                 if finite.size else {"min": None, "mean": None, "max": None, "finite_cells": 0}
             )
-        summary.update({
+        found = {
+            "scans": records,
             "map": {"resolution_m": risk_map.resolution, "shape": list(risk_map.shape), "cells": risk_map.nx * risk_map.ny,
                     "origin_m": list(risk_map.origin), "extent_m": list(risk_map.extent), "scans_fused": risk_map.scans},
             "layers": layers_stats, "lethal_cells": lethal_cells(risk_map),
-            "robot": mapper.robot.to_dict(), "config": mapper.config.to_dict(),
-        })
+            "robot": self.mapper.robot.to_dict(), "config": self.mapper.config.to_dict(),
+            "figures": [],
+        }
         if plots:
             from subterra.terrain.cli import _write_figures
 
-            figures = _write_figures(mapper, risk_map, world_from_body, out)
-    summary["figures"] = figures
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False), encoding="utf-8")
-    if error is not None:
-        error.partial_summary = summary  # type: ignore[attr-defined]  # for the CLI's report
-        raise error
-    return summary
+            found["figures"] = _write_figures(self.mapper, risk_map, self.world_from_body, out)
+        return used, found
+
+
+def _rerun_scan(recorder, time_s, points_sensor, world_from_sensor, world_from_body, risk_map) -> None:
+    """One scan into ``replay.rrd``: the cloud in the world frame, the robot's position and,
+    when given, the risk map's observed cells."""
+    points = points_sensor @ world_from_sensor[:3, :3].T.astype(np.float32) + world_from_sensor[:3, 3].astype(np.float32)
+    recorder.log_cloud(time_s, points)
+    recorder.log_drive_step(time_s, position=world_from_body[:3, 3], risk_map=risk_map)
 
 
 # ---------------------------------------------------------------------- CLI
