@@ -30,8 +30,14 @@ test: test-rust test-python
 
 test-rust:
 	cargo test --workspace --exclude subterra-py
-	# The criterion benches and examples are not built by `cargo test`: check they compile.
-	cargo check --workspace --exclude subterra-py --benches --examples
+	# The workspace lints (Cargo.toml [workspace.lints]) on every target, the criterion benches
+	# and examples included (`cargo test` does not build them); without clippy, a plain check.
+	if cargo clippy --version >/dev/null 2>&1; then \
+		cargo clippy --workspace --exclude subterra-py --all-targets -- -D warnings; \
+	else \
+		echo "clippy is not installed (rustup component add clippy): checking without lints"; \
+		cargo check --workspace --exclude subterra-py --benches --examples; \
+	fi
 
 # Two workers (pytest-xdist): the suite on the 2-core CI machine in about 6 minutes instead of 9.5.
 PYTEST_WORKERS ?= 2

@@ -17,12 +17,12 @@ Terrain risk for ground robots (STEP, Fan et al. 2021; :mod:`subterra.terrain`):
 turns lidar scans into a multi-layer ``RiskMap``; ``segment_ground`` labels ground points.
 
 Planning (STEP, Fan et al. 2021; ``docs/planning.md``): ``RiskAStar`` finds the least-risk path on a
-``RiskMap`` or any risk array and returns a ``PlanResult``; ``Navigator`` wires the terrain
+``RiskMap`` or any risk array and returns a ``PlanOutcome``; ``Navigator`` wires the terrain
 mapper, the planner, the MPC tracker and the recovery behaviours for a robot's own loop.
 
 Path tracking (STEP, Fan et al. 2021): ``MpcTracker`` follows a reference path with a kinodynamic MPC
 (risk-limited speed, obstacle half-planes, a backup stop); ``solve`` returns an
-``MpcResult`` with the command ``(v, ω)`` to send (the QP: ``plan/mpc.rs`` module docs).
+``MpcOutput`` with the command ``(v, ω)`` to send (the QP: ``plan/mpc.rs`` module docs).
 
 Configuration: every stage has a config class (``PerceptionConfig``, ``RobotConfig``,
 ``TerrainConfig``, ``RiskAStarConfig``, ``MpcConfig``, ``NavigatorConfig``, ``HeroConfig``,
@@ -47,7 +47,7 @@ from subterra._core import (
     MemoryOutput,
     MostProbableVoxel,
     MpcConfig,
-    MpcResult,
+    MpcOutput,
     MpcTracker,
     Navigator,
     NavigatorConfig,
@@ -61,7 +61,7 @@ from subterra._core import (
     Pilot,
     PilotOutput,
     PinholeCamera,
-    PlanResult,
+    PlanOutcome,
     Qmdp,
     QmdpAction,
     QmdpConfig,
@@ -85,7 +85,7 @@ __all__ = [
     "MemoryOutput",
     "MostProbableVoxel",
     "MpcConfig",
-    "MpcResult",
+    "MpcOutput",
     "MpcTracker",
     "Navigator",
     "NavigatorConfig",
@@ -99,7 +99,7 @@ __all__ = [
     "Pilot",
     "PilotOutput",
     "PinholeCamera",
-    "PlanResult",
+    "PlanOutcome",
     "Qmdp",
     "QmdpAction",
     "QmdpConfig",

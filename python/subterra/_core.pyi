@@ -351,13 +351,13 @@ class PathFollower:
 
 class Command:
     @property
-    def v_x(self) -> float: ...
+    def v_x_m_s(self) -> float: ...
     @property
-    def v_y(self) -> float: ...
+    def v_y_m_s(self) -> float: ...
     @property
-    def v_z(self) -> float: ...
+    def v_z_m_s(self) -> float: ...
     @property
-    def yaw_rate(self) -> float: ...
+    def yaw_rate_rad_s(self) -> float: ...
     @property
     def reached(self) -> bool: ...
     @property
@@ -493,7 +493,7 @@ class RiskAStar:
         *,
         resolution: float | None = None,
         origin: Sequence[float] | None = None,
-    ) -> PlanResult:
+    ) -> PlanOutcome:
         """Plans from the world position ``start`` (x, y) [m] to ``goal``.
 
         ``risk`` is a :class:`RiskMap` (its ``risk`` layer and geometry) or a 2-D float array
@@ -510,7 +510,7 @@ class RiskAStar:
         *,
         resolution: float | None = None,
         origin: Sequence[float] | None = None,
-    ) -> PlanResult:
+    ) -> PlanOutcome:
         """Like :meth:`plan` with the start and goal as cells ``(ix, iy)`` (``risk[iy, ix]``)."""
     def plan_toward(
         self,
@@ -520,7 +520,7 @@ class RiskAStar:
         *,
         resolution: float | None = None,
         origin: Sequence[float] | None = None,
-    ) -> PlanResult:
+    ) -> PlanOutcome:
         """Like :meth:`plan`, toward a ``target`` that may lie beyond the grid: the path leaves
         by the border cell whose cost plus λ per metre of straight line on to the target is
         least; ``goal_cell`` is that cell."""
@@ -537,7 +537,7 @@ class RiskAStar:
     @property
     def allow_corner_cutting(self) -> bool: ...
 
-class PlanResult:
+class PlanOutcome:
     """The outcome of :meth:`RiskAStar.plan`. Path fields are None / empty without a path."""
 
     @property
@@ -575,7 +575,7 @@ class PlanResult:
     def time_s(self) -> float:
         """Seconds the core spent searching and tracing the path."""
 
-class MpcResult:
+class MpcOutput:
     """What one ``MpcTracker.solve`` gives (slacks, clearance and limits describe ``predicted``)."""
 
     @property
@@ -643,7 +643,7 @@ class MpcTracker:
         origin: Sequence[float] | None = None,
         risk_map: RiskMap | None = None,
         desired_speed: float | None = None,
-    ) -> MpcResult:
+    ) -> MpcOutput:
         """One solve from ``state`` ``[x, y, heading, speed]`` along ``reference_path`` ``(M, 2)``.
 
         Risk: ``risk`` (``(ny, nx)``, row ``iy`` along world y) with ``resolution`` [m/cell]

@@ -79,7 +79,7 @@ def run_perception(
                 "repulsive_body": out.repulsive_body.tolist(),
                 "memory_repulsive_body": step.memory_repulsive_body.tolist(),
                 "memory_cells": step.memory_cells,
-                "command": {"v_x": cmd.v_x, "v_y": cmd.v_y, "v_z": cmd.v_z, "yaw_rate": cmd.yaw_rate},
+                "command": {"v_x": cmd.v_x_m_s, "v_y": cmd.v_y_m_s, "v_z": cmd.v_z_m_s, "yaw_rate": cmd.yaw_rate_rad_s},
                 "timings_s": {**out.timings, "pilot_s": step.timings["total_s"]},
             }
         )

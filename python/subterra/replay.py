@@ -495,7 +495,7 @@ class _DepthSteps(_Steps):
         probs = np.asarray(result.belief_probabilities, dtype=np.float64)
         grid = states != self.free_state
         centres = self.centres_body[states[grid]] if grid.any() else np.zeros((0, 3))
-        writer.command(log_ns, stamp, cmd.v_x, cmd.v_y, cmd.v_z, cmd.yaw_rate)
+        writer.command(log_ns, stamp, cmd.v_x_m_s, cmd.v_y_m_s, cmd.v_z_m_s, cmd.yaw_rate_rad_s)
         writer.belief(log_ns, stamp, centres, probs[grid], p_free=result.p_free)
         if self.pose is not None:
             writer.pose(log_ns, stamp, self.pose)
@@ -515,7 +515,7 @@ class _DepthSteps(_Steps):
             "memory_repulsive_body": step.memory_repulsive_body.tolist(),
             "memory_cells": step.memory_cells,
             "goal_body": [float(v) for v in step.goal_body],
-            "command": {"v_x": cmd.v_x, "v_y": cmd.v_y, "v_z": cmd.v_z, "yaw_rate": cmd.yaw_rate, "reached": cmd.reached},
+            "command": {"v_x": cmd.v_x_m_s, "v_y": cmd.v_y_m_s, "v_z": cmd.v_z_m_s, "yaw_rate": cmd.yaw_rate_rad_s, "reached": cmd.reached},
             "timings_s": {**result.timings, "pilot_s": step.timings["total_s"]},
         }
 
@@ -549,7 +549,7 @@ def _rerun_frame(recorder, time_s, depth, camera, centres_body, probs, pose, bod
     recorder.log_frame(
         time_s, depth=data, world_from_camera=world_from_body @ body_from_camera, camera=camera,
         belief_points_world=centres_world, belief_weights=probs, position=world_from_body[:3, 3],
-        command=np.array([cmd.v_x, cmd.v_y, cmd.v_z, cmd.yaw_rate]), p_free=p_free,
+        command=np.array([cmd.v_x_m_s, cmd.v_y_m_s, cmd.v_z_m_s, cmd.yaw_rate_rad_s]), p_free=p_free,
     )
 
 

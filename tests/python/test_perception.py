@@ -288,18 +288,18 @@ def _goal_command(out, goal=(5.0, 0.0, 0.0)):
 @pytest.mark.parametrize("mode", MODES)
 def test_command_turns_away_from_an_off_centre_box(d435, mode):
     clear = subterra.ApfController("flight").command([5.0, 0.0, 0.0])
-    assert clear.v_x == pytest.approx(0.6) and clear.yaw_rate == 0.0
+    assert clear.v_x_m_s == pytest.approx(0.6) and clear.yaw_rate_rad_s == 0.0
     for cols, side in [(slice(420, 620), "right"), (slice(20, 220), "left")]:
         p = perception(d435, mode)
         for _ in range(3):
             out = p.update(make_box_frame(0.6, cols=cols))
         cmd = _goal_command(out)
         if side == "right":  # image right is body -y: pushed to +y, turn left (yaw rate > 0)
-            assert out.repulsive_body[1] > 0 and cmd.yaw_rate > 0.05
+            assert out.repulsive_body[1] > 0 and cmd.yaw_rate_rad_s > 0.05
         else:
-            assert out.repulsive_body[1] < 0 and cmd.yaw_rate < -0.05
+            assert out.repulsive_body[1] < 0 and cmd.yaw_rate_rad_s < -0.05
         assert out.repulsive_body[0] < 0
-        assert cmd.v_x < 0.6 and not cmd.reached
+        assert cmd.v_x_m_s < 0.6 and not cmd.reached
         np.testing.assert_array_equal(cmd.repulsive_body, out.repulsive_body)
         np.testing.assert_allclose(cmd.attractive_body, [0.2, 0.0, 0.0])
 
@@ -340,10 +340,10 @@ def test_two_cameras_add_their_repulsion(d435, mode):
     summed = controller.command(goal, repulsive_body=a.repulsive_body + b.repulsive_body)
     np.testing.assert_allclose(both.as_array(), summed.as_array(), rtol=1e-15, atol=1e-15)
     only_forward = controller.command(goal, perception=a)
-    assert both.v_z < -0.05  # the ceiling pushes down
+    assert both.v_z_m_s < -0.05  # the ceiling pushes down
     # Without the upward camera the vertical command is only the particle noise of a
     # centred wall: well below what the ceiling adds.
-    assert abs(only_forward.v_z) < 0.5 * abs(both.v_z)
+    assert abs(only_forward.v_z_m_s) < 0.5 * abs(both.v_z_m_s)
     # An extra force adds too.
     extra = controller.command(goal, perception=[a, b], repulsive_body=[0.0, 0.1, 0.0])
     np.testing.assert_allclose(extra.repulsive_body, a.repulsive_body + b.repulsive_body + [0.0, 0.1, 0.0], atol=1e-15)

@@ -55,7 +55,7 @@ def test_python_reproduces_the_rust_digest(key: str, preset: str, controller: st
     for n in range(30):
         out = pilot.step(canonical_frame(n), stamp=n / 15.0, world_from_body=pose(0.03 * n))
         c = out.command
-        h = fnv1a(h, [c.v_x, c.v_y, c.v_z, c.yaw_rate, *out.repulsive_body, out.perceptions[0].p_free])
+        h = fnv1a(h, [c.v_x_m_s, c.v_y_m_s, c.v_z_m_s, c.yaw_rate_rad_s, *out.repulsive_body, out.perceptions[0].p_free])
     assert f"{h:016x}" == committed()[key]
 
 
@@ -93,7 +93,7 @@ def test_a_path_is_followed_with_its_carrot() -> None:
     assert pilot.path_length_m == pytest.approx(8.0)
     out = pilot.step(np.zeros((480, 640), np.uint16), stamp=0.0, world_from_body=pose(0.0))
     np.testing.assert_allclose(out.target_world, [1.5, 0.0, 1.0])
-    assert out.remaining_m == pytest.approx(8.0) and out.command.v_x > 0 and out.escape is None
+    assert out.remaining_m == pytest.approx(8.0) and out.command.v_x_m_s > 0 and out.escape is None
 
 
 def test_two_cameras_each_push_and_take_a_frame_each() -> None:

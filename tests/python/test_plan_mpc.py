@@ -99,7 +99,7 @@ def test_result_fields_and_shapes():
     np.testing.assert_array_equal(out.predicted[0], [0.0, 0.1, 0.0, 0.5])
     v, w = out.command
     assert v == out.predicted[1, 3] and w == out.inputs[0, 1]
-    assert "MpcResult(status=\"solved\"" in repr(out)
+    assert "MpcOutput(status=\"solved\"" in repr(out)
 
 
 def test_closed_loop_tracks_a_curved_reference():

@@ -33,7 +33,7 @@ def test_python_example_runs_and_says_what_the_text_claims(capsys):
     # "The most probable voxel sits at the box (0.85 m ...), and the command turns away and slows down."
     assert out.most_probable.depth_m == pytest.approx(0.85)
     assert out.p_free < 0.01
-    assert cmd.v_x < 0.6
+    assert cmd.v_x_m_s < 0.6
     assert out.repulsive_body[0] < 0
     assert "Command(" in capsys.readouterr().out
 

@@ -177,7 +177,7 @@ impl PyOdometryMux {
     /// The settings in use.
     #[getter]
     fn config(&self) -> PyHeroConfig {
-        PyHeroConfig::from_core(self.inner.lock().config().clone())
+        PyHeroConfig::from_core(*self.inner.lock().config())
     }
 
     /// The source names, most trusted first.

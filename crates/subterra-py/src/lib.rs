@@ -20,7 +20,7 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use subterra::config::{FilterMode, PerceptionConfig};
-use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, VoxelIndex};
+use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, TransitionModel, VoxelIndex};
 use subterra::apf::carrot::{CarrotOutput, PathFollower};
 use subterra::apf::escape::{Escape, EscapeMode, EscapeOutput};
 use subterra::apf::forces::BeliefForces;
@@ -40,6 +40,7 @@ fn array3<'py>(py: Python<'py>, v: glam::DVec3) -> Bound<'py, PyArray1<f64>> {
 #[pyclass(name = "PinholeCamera", module = "subterra._core", frozen, eq)]
 #[derive(Clone, PartialEq)]
 pub struct PyPinholeCamera {
+    /// The core camera.
     pub inner: PinholeCamera,
 }
 
@@ -337,7 +338,7 @@ impl PyDepthPerception {
     /// Bytes held by the transition model.
     #[getter]
     fn transition_memory_bytes(&self) -> usize {
-        self.inner.lock().transition().map_or(0, |t| t.memory_bytes())
+        self.inner.lock().transition().map_or(0, TransitionModel::memory_bytes)
     }
     /// The dense belief over all states, shape `(S,)`.
     fn belief<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
@@ -359,7 +360,7 @@ impl PyDepthPerception {
     fn forces_body<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let f: Vec<f64> = self.forces.forces_body().iter().flat_map(|v| [v.x, v.y, v.z]).collect();
         let n = f.len() / 3;
-        Ok(f.into_pyarray(py).reshape([n, 3])?)
+        f.into_pyarray(py).reshape([n, 3])
     }
     /// The transition row `T(state -> ·)`, shape `(S,)`.
     fn transition_row<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::state_i64)] state: i64) -> PyResult<Bound<'py, PyArray1<f64>>> {
@@ -407,7 +408,7 @@ fn voxel_centres_array<'py>(py: Python<'py>, perception: &DepthPerception, frame
         }
         flat.extend([p.x, p.y, p.z]);
     }
-    Ok(flat.into_pyarray(py).reshape([g.voxel_count(), 3])?)
+    flat.into_pyarray(py).reshape([g.voxel_count(), 3])
 }
 
 impl PyDepthPerception {
@@ -507,7 +508,7 @@ impl PyObstacleMemory {
     fn points_world<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let this = self.inner.lock();
         let flat: Vec<f64> = this.obstacles().flat_map(|c| [c.point_world.x, c.point_world.y, c.point_world.z]).collect();
-        Ok(flat.into_pyarray(py).reshape([this.len(), 3])?)
+        flat.into_pyarray(py).reshape([this.len(), 3])
     }
 
     /// Their weights (the belief that recorded them), shape `(N,)`.
@@ -529,6 +530,7 @@ impl PyObstacleMemory {
 /// A velocity command in the body frame (FLU).
 #[pyclass(name = "Command", module = "subterra._core", frozen)]
 pub struct PyCommand {
+    /// The core command.
     pub inner: Command,
 }
 
@@ -536,22 +538,22 @@ pub struct PyCommand {
 impl PyCommand {
     /// Forward speed [m/s].
     #[getter]
-    fn v_x(&self) -> f64 {
+    fn v_x_m_s(&self) -> f64 {
         self.inner.v_x_m_s
     }
     /// Lateral speed [m/s] (holonomic mode only).
     #[getter]
-    fn v_y(&self) -> f64 {
+    fn v_y_m_s(&self) -> f64 {
         self.inner.v_y_m_s
     }
     /// Vertical speed [m/s].
     #[getter]
-    fn v_z(&self) -> f64 {
+    fn v_z_m_s(&self) -> f64 {
         self.inner.v_z_m_s
     }
     /// Yaw rate [rad/s].
     #[getter]
-    fn yaw_rate(&self) -> f64 {
+    fn yaw_rate_rad_s(&self) -> f64 {
         self.inner.yaw_rate_rad_s
     }
     /// The goal is within the success radius.
@@ -576,7 +578,7 @@ impl PyCommand {
     }
     fn __repr__(&self) -> String {
         let c = &self.inner;
-        format!("Command(v_x={:.3}, v_y={:.3}, v_z={:.3}, yaw_rate={:.3}, reached={})", c.v_x_m_s, c.v_y_m_s, c.v_z_m_s, c.yaw_rate_rad_s, if c.reached { "True" } else { "False" })
+        format!("Command(v_x_m_s={:.3}, v_y_m_s={:.3}, v_z_m_s={:.3}, yaw_rate_rad_s={:.3}, reached={})", c.v_x_m_s, c.v_y_m_s, c.v_z_m_s, c.yaw_rate_rad_s, if c.reached { "True" } else { "False" })
     }
 }
 

@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
 use subterra::apf::pilot::{controller_named, Pilot, PilotCamera, PilotController, PilotOutput, CONTROLLER_NAMES, MAX_CAMERAS};
 use subterra::apf::qmdp::QmdpConfig;
-use subterra::depth::DepthImage;
+use subterra::depth::{DepthImage, TransitionModel};
 use subterra::Isometry3;
 
 use crate::convert::{arg, isometry, type_name, vec3, with_depth, DepthPixels};
@@ -322,7 +322,7 @@ impl PyPilot {
         d.set_item("free_state", p.grid().free_state().0)?;
         d.set_item("frames", p.frames())?;
         d.set_item("transition_build_s", p.transition_build_s())?;
-        d.set_item("transition_memory_bytes", p.transition().map_or(0, |t| t.memory_bytes()))?;
+        d.set_item("transition_memory_bytes", p.transition().map_or(0, TransitionModel::memory_bytes))?;
         Ok(d)
     }
 
@@ -338,7 +338,7 @@ impl PyPilot {
     fn memory_points_world<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let points = self.inner.lock().memory_points_world();
         let flat: Vec<f64> = points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
-        Ok(flat.into_pyarray(py).reshape([points.len(), 3])?)
+        flat.into_pyarray(py).reshape([points.len(), 3])
     }
 
     /// The path's length [m], or None for a point goal (or none yet).

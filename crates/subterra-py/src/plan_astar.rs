@@ -1,4 +1,4 @@
-//! Bindings of `subterra::plan::astar`: `RiskAStar` and its `PlanResult`.
+//! Bindings of `subterra::plan::astar`: `RiskAStar` and its `PlanOutcome`.
 //!
 //! Conversions, error mapping and GIL release only; the search lives in the core crate.
 
@@ -132,7 +132,7 @@ pub struct PyRiskAStar {
 }
 
 impl PyRiskAStar {
-    fn run(&self, py: Python<'_>, risk: &Bound<'_, PyAny>, ends: Endpoints, resolution: Option<&Bound<'_, PyAny>>, origin: Option<&Bound<'_, PyAny>>) -> PyResult<PyPlanResult> {
+    fn run(&self, py: Python<'_>, risk: &Bound<'_, PyAny>, ends: Endpoints, resolution: Option<&Bound<'_, PyAny>>, origin: Option<&Bound<'_, PyAny>>) -> PyResult<PyPlanOutcome> {
         let mut this = self.inner.lock();
         let planner = &mut *this;
         let outcome = with_grid(py, risk, resolution, origin, |parts| {
@@ -145,7 +145,7 @@ impl PyRiskAStar {
                 }
             })
         })?;
-        Ok(PyPlanResult { inner: outcome.py_err(py)? })
+        Ok(PyPlanOutcome { inner: outcome.py_err(py)? })
     }
 }
 
@@ -174,7 +174,7 @@ impl PyRiskAStar {
         goal: &Bound<'_, PyAny>,
         resolution: Option<&Bound<'_, PyAny>>,
         origin: Option<&Bound<'_, PyAny>>,
-    ) -> PyResult<PyPlanResult> {
+    ) -> PyResult<PyPlanOutcome> {
         let ends = Endpoints::World(point2(py, "start", start)?, point2(py, "goal", goal)?);
         self.run(py, risk, ends, resolution, origin)
     }
@@ -193,7 +193,7 @@ impl PyRiskAStar {
         target: &Bound<'_, PyAny>,
         resolution: Option<&Bound<'_, PyAny>>,
         origin: Option<&Bound<'_, PyAny>>,
-    ) -> PyResult<PyPlanResult> {
+    ) -> PyResult<PyPlanOutcome> {
         let ends = Endpoints::Toward(point2(py, "start", start)?, point2(py, "target", target)?);
         self.run(py, risk, ends, resolution, origin)
     }
@@ -208,7 +208,7 @@ impl PyRiskAStar {
         goal_cell: &Bound<'_, PyAny>,
         resolution: Option<&Bound<'_, PyAny>>,
         origin: Option<&Bound<'_, PyAny>>,
-    ) -> PyResult<PyPlanResult> {
+    ) -> PyResult<PyPlanOutcome> {
         let ends = Endpoints::Cells(cell2(py, "start", start_cell)?, cell2(py, "goal", goal_cell)?);
         self.run(py, risk, ends, resolution, origin)
     }
@@ -266,13 +266,13 @@ impl PyRiskAStar {
 }
 
 /// The outcome of one `RiskAStar.plan`.
-#[pyclass(name = "PlanResult", module = "subterra._core", frozen)]
-pub struct PyPlanResult {
+#[pyclass(name = "PlanOutcome", module = "subterra._core", frozen)]
+pub struct PyPlanOutcome {
     inner: PlanOutcome,
 }
 
 #[pymethods]
-impl PyPlanResult {
+impl PyPlanOutcome {
     /// "found", "start_blocked", "goal_blocked", "no_path" or "budget_exceeded".
     #[getter]
     fn status(&self) -> &'static str {
@@ -348,7 +348,7 @@ impl PyPlanResult {
         let o = &self.inner;
         match &o.path {
             Some(p) => format!(
-                "PlanResult(status={:?}, cells={}, length_m={:.3}, cost={:.4}, accumulated_risk={:.4}, expanded={})",
+                "PlanOutcome(status={:?}, cells={}, length_m={:.3}, cost={:.4}, accumulated_risk={:.4}, expanded={})",
                 o.status.name(),
                 p.cells.len(),
                 p.length_m,
@@ -356,7 +356,7 @@ impl PyPlanResult {
                 p.accumulated_risk,
                 o.expanded
             ),
-            None => format!("PlanResult(status={:?}, expanded={})", o.status.name(), o.expanded),
+            None => format!("PlanOutcome(status={:?}, expanded={})", o.status.name(), o.expanded),
         }
     }
 }
@@ -364,6 +364,6 @@ impl PyPlanResult {
 /// Adds the A* classes to the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRiskAStar>()?;
-    m.add_class::<PyPlanResult>()?;
+    m.add_class::<PyPlanOutcome>()?;
     Ok(())
 }

@@ -1,4 +1,4 @@
-//! Bindings of `subterra::plan::mpc`: `MpcTracker` and `MpcResult`.
+//! Bindings of `subterra::plan::mpc`: `MpcTracker` and `MpcOutput`.
 //!
 //! Conversions, error mapping and GIL release only; every algorithm lives in the core crate.
 
@@ -123,7 +123,7 @@ fn with_risk<T>(
     }
 }
 
-// ---------------------------------------------------------------- MpcResult
+// ---------------------------------------------------------------- MpcOutput
 
 fn rows_array<'py, const W: usize>(py: Python<'py>, rows: impl Iterator<Item = [f64; W]>) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let flat: Vec<f64> = rows.flatten().collect();
@@ -136,13 +136,13 @@ fn polygon_array<'py>(py: Python<'py>, p: &ConvexPolygon) -> PyResult<Bound<'py,
 }
 
 /// What one `MpcTracker.solve` gives.
-#[pyclass(name = "MpcResult", module = "subterra._core", frozen)]
-pub struct PyMpcResult {
+#[pyclass(name = "MpcOutput", module = "subterra._core", frozen)]
+pub struct PyMpcOutput {
     inner: MpcOutput,
 }
 
 #[pymethods]
-impl PyMpcResult {
+impl PyMpcOutput {
     /// `(v, ω)` to send now: the speed at the end of the first step [m/s] and the yaw rate
     /// over it [rad/s].
     #[getter]
@@ -222,7 +222,7 @@ impl PyMpcResult {
     fn __repr__(&self) -> String {
         let o = &self.inner;
         format!(
-            "MpcResult(status={:?}, command=({:.3}, {:.3}), iterations={}, max_slack={:.4}, solve_time_s={:.6})",
+            "MpcOutput(status={:?}, command=({:.3}, {:.3}), iterations={}, max_slack={:.4}, solve_time_s={:.6})",
             o.status.name(),
             o.command.speed_m_s,
             o.command.yaw_rate_rad_s,
@@ -271,7 +271,7 @@ impl PyMpcTracker {
         origin: Option<&Bound<'_, PyAny>>,
         risk_map: Option<&Bound<'_, PyAny>>,
         #[pyo3(from_py_with = arg::opt_desired_speed)] desired_speed: Option<f64>,
-    ) -> PyResult<PyMpcResult> {
+    ) -> PyResult<PyMpcOutput> {
         let state = state_of(py, state)?;
         let path = path_of(py, reference_path)?;
         let mut this = self.inner.lock();
@@ -286,7 +286,7 @@ impl PyMpcTracker {
             };
             py.detach(|| tracker.solve(&state, &path, grid.as_ref(), desired_speed))
         })?;
-        Ok(PyMpcResult { inner: result.py_err(py)? })
+        Ok(PyMpcOutput { inner: result.py_err(py)? })
     }
 
     /// Forgets the last plan: the next solve starts from zero inputs.
@@ -297,7 +297,7 @@ impl PyMpcTracker {
     /// The config in use.
     #[getter]
     fn config(&self) -> PyMpcConfig {
-        PyMpcConfig::from_core(self.inner.lock().config().clone())
+        PyMpcConfig::from_core(*self.inner.lock().config())
     }
 
     /// Steps N of the horizon.
@@ -322,6 +322,6 @@ impl PyMpcTracker {
 /// Adds the MPC classes to the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyMpcTracker>()?;
-    m.add_class::<PyMpcResult>()?;
+    m.add_class::<PyMpcOutput>()?;
     Ok(())
 }

@@ -80,7 +80,7 @@ impl PyQmdp {
     fn actions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let this = self.inner.lock();
         let flat: Vec<f64> = this.actions().iter().flat_map(|a| [a.x, a.y, a.z]).collect();
-        Ok(flat.into_pyarray(py).reshape([this.actions().len(), 3])?)
+        flat.into_pyarray(py).reshape([this.actions().len(), 3])
     }
 
     /// The reward table `R(s, a)`, shape `(S, A)` (states as the perception numbers them,
@@ -89,7 +89,7 @@ impl PyQmdp {
         let this = self.inner.lock();
         let (s, a) = (this.state_count(), this.actions().len());
         let flat: Vec<f64> = (0..s).flat_map(|i| this.rewards(i).unwrap_or(&[]).to_vec()).collect();
-        Ok(flat.into_pyarray(py).reshape([s, a])?)
+        flat.into_pyarray(py).reshape([s, a])
     }
 
     fn __repr__(&self) -> String {

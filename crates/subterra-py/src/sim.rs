@@ -24,6 +24,9 @@ mod xoshiro {
     pub use rand_xoshiro::Xoshiro256PlusPlus;
 }
 
+/// A lidar scan as arrays: points `(N, 3)` float32 in the sensor frame, ring `(N,)` uint16.
+type LidarArrays<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<u16>>);
+
 fn matrix<'py>(py: Python<'py>, t: &Isometry3) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let rows: Vec<Vec<f64>> = t.to_matrix_rows().iter().map(|r| r.to_vec()).collect();
     PyArray2::from_vec2(py, &rows).map_err(|e| input_error(py, e.to_string()))
@@ -34,7 +37,7 @@ fn vec3_array<'py>(py: Python<'py>, v: DVec3) -> Bound<'py, PyArray1<f64>> {
 }
 
 fn image<'py>(py: Python<'py>, data: Vec<f32>, width: u32, height: u32) -> PyResult<Bound<'py, PyArray2<f32>>> {
-    Ok(data.into_pyarray(py).reshape([height as usize, width as usize])?)
+    data.into_pyarray(py).reshape([height as usize, width as usize])
 }
 
 /// Which encoding a depth image is returned in.
@@ -309,7 +312,7 @@ impl PyLidar {
 
     /// One scan from `world_from_sensor` (4x4): `(points (N, 3) float32 in the sensor frame, ring (N,) uint16)`.
     #[pyo3(signature = (world, world_from_sensor, noise = "none".to_owned(), seed = 0), text_signature = "($self, world, world_from_sensor, noise='none', seed=0)")]
-    fn scan<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_sensor: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::s_noise)] noise: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<u16>>)> {
+    fn scan<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_sensor: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::s_noise)] noise: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<LidarArrays<'py>> {
         let pose = isometry(py, "world_from_sensor", world_from_sensor)?;
         let model = lidar_noise(py, &noise)?;
         let (lidar, w) = (&self.inner, &world.inner);

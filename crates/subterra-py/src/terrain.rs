@@ -74,7 +74,7 @@ pub(crate) fn with_points<T>(py: Python<'_>, argument: &str, value: &Bound<'_, P
     if shape[0] == 0 {
         return Err(input_error(py, format!("argument `{argument}` is empty (shape {shape:?}); a scan needs at least one point")));
     }
-    check_rows(py, argument, &shape, MAX_POINTS, "points")?;
+    check_rows(py, argument, shape, MAX_POINTS, "points")?;
     let flat = match view.as_array().to_slice() {
         Some(s) => Cow::Borrowed(s),
         None => Cow::Owned(view.as_array().iter().copied().collect()),

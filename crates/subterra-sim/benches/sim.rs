@@ -41,7 +41,7 @@ fn camera_looking_at(position: DVec3, target: DVec3) -> Isometry3 {
 
 fn bench_depth(c: &mut Criterion) {
     let camera = DepthCamera::new(DepthCameraConfig::d435()).expect("d435 is valid");
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);
 
     let highbay = scenario("highbay");
     // From region A toward B: the hall's length, with poles of all three sizes in view.
@@ -55,7 +55,7 @@ fn bench_depth(c: &mut Criterion) {
     c.bench_function("depth_d435_highbay_1core", |b| b.iter(|| camera.render_into(black_box(&highbay), black_box(&highbay_pose), &mut out)));
     assert_eq!(out, frame, "render_into differs from render");
     c.bench_function(&format!("depth_d435_highbay_{threads}threads"), |b| {
-        b.iter(|| camera.render_parallel_into(black_box(&highbay), black_box(&highbay_pose), threads, &mut out))
+        b.iter(|| camera.render_parallel_into(black_box(&highbay), black_box(&highbay_pose), threads, &mut out));
     });
     assert_eq!(out, frame, "render_parallel_into differs from render");
 
@@ -70,7 +70,7 @@ fn bench_depth(c: &mut Criterion) {
     c.bench_function("depth_d435_tunnel_1core", |b| b.iter(|| camera.render_into(black_box(&tunnel), black_box(&tunnel_pose), &mut out)));
     assert_eq!(out, frame, "render_into differs from render");
     c.bench_function(&format!("depth_d435_tunnel_{threads}threads"), |b| {
-        b.iter(|| camera.render_parallel_into(black_box(&tunnel), black_box(&tunnel_pose), threads, &mut out))
+        b.iter(|| camera.render_parallel_into(black_box(&tunnel), black_box(&tunnel_pose), threads, &mut out));
     });
     assert_eq!(out, frame, "render_parallel_into differs from render");
 

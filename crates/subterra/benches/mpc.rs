@@ -98,7 +98,7 @@ fn bench_mpc(c: &mut Criterion) {
             state = step(&state, &out.inputs[0], config.dt_s);
             steps += 1;
             out.command
-        })
+        });
     });
 
     let mut tracker = MpcTracker::new(config).unwrap();
@@ -107,7 +107,7 @@ fn bench_mpc(c: &mut Criterion) {
         b.iter(|| {
             tracker.reset();
             tracker.solve(black_box(&state), &path, Some(&grid), None).unwrap().command
-        })
+        });
     });
 }
 

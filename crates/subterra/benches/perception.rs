@@ -54,7 +54,7 @@ fn bench_perception(c: &mut Criterion) {
             next = (next + 1) % fresh.len();
             let image = DepthImage::U16 { pixels: &fresh[next], scale_m_per_unit: 0.001 };
             perception.update(black_box(image), 640, 480).unwrap()
-        })
+        });
     });
 
     let mut histogram_config = config;

@@ -77,7 +77,7 @@ fn bench_terrain(c: &mut Criterion) {
         b.iter(|| {
             mapper.reset();
             mapper.update(black_box(&points), 0.0, &world_from_body, &mount(), 1.0).unwrap()
-        })
+        });
     });
 
     let mut mapper = TerrainMapper::new(RobotConfig::default(), TerrainConfig::default()).unwrap();
@@ -86,7 +86,7 @@ fn bench_terrain(c: &mut Criterion) {
         b.iter(|| {
             mapper.reset();
             mapper.update(black_box(&points), 0.0, &world_from_body, &mount(), 1.0).unwrap()
-        })
+        });
     });
 
     // Ten scans from poses along a path, 0.1 s apart: the window holds all ten.
@@ -107,7 +107,7 @@ fn bench_terrain(c: &mut Criterion) {
             let out = mapper.update(black_box(&scans[k]), stamp, &poses[k], &mount(), 1.0).unwrap();
             debug_assert_eq!(out.stats.fused_scans, 10);
             out
-        })
+        });
     });
 
     // The lidar's frame is level here, so the scan is already sensor-centred.

@@ -859,8 +859,7 @@ mod tests {
         mux.update(5.0).unwrap();
         assert!(mux.update(4.0).unwrap_err().to_string().contains("now"));
         assert!(mux.index_of("gps").unwrap_err().to_string().contains("vio, lidar, wheels"));
-        let mut c = HeroConfig::default();
-        c.consistency_ratio = 2.0;
+        let c = HeroConfig { consistency_ratio: 2.0, ..HeroConfig::default() };
         assert!(c.validate().unwrap_err().to_string().contains("hero.consistency_ratio"));
     }
 }

@@ -17,8 +17,11 @@ fn committed(name: &str) -> String {
     std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"))
 }
 
+/// A check that parses `text`: `Err` holds the parser's message.
+type Parse = fn(&str) -> Result<(), String>;
+
 /// Every parser: its name, the committed file it reads, and a check that parses `text`.
-fn parsers() -> Vec<(&'static str, String, fn(&str) -> Result<(), String>)> {
+fn parsers() -> Vec<(&'static str, String, Parse)> {
     fn run<T>(r: subterra::Result<T>) -> Result<(), String> {
         r.map(|_| ()).map_err(|e| e.to_string())
     }
@@ -31,7 +34,7 @@ fn parsers() -> Vec<(&'static str, String, fn(&str) -> Result<(), String>)> {
     ]
 }
 
-fn check(name: &str, parse: fn(&str) -> Result<(), String>, text: &str) -> Result<(), TestCaseError> {
+fn check(name: &str, parse: Parse, text: &str) -> Result<(), TestCaseError> {
     if let Err(message) = parse(text) {
         prop_assert!(!message.contains('\n'), "{name}: a multi-line error for {text:?}: {message}");
         prop_assert!(!message.is_empty(), "{name}: an empty error");

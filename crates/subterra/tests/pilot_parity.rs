@@ -21,7 +21,7 @@ fn frame(n: usize) -> Vec<u16> {
             depth[v * 640 + u] = (1500 - 35 * n) as u16;
         }
     }
-    if n % 3 == 0 {
+    if n.is_multiple_of(3) {
         for v in 0..480 {
             for u in 500..506 {
                 depth[v * 640 + u] = 400;

@@ -363,10 +363,10 @@ fn tunnel_centreline_is_clear_of_walls_ceiling_and_rocks() {
         while s <= length - 1.2 {
             let (p, _, _) = centreline_at(&lay.centreline, s);
             let q = [p[0], p[1], TUNNEL_FLIGHT_HEIGHT_M];
-            for b in spec.boxes.iter() {
+            for b in &spec.boxes {
                 assert!(box_dist(q, b) >= 1.0, "seed {seed} s {s}: {} {} m", b.tag, box_dist(q, b));
             }
-            for r in spec.spheres.iter() {
+            for r in &spec.spheres {
                 assert!(norm(sub(q, r.centre)) - r.radius >= 0.75, "seed {seed} s {s}: rock");
             }
             s += 0.25;

@@ -56,7 +56,7 @@ impl Layout {
     }
 
     /// Distance of `y` from the band's closed wall [m].
-    fn from_wall(&self, y: f64) -> f64 {
+    fn wall_distance(&self, y: f64) -> f64 {
         if self.side > 0.0 { y } else { TRADEOFF_SIZE_M[1] - y }
     }
 }
@@ -125,7 +125,7 @@ pub fn slopes(seed: u64) -> WorldSpec {
     let noise = floor_noise(&mut rng, TRADEOFF_SIZE_M, 0.01);
     let sharp = move |x: f64, w: f64| (height - tan * ((x - crest_x).abs() - 0.5).max(0.0)).max(0.0).min(height - tan * (w - end).max(0.0)).max(0.0);
     let heights = sample(TRADEOFF_SIZE_M, GROUND_RESOLUTION_M, |x, y| {
-        let w = layout.from_wall(y);
+        let w = layout.wall_distance(y);
         rounded(|x| sharp(x, w), x, 0.8).min(rounded(|w| sharp(x, w), w, 0.8)) + noise(x, y)
     });
     // A rock wall along the ridge's end, between it and the detour: the detour is a passage of
@@ -176,10 +176,10 @@ pub fn ledge(seed: u64) -> WorldSpec {
     let tan = uni(&mut rng, 13.0_f64.to_radians(), 16.0_f64.to_radians()).tan();
     let depth = uni(&mut rng, 0.7, 1.0);
     let noise = floor_noise(&mut rng, TRADEOFF_SIZE_M, 0.01);
-    let centre = layout.from_wall(layout.line_y);
+    let centre = layout.wall_distance(layout.line_y);
     let (inner, outer) = (centre - 0.5 * width, centre + 0.5 * width);
     let heights = sample(TRADEOFF_SIZE_M, GROUND_RESOLUTION_M, |x, y| {
-        let w = layout.from_wall(y);
+        let w = layout.wall_distance(y);
         let (x0, x1) = BAND_X_M;
         if !(x0..=x1).contains(&x) || w > layout.band_end {
             return noise(x, y);

@@ -753,7 +753,7 @@ struct PlanScratch {
 impl PlanScratch {
     /// This thread's scratch, taken (a call made meanwhile gets a new one).
     fn take() -> PlanScratch {
-        PLAN_SCRATCH.try_with(|s| s.take()).unwrap_or_default()
+        PLAN_SCRATCH.try_with(std::cell::RefCell::take).unwrap_or_default()
     }
 
     /// Back to this thread.

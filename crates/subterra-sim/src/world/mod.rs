@@ -143,7 +143,7 @@ pub(crate) trait FanSink {
 impl<F: FnMut(usize, DVec3, Option<FanHit>)> FanSink for F {
     #[inline(always)]
     fn put(&mut self, k: usize, d: DVec3, hit: Option<FanHit>) {
-        self(k, d, hit)
+        self(k, d, hit);
     }
 }
 

@@ -467,8 +467,7 @@ mod tests {
     fn fly(points: &[DVec3], start: (f64, f64), goal: (f64, f64), escape_on: bool, limit_s: f64) -> Flight {
         let apf: ApfConfig = PerceptionConfig::flight().apf;
         let controller = ApfController::new(apf);
-        let mut config = EscapeConfig::default();
-        config.enabled = escape_on;
+        let config = EscapeConfig { enabled: escape_on, ..EscapeConfig::default() };
         let mut escape = Escape::new(config, &apf).unwrap();
         let goal_world = DVec3::new(goal.0, goal.1, 1.0);
         let mut position = DVec3::new(start.0, start.1, 1.0);
@@ -555,8 +554,7 @@ mod tests {
         assert!(on.reached && off.reached && on.engagements == 0);
         assert_eq!(on.time_s, off.time_s);
         // Stalled with nothing known (e.g. turning toward a goal behind): no engagement.
-        let mut config = EscapeConfig::default();
-        config.enabled = true;
+        let config = EscapeConfig { enabled: true, ..EscapeConfig::default() };
         let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
         let pose = Isometry3 { rotation: DMat3::IDENTITY, translation: DVec3::ZERO };
         for k in 0..100 {
@@ -568,8 +566,7 @@ mod tests {
 
     #[test]
     fn time_not_stepped_is_not_a_stall() {
-        let mut config = EscapeConfig::default();
-        config.enabled = true;
+        let config = EscapeConfig { enabled: true, ..EscapeConfig::default() };
         let pose = Isometry3 { rotation: DMat3::IDENTITY, translation: DVec3::new(0.0, 0.0, 1.0) };
         let point = [DVec3::new(0.5, 0.0, 1.0)];
         let goal = DVec3::new(5.0, 0.0, 1.0);
@@ -587,8 +584,7 @@ mod tests {
 
     #[test]
     fn of_two_ways_round_equally_toward_the_goal_it_takes_the_one_it_faces() {
-        let mut config = EscapeConfig::default();
-        config.enabled = true;
+        let config = EscapeConfig { enabled: true, ..EscapeConfig::default() };
         let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
         // The robot faces +y (turned away by the field), an obstacle point 0.5 m on its
         // right-hand side at +x, the goal beyond it along +x: both tangents (±y) are square
@@ -622,8 +618,7 @@ mod tests {
         // 0.45 m off the south wall and 0.6 m short of the east one, faces east, stalled;
         // the goal lies back to the north-west, so it follows the south wall eastward with
         // the wall on its right (highbay seed 87, route D-B, touched the east wall so).
-        let mut config = EscapeConfig::default();
-        config.enabled = true;
+        let config = EscapeConfig { enabled: true, ..EscapeConfig::default() };
         let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
         let mut walls = segment((0.0, 0.0), (5.0, 0.0));
         walls.extend(segment((5.0, 0.0), (5.0, 4.0)));
@@ -678,8 +673,7 @@ mod tests {
 
     #[test]
     fn engages_after_the_stall_time_on_the_side_toward_the_goal_and_releases_on_progress() {
-        let mut config = EscapeConfig::default();
-        config.enabled = true;
+        let config = EscapeConfig { enabled: true, ..EscapeConfig::default() };
         let mut e = Escape::new(config, &PerceptionConfig::flight().apf).unwrap();
         let pose = |x: f64, y: f64| Isometry3 { rotation: DMat3::IDENTITY, translation: DVec3::new(x, y, 1.0) };
         // A wall point ahead and a little right of the robot; the goal ahead and left.

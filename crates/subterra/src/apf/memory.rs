@@ -49,6 +49,7 @@
 //! bit-identical forces.
 
 use std::collections::BTreeMap;
+use std::cmp::Ordering;
 
 use glam::DVec3;
 
@@ -211,7 +212,7 @@ impl ObstacleMemory {
 
         // 1. Record.
         for (&state, &belief) in output.belief_states.iter().zip(&output.belief_probabilities) {
-            if state == self.free || !(belief >= c.min_belief) {
+            if state == self.free || belief.partial_cmp(&c.min_belief).is_none_or(Ordering::is_lt) {
                 continue;
             }
             let Some(&centre) = self.centres_body.get(state.0 as usize) else {

@@ -398,7 +398,7 @@ mod tests {
                 assert!(got.belief_push_body.x < 0.0, "a wall ahead pushes back: {}", got.belief_push_body);
             }
         }
-        assert!(pilot.memory_points_world().len() > 0, "the memory kept the wall");
+        assert!(!pilot.memory_points_world().is_empty(), "the memory kept the wall");
     }
 
     #[test]

@@ -115,7 +115,7 @@ impl QmdpConfig {
                     step,
                 ));
             }
-            if !(q.is_finite() && q >= 0.0 && q <= 1e6) {
+            if !(q.is_finite() && (0.0..=1e6).contains(&q)) {
                 return Err(Error::config("action_cost", format!("{} must be in [0, 1e6]", axis_name(i)), q));
             }
         }

@@ -1,5 +1,7 @@
 //! Walker/Vose alias tables: O(1) draws from a fixed discrete distribution.
 
+use std::cmp::Ordering;
+
 use rand::Rng;
 
 /// One slot of an alias table: keep the slot if the 32-bit coin is below `keep`,
@@ -22,7 +24,7 @@ impl AliasTable {
     pub(crate) fn new(weights: &[f64]) -> Option<Self> {
         let n = weights.len();
         let total: f64 = weights.iter().sum();
-        if n == 0 || n > u32::MAX as usize || !(total.is_finite() && total > 0.0) || weights.iter().any(|w| !(*w >= 0.0)) {
+        if n == 0 || n > u32::MAX as usize || !(total.is_finite() && total > 0.0) || weights.iter().any(|w| w.partial_cmp(&0.0).is_none_or(Ordering::is_lt)) {
             return None;
         }
         let mut scaled: Vec<f64> = weights.iter().map(|w| w * n as f64 / total).collect();

@@ -375,11 +375,14 @@ fn count_by_edges(
     scratch: &mut Vec<u16>,
     counts: &mut [u32],
 ) -> (u64, u16) {
+    // The only unsafe code of the crate: calls of the safe `#[target_feature]` kernels,
+    // each after the runtime check of the features it is compiled with.
     #[cfg(target_arch = "x86_64")]
+    #[allow(unsafe_code)]
     {
-        if std::arch::is_x86_feature_detected!("avx512bw") {
-            // SAFETY: the CPU supports AVX-512BW (and so AVX-512F, checked just above), the
-            // only requirement of calling a function compiled with those target features.
+        if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx512bw") {
+            // SAFETY: the CPU supports AVX-512F and AVX-512BW (checked just above), the only
+            // requirement of calling a function compiled with those target features.
             return unsafe { count_by_edges_avx512(pixels, w, kw, kh, n_w, n_d, edges, scratch, counts) };
         }
         if std::arch::is_x86_feature_detected!("avx2") {
@@ -714,7 +717,9 @@ mod tests {
             let smallest = img.iter().map(|&r| r.wrapping_sub(1)).min().unwrap();
             let mut variants: Vec<(&str, CountFn)> =
                 vec![("portable", |p, w, kw, kh, n_w, n_d, e, s, c| count_by_edges_impl::<16>(p, w, kw, kh, n_w, n_d, e, s, c, |_| {}))];
+            // Calls of the `#[target_feature]` kernels after the runtime feature checks.
             #[cfg(target_arch = "x86_64")]
+            #[allow(unsafe_code)]
             {
                 if std::arch::is_x86_feature_detected!("avx2") {
                     variants.push(("avx2", |p, w, kw, kh, n_w, n_d, e, s, c| {
@@ -722,9 +727,9 @@ mod tests {
                         unsafe { count_by_edges_avx2(p, w, kw, kh, n_w, n_d, e, s, c) }
                     }));
                 }
-                if std::arch::is_x86_feature_detected!("avx512bw") {
+                if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx512bw") {
                     variants.push(("avx512", |p, w, kw, kh, n_w, n_d, e, s, c| {
-                        // SAFETY: AVX-512BW support was checked before this variant was added.
+                        // SAFETY: AVX-512F and AVX-512BW support was checked before this variant was added.
                         unsafe { count_by_edges_avx512(p, w, kw, kh, n_w, n_d, e, s, c) }
                     }));
                 }

@@ -403,7 +403,7 @@ mod tests {
         let trace = p_free_trace(config, 0, &wall_empty_wall());
         let empty = &trace[20..60];
         let free = empty.iter().filter(|&&f| f > 0.5).count();
-        assert!(free >= 5 && free <= 35, "{free} of 40 empty frames believed free: {empty:?}");
+        assert!((5..=35).contains(&free), "{free} of 40 empty frames believed free: {empty:?}");
         assert!(trace[61..].iter().all(|&f| f < 1e-9));
         // With subterra's defensive proposal (the `flight` preset) it holds 1 again.
         let mut config = PerceptionConfig::flight();

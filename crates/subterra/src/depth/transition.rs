@@ -747,9 +747,9 @@ mod tests {
         let belief: Vec<f64> = belief.iter().map(|b| b / total).collect();
         let mut fast = vec![0.0; s];
         model.predict(&belief, &mut fast);
-        for to in 0..s {
+        for (to, &got) in fast.iter().enumerate() {
             let dense: f64 = (0..s).map(|from| belief[from] * model.probability(StateId(from as u32), StateId(to as u32))).sum();
-            assert!((fast[to] - dense).abs() < 1e-14, "state {to}: {} vs {dense}", fast[to]);
+            assert!((got - dense).abs() < 1e-14, "state {to}: {got} vs {dense}");
         }
         assert!((fast.iter().sum::<f64>() - 1.0).abs() < 1e-12);
     }

@@ -74,8 +74,8 @@ impl<'a> RiskGrid<'a> {
         if !origin_m.is_finite() {
             return Err(Error::input("origin", format!("must be finite, got ({}, {})", origin_m.x, origin_m.y)));
         }
-        // NaN fails both comparisons: unknown cells pass.
-        if let Some(i) = risk.iter().position(|&r| r < 0.0 || r > 1.0) {
+        // Unknown cells (NaN) pass.
+        if let Some(i) = risk.iter().position(|&r| !r.is_nan() && !(0.0..=1.0).contains(&r)) {
             return Err(Error::input(
                 "risk",
                 format!("has the value {} at row {}, column {}; risks must be in [0, 1] (NaN = unknown)", risk[i], i / nx, i % nx),

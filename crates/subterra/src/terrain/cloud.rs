@@ -33,12 +33,11 @@ pub struct PrefilterStats {
 
 /// Views a flat `[x0, y0, z0, x1, ...]` slice as points, checking its length.
 pub fn as_points<'a>(argument: &str, flat: &'a [f32]) -> Result<&'a [[f32; 3]]> {
-    if flat.len() % 3 != 0 {
+    let (points, rest) = flat.as_chunks::<3>();
+    if !rest.is_empty() {
         return Err(Error::input(argument, format!("must hold (N, 3) coordinates; its length {} is not a multiple of 3", flat.len())));
     }
-    // SAFETY: `[f32; 3]` has the size of three `f32` and their alignment, and the length
-    // is a whole number of triples, so the view covers exactly the caller's memory.
-    Ok(unsafe { std::slice::from_raw_parts(flat.as_ptr().cast::<[f32; 3]>(), flat.len() / 3) })
+    Ok(points)
 }
 
 /// The prefilter of one robot.
@@ -136,7 +135,7 @@ pub fn remove_sparse_outliers(points: &mut Vec<[f32; 3]>, cell_m: f32, min_neigh
         *counts.entry(voxel_key(p, inv)).or_insert(0) += 1;
     }
     let mut around: HashMap<(i32, i32, i32), u32> = HashMap::with_capacity(counts.len());
-    for (&(x, y, z), _) in counts.iter() {
+    for &(x, y, z) in counts.keys() {
         let mut total = 0;
         for dx in -1..=1 {
             for dy in -1..=1 {
@@ -200,5 +199,14 @@ mod tests {
         let err = as_points("points_sensor", &[1.0, 2.0]).unwrap_err();
         assert!(err.to_string().contains("points_sensor"));
         assert_eq!(as_points("p", &[1.0, 2.0, 3.0]).unwrap(), &[[1.0, 2.0, 3.0]]);
+    }
+
+    #[test]
+    fn points_view_the_callers_memory() {
+        let flat: Vec<f32> = (0..12).map(|i| i as f32).collect();
+        let points = as_points("p", &flat).unwrap();
+        assert_eq!((points.as_ptr().cast::<f32>(), points.len()), (flat.as_ptr(), 4));
+        assert_eq!(points[3], [9.0, 10.0, 11.0]);
+        assert!(as_points("p", &[]).unwrap().is_empty());
     }
 }

@@ -4,6 +4,8 @@
 //! Each field documents its unit and source. "subterra" as a source means an
 //! engineering choice of this library, not a published value.
 
+use std::cmp::Ordering;
+
 use serde::{Deserialize, Serialize};
 
 use crate::error::{require_non_negative, require_positive, Error, Result};
@@ -124,7 +126,7 @@ impl Ramp {
     #[inline]
     pub fn eval(&self, x: f64) -> f64 {
         // At or below `safe` (or NaN) the quotient is <= 0 (or NaN): no division needed.
-        if !(x > self.safe) {
+        if x.partial_cmp(&self.safe).is_none_or(Ordering::is_le) {
             return 0.0;
         }
         let r = (x - self.safe) / (self.lethal - self.safe);
@@ -631,18 +633,14 @@ mod tests {
         let mut c = TerrainConfig::default();
         c.prefilter.max_range_m = 0.1;
         assert!(field_of(c).contains("prefilter.max_range_m"));
-        let mut r = RobotConfig::default();
-        r.tilt_lethal_deg = 5.0;
+        let r = RobotConfig { tilt_lethal_deg: 5.0, ..RobotConfig::default() };
         assert!(r.validate().unwrap_err().to_string().contains("robot.tilt_lethal_deg"));
-        let mut r = RobotConfig::default();
-        r.ground_clearance_m = 1.0;
+        let r = RobotConfig { ground_clearance_m: 1.0, ..RobotConfig::default() };
         assert!(r.validate().unwrap_err().to_string().contains("robot.ground_clearance_m"));
         // Sizes and speeds no ground robot has (1e9 m/s once overflowed a capacity).
-        let mut r = RobotConfig::default();
-        r.max_speed_m_s = 1e9;
+        let r = RobotConfig { max_speed_m_s: 1e9, ..RobotConfig::default() };
         assert!(r.validate().unwrap_err().to_string().contains("robot.max_speed_m_s"));
-        let mut r = RobotConfig::default();
-        r.length_m = 1e9;
+        let r = RobotConfig { length_m: 1e9, ..RobotConfig::default() };
         assert!(r.validate().unwrap_err().to_string().contains("robot.length_m"));
     }
 
@@ -651,7 +649,7 @@ mod tests {
         let robot = RobotConfig { max_speed_m_s: 30.0, ..RobotConfig::default() };
         let mut c = TerrainConfig::default();
         c.fusion.window_s = 60.0;
-        let err = crate::terrain::TerrainMapper::new(robot, c).err().expect("refused").to_string();
+        let err = crate::terrain::TerrainMapper::new(robot, c).expect_err("refused").to_string();
         assert!(err.contains("fusion.window_s") && err.contains("robot.max_speed_m_s"), "{err}");
     }
 }

@@ -55,7 +55,7 @@ pub fn apply(text: &str, edit: &Edit) -> String {
         }
         Edit::ReplaceValue { line, token } => {
             let i = line % lines.len().max(1);
-            let mut out: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
+            let mut out: Vec<String> = lines.iter().map(ToString::to_string).collect();
             if let Some(l) = out.get_mut(i) {
                 if let Some(eq) = l.find('=') {
                     *l = format!("{}= {}", &l[..eq], TOKENS[token % TOKENS.len()]);

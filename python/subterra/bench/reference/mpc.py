@@ -284,7 +284,7 @@ class MpcProblem:
 
 @dataclass
 class ReferenceMpcResult:
-    """What :func:`solve` gives, named as :class:`subterra.MpcResult` where they match."""
+    """What :func:`solve` gives, named as :class:`subterra.MpcOutput` where they match."""
 
     command: tuple[float, float]
     predicted: np.ndarray  # (N+1, 4)

@@ -171,7 +171,7 @@ pub(super) fn build_qp(c: &MpcConfig, ws: &mut Workspace, previous_input: Option
         row += 3;
         // Every stage gets `uniform_rows` obstacle rows, the most any stage uses: the pattern
         // then depends on that one number and the cached solvers are reused.
-        for r in ws.rows[(k - 1) * rows_per_stage..(k - 1) * rows_per_stage + uniform_rows].iter() {
+        for r in &ws.rows[(k - 1) * rows_per_stage..(k - 1) * rows_per_stage + uniform_rows] {
             // -(n·δp + lever·δθ) - σo <= d̄ - margin; an unused row only bounds σo below by
             // -UNUSED_ROW_RHS_M.
             a.push(row, ix(k, 0), -r.normal.x);

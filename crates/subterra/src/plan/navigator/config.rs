@@ -2,6 +2,8 @@
 //! settings of the wiring itself. The defaults are committed as `configs/navigator.toml` (a
 //! test keeps the two equal).
 
+use std::cmp::Ordering;
+
 use serde::{Deserialize, Serialize};
 
 use crate::error::{require_non_negative, require_positive, Error, Result};
@@ -283,7 +285,7 @@ impl NavigatorSettings {
             if self.coverage.fov_deg < 360.0 {
                 return Err(Error::config("navigator.unseen_near_lethal", "needs an all-round sensor (navigator.coverage.fov_deg = 360): set it false for a forward sensor", self.coverage.fov_deg));
             }
-            if !(self.near_memory_m > self.coverage.min_range_m) {
+            if self.near_memory_m.partial_cmp(&self.coverage.min_range_m).is_none_or(Ordering::is_le) {
                 return Err(Error::config(
                     "navigator.unseen_near_lethal",
                     format!("needs navigator.near_memory_m above the blind ring navigator.coverage.min_range_m = {} m: set it false or widen the near memory", self.coverage.min_range_m),

@@ -8,6 +8,7 @@
 //! `|(x, y) - (p/res - 0.5)|`: the same arithmetic for every memory.
 
 use std::collections::{HashMap, HashSet};
+use std::cmp::Ordering;
 
 use glam::DVec2;
 
@@ -322,7 +323,7 @@ pub(crate) fn mark_void_rims(grid: &mut [f32], grown: &mut [f32], g: &GridGeomet
             if (grid[c] >= lethal && grown[c] >= lethal) || driven.contains(cell) {
                 return;
             }
-            if !(grid[c] >= lethal) {
+            if grid[c].partial_cmp(&lethal).is_none_or(Ordering::is_lt) {
                 grid[c] = lethal;
                 raised += 1;
             }

@@ -3,6 +3,8 @@
 //! lethal cells inflated by the robot's inscribed radius for the A*, which plans the robot's
 //! centre ([`inflate_lethal`]).
 
+use std::cmp::Ordering;
+
 use glam::DVec2;
 
 use crate::terrain::GridGeometry;
@@ -43,7 +45,7 @@ pub(crate) fn grow_into_unseen(risk: &mut [f32], scratch: &mut Vec<f32>, g: &Gri
         for ix in 0..nx {
             let c = (iy * nx + ix) as usize;
             let r = src[c];
-            if !(r >= lethal) || !clustered(src, g.nx, g.ny, c, lethal, min_neighbours) {
+            if r.partial_cmp(&lethal).is_none_or(Ordering::is_lt) || !clustered(src, g.nx, g.ny, c, lethal, min_neighbours) {
                 continue;
             }
             for &(dx, dy) in &disc {
@@ -52,7 +54,7 @@ pub(crate) fn grow_into_unseen(risk: &mut [f32], scratch: &mut Vec<f32>, g: &Gri
                     continue;
                 }
                 let j = (jy * nx + jx) as usize;
-                if src[j].is_nan() && !(risk[j] >= r) && DVec2::new(jx as f64, jy as f64).distance_squared(rc) >= near2 {
+                if src[j].is_nan() && risk[j].partial_cmp(&r).is_none_or(Ordering::is_lt) && DVec2::new(jx as f64, jy as f64).distance_squared(rc) >= near2 {
                     risk[j] = r;
                 }
             }
@@ -101,7 +103,7 @@ pub(crate) fn inflate_lethal(risk: &[f32], out: &mut Vec<f32>, g: &GridGeometry,
                 continue;
             }
             let v = &mut out[(jy * nx + jx) as usize];
-            if !(*v >= r) {
+            if (*v).partial_cmp(&r).is_none_or(Ordering::is_lt) {
                 *v = r;
             }
         }
@@ -207,10 +209,10 @@ mod tests {
         let mut out = risk.to_vec();
         let centre = |i: usize| g.origin_m() + (DVec2::new((i % g.nx) as f64, (i / g.nx) as f64) + 0.5) * g.resolution_m;
         for (i, &r) in risk.iter().enumerate() {
-            for j in 0..risk.len() {
+            for (j, slot) in out.iter_mut().enumerate() {
                 let near = |a: DVec2, b: DVec2| a.distance_squared(b) <= radius_m * radius_m * (1.0 + 1e-12);
-                if r >= lethal && clustered(risk, g.nx, g.ny, i, lethal, min) && near(centre(i), centre(j)) && !near(centre(j), robot) && !(out[j] >= r) {
-                    out[j] = r;
+                if r >= lethal && clustered(risk, g.nx, g.ny, i, lethal, min) && near(centre(i), centre(j)) && !near(centre(j), robot) && (*slot).partial_cmp(&r).is_none_or(Ordering::is_lt) {
+                    *slot = r;
                 }
             }
         }

@@ -2,6 +2,8 @@
 //! for a target off the map or on a blocked cell, the entry prices, the plan with its
 //! footprint replans, and whether it replaces the path being followed.
 
+use std::cmp::Ordering;
+
 use glam::DVec2;
 
 use super::memory::WorldCell;
@@ -30,7 +32,7 @@ impl Navigator {
             // radius; the cells grown into the unseen, a guess, only block where they are.
             inflate_lethal(grid.risk(), &mut s.astar, &g, lethal, nav.lethal_min_neighbours, fit_radius, position);
             for (a, &grown) in s.astar.iter_mut().zip(&s.grown) {
-                if grown >= lethal && !(*a >= grown) {
+                if grown >= lethal && (*a).partial_cmp(&grown).is_none_or(Ordering::is_lt) {
                     *a = grown;
                 }
             }

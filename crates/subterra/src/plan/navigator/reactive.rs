@@ -9,6 +9,7 @@
 //! must not move where the robot cannot know the ground holds.
 
 use std::f64::consts::PI;
+use std::cmp::Ordering;
 
 use glam::DVec2;
 
@@ -352,7 +353,7 @@ pub(crate) fn clearance_heading(grid: &RiskGrid<'_>, from: DVec2, r_inst: f64, t
         for i in 1..=steps {
             let q = from + dir * (i as f64 * step);
             match grid.value_at(q) {
-                Some(r) if !(f64::from(r) >= r_inst) => free = i as f64 * step,
+                Some(r) if f64::from(r).partial_cmp(&r_inst).is_none_or(Ordering::is_lt) => free = i as f64 * step,
                 _ => break,
             }
         }

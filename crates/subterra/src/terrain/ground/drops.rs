@@ -2,6 +2,8 @@
 //! back) and drop shadows (the floor hidden behind a drop's near edge), as the *Void* and
 //! *Shadow* sections of the parent module's doc define them.
 
+use std::cmp::Ordering;
+
 use super::{BinAccumulator, GroundSegmenter, NO_BIN};
 
 impl GroundSegmenter {
@@ -15,7 +17,7 @@ impl GroundSegmenter {
         let below = -(self.config.max_dist_to_line_m as f32);
         let acc = &mut self.acc[..];
         for ((&sb, p), &h) in self.point_bin.iter().zip(points).zip(heights) {
-            if sb == NO_BIN || !(h >= below) {
+            if sb == NO_BIN || h.partial_cmp(&below).is_none_or(Ordering::is_lt) {
                 continue;
             }
             // The same r as in `bin_points`.

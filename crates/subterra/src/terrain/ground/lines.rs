@@ -1,6 +1,8 @@
 //! Ground line fits per sector (step 3 of the algorithm in the parent module's doc) and
 //! the line each polar bin takes from them (step 4).
 
+use std::cmp::Ordering;
+
 use super::{BinLine, GroundLine, GroundSegmenter};
 use crate::terrain::config::GroundConfig;
 
@@ -171,7 +173,7 @@ impl LineSums {
     /// `(m, b, rmse)` of the least-squares line; `None` when degenerate.
     pub(super) fn fit(&self) -> Option<(f64, f64, f64)> {
         let denom = self.n * self.srr - self.sr * self.sr;
-        if !(denom > 0.0) {
+        if denom.partial_cmp(&0.0).is_none_or(Ordering::is_le) {
             return None;
         }
         let m = (self.n * self.srz - self.sr * self.sz) / denom;

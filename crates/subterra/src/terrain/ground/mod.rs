@@ -123,6 +123,8 @@ mod polar;
 #[cfg(test)]
 mod tests;
 
+use std::cmp::Ordering;
+
 use super::config::GroundConfig;
 use crate::error::{Error, Result};
 use crate::terrain::cloud::as_points;
@@ -398,7 +400,7 @@ impl GroundSegmenter {
     #[inline]
     pub fn query(&self, x: f64, y: f64) -> Option<PolarBin> {
         let r = (x * x + y * y).sqrt();
-        if !(r < self.config.max_range_m) {
+        if r.partial_cmp(&self.config.max_range_m).is_none_or(Ordering::is_ge) {
             return None;
         }
         let sectors = self.config.sectors as usize;
@@ -416,7 +418,7 @@ impl GroundSegmenter {
         let max_r = self.config.max_range_m;
         for (i, &x) in xs.iter().enumerate() {
             let r = (x * x + y * y).sqrt();
-            if !(r < max_r) {
+            if r.partial_cmp(&max_r).is_none_or(Ordering::is_ge) {
                 continue;
             }
             // In [0, S]: `as i64` truncates as `as usize` would.

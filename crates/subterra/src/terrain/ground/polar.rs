@@ -2,6 +2,8 @@
 //! cross products with the sector boundaries), each bin's prototype (its lowest point) and
 //! the steepest ray over it (steps 1 and 2 of the algorithm in the parent module's doc).
 
+use std::cmp::Ordering;
+
 use super::{BinAccumulator, GroundSegmenter, NO_BIN};
 
 impl GroundSegmenter {
@@ -26,7 +28,7 @@ impl GroundSegmenter {
         for (bin, p) in self.point_bin.iter_mut().zip(points) {
             let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
             let r = (x * x + y * y).sqrt();
-            if !(r < max_r) || !z.is_finite() {
+            if r.partial_cmp(&max_r).is_none_or(Ordering::is_ge) || !z.is_finite() {
                 continue;
             }
             let s = match sector_beside(edges, last, x, y) {

@@ -84,7 +84,7 @@ impl MapBuilder {
         let touched = &touched[..hits];
         out.reserve(touched.len());
         let scratch = &mut self.scratch[..n];
-        for &c in touched.iter() {
+        for &c in touched {
             let c = c as usize;
             let cell = std::mem::replace(&mut scratch[c], CellAccumulator::EMPTY);
             let (ix, iy) = ((c % g.nx) as i64, (c / g.nx) as i64);

@@ -2,6 +2,8 @@
 //! depth (with the newest scan's polar ground), the plane fit's slope and residual over
 //! summed-area tables, and the step height.
 
+use std::cmp::Ordering;
+
 use glam::DVec2;
 
 use crate::terrain::grid::{GridGeometry, Layer, RiskMap};
@@ -217,7 +219,7 @@ pub(super) fn fit_plane(s: &[f64; 10], xc: f64, yc: f64) -> Option<(f64, f64)> {
     // `det` with `xx·yy·n` instead passes on noise when the cells lie in one row or column:
     // `xx` or `yy` is then itself ~0. Regression test `collinear_ground_cells_have_no_plane`.)
     let trace = (xx - x * x / n) + (yy - y * y / n);
-    if !(det / n > COLLINEAR_RATIO * trace * trace) {
+    if (det / n).partial_cmp(&(COLLINEAR_RATIO * trace * trace)).is_none_or(Ordering::is_le) {
         return None;
     }
     let a = (xz * (yy * n - y * y) - xy * (yz * n - y * sz) + x * (yz * y - yy * sz)) / det;

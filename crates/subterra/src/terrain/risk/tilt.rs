@@ -263,7 +263,7 @@ pub(super) fn heading_stencil(robot: &RobotConfig, res: f64, yaw: f64) -> Headin
     let pos = offsets.map(|(i, j)| DVec2::new(i as f64 * res, j as f64 * res));
     debug_assert!(offsets[0] == (-offsets[3].0, -offsets[3].1) && offsets[1] == (-offsets[2].0, -offsets[2].1));
     let mut triangles = [None; 4];
-    for o in 0..4 {
+    for (o, slot) in triangles.iter_mut().enumerate() {
         let rest: Vec<usize> = (0..4).filter(|&q| q != o).collect();
         let (i, j, k) = (rest[0], rest[1], rest[2]);
         let (dj, dk) = (pos[j] - pos[i], pos[k] - pos[i]);
@@ -273,7 +273,7 @@ pub(super) fn heading_stencil(robot: &RobotConfig, res: f64, yaw: f64) -> Headin
         }
         // A = [[dj.x, dj.y], [dk.x, dk.y]]; ∇z solves A ∇z = [Δj, Δk].
         let inv = [[dk.y / det, -dj.y / det], [-dk.x / det, dj.x / det]];
-        triangles[o] = Some(Triangle { i, j, k, inv });
+        *slot = Some(Triangle { i, j, k, inv });
     }
     HeadingStencil { offsets, triangles }
 }
