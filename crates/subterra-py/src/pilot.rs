@@ -241,7 +241,6 @@ impl PyPilot {
         confidence: f64,
     ) -> PyResult<PyPilotOutput> {
         let pose = isometry(py, "world_from_body", world_from_body)?;
-        self.inner.lock().set_odometry_confidence(confidence).py_err(py)?;
         let list: Vec<Bound<'_, PyAny>> = match frames.cast::<PyList>() {
             Ok(l) => l.iter().collect(),
             Err(_) => vec![frames.clone()],
@@ -251,6 +250,7 @@ impl PyPilot {
         }
         let mut this = self.inner.lock();
         let pilot = &mut *this;
+        pilot.set_odometry_confidence(confidence).py_err(py)?;
         let result = if list.len() == 1 {
             with_depth(py, &list[0], scale, self.sizes[0], |pixels, _, _| py.detach(|| pilot.step(&[pixels.image()], stamp, &pose)))?
         } else {

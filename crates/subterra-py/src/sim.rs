@@ -96,7 +96,8 @@ impl PyWorld {
         Ok(Self { inner: World::from_toml_str(&text).sim_err(py)? })
     }
 
-    /// A built-in scenario (`highbay`, `cable`, `tunnel`, `mine`, `subway`) generated with `seed`.
+    /// A built-in scenario (`scenario_names()`: `highbay`, `cable`, `tunnel`, `mine`, `subway`,
+    /// `slopes`, `rough`, `ledge`, `cave`, `warehouse`) generated with `seed`.
     #[staticmethod]
     #[pyo3(signature = (name, seed = 0))]
     fn scenario(py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<Self> {

@@ -9,8 +9,9 @@
 //! - [`plan`]: planning and control for the ground robot (STEP, Fan et al. 2021).
 //! - [`hero`]: the odometry multiplexer (HeRO): several odometry sources, health checks,
 //!   one continuous pose with a confidence.
-//! - [`camera`], [`frames`], [`config`]: the shared vocabulary; [`settings`]: the [`Config`]
+//! - [`config`]: the APF-PF configuration and its presets; [`settings`]: the [`Config`]
 //!   trait every configuration implements (TOML in and out, checks naming the field).
+//! - [`camera`], [`frames`]: the shared vocabulary (pinhole intrinsics, rigid transforms).
 //!
 //! No I/O, no printing, no global state: every stage takes arrays and returns values,
 //! and every random stream is seeded by the caller.

@@ -32,9 +32,9 @@
 //!    from where it started and there is room to turn in place
 //!    ([`RecoveryInput::room_to_turn`]; without, at `backout_max_distance_m`), at the trail's
 //!    end, or after `backout_timeout_s`; then `Track`.
-//! 5. A trigger after `BackOut` abandons the goal: `ReturnHome` (the target becomes the
-//!    home position given at construction; thresholds and ladder start again from the
-//!    bottom). The same ladder runs on the way home; a trigger after its `BackOut` ends in
+//! 5. A trigger after `BackOut` abandons the goal and turns for home: the target becomes
+//!    [`Target::Home`] (the home position given at construction) and the thresholds and the
+//!    ladder start again from the bottom. The same ladder runs on the way home; a trigger after its `BackOut` ends in
 //!    `Failed` (the robot stops).
 //!
 //! **Progress relaxes the thresholds**: after `relax_after_s` seconds of tracking
@@ -97,8 +97,8 @@ pub struct RecoveryMachine {
 }
 
 impl RecoveryMachine {
-    /// A machine that starts tracking toward the goal; `home` is where `ReturnHome`
-    /// drives to (world frame [m]).
+    /// A machine that starts tracking toward the goal; `home` is where the robot drives once
+    /// it gives the goal up ([`Target::Home`], world frame [m]).
     pub fn new(config: RecoveryConfig, home: DVec2) -> Result<Self> {
         config.validate()?;
         if !home.is_finite() {
@@ -143,7 +143,7 @@ impl RecoveryMachine {
         self.target
     }
 
-    /// Where `ReturnHome` drives to.
+    /// Where the robot drives once it gives the goal up ([`Target::Home`]).
     pub fn home(&self) -> DVec2 {
         self.home
     }
