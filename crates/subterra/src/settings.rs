@@ -13,9 +13,9 @@ use serde::Serialize;
 use crate::apf::qmdp::QmdpConfig;
 use crate::error::Result;
 use crate::hero::HeroConfig;
-use crate::plan::astar::RiskAStarConfig;
-use crate::plan::mpc::MpcConfig;
-use crate::plan::navigator::NavigatorConfig;
+use crate::plan::RiskAStarConfig;
+use crate::plan::MpcConfig;
+use crate::plan::NavigatorConfig;
 use crate::{PerceptionConfig, RobotConfig, TerrainConfig};
 
 /// A validated configuration with TOML in and out.
