@@ -16,7 +16,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyFloat, PyList, PyString};
 use pyo3::PyClass;
 use serde_json::Value;
-use subterra::apf::qmdp::QmdpConfig;
+use subterra::apf::QmdpConfig;
 use subterra::config::{PerceptionConfig, PRESET_NAMES};
 use subterra::hero::HeroConfig;
 use subterra::plan::{MpcConfig, NavigatorConfig, RiskAStarConfig};

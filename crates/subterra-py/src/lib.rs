@@ -21,10 +21,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use subterra::config::{FilterMode, PerceptionConfig};
 use subterra::depth::{DepthPerception, MostProbableVoxel, PerceptionOutput, StateId, TransitionModel, VoxelIndex};
-use subterra::apf::carrot::{CarrotOutput, PathFollower};
-use subterra::apf::escape::{Escape, EscapeMode, EscapeOutput};
-use subterra::apf::forces::BeliefForces;
-use subterra::apf::memory::{MemoryOutput, ObstacleMemory};
+use subterra::apf::{BeliefForces, CarrotOutput, Escape, EscapeMode, EscapeOutput, MemoryOutput, ObstacleMemory, PathFollower};
 use subterra::{ApfController, Command, Isometry3, PinholeCamera};
 
 use crate::config::PyPerceptionConfig;
@@ -773,7 +770,7 @@ struct PyPathFollower {
 impl PyPathFollower {
     /// `path`: at least two points, shape `(N, 3)` [m, world].
     #[new]
-    #[pyo3(signature = (path, *, lookahead_m = subterra::apf::carrot::DEFAULT_LOOKAHEAD_M))]
+    #[pyo3(signature = (path, *, lookahead_m = subterra::apf::DEFAULT_LOOKAHEAD_M))]
     fn new(py: Python<'_>, path: &Bound<'_, PyAny>, #[pyo3(from_py_with = arg::lookahead_m)] lookahead_m: f64) -> PyResult<Self> {
         let items = path.try_iter().map_err(|_| input_error(py, format!("argument `path` must be a sequence of 3-vectors, got {}", convert::type_name(path))))?;
         let mut points = Vec::new();

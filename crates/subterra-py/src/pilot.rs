@@ -1,4 +1,4 @@
-//! `subterra.Pilot`: the drone's loop of the core (`subterra::apf::pilot`), one call per
+//! `subterra.Pilot`: the drone's loop of the core (`subterra::apf::Pilot`), one call per
 //! control step.
 
 use std::borrow::Cow;
@@ -6,8 +6,7 @@ use std::borrow::Cow;
 use numpy::{IntoPyArray, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
-use subterra::apf::pilot::{controller_named, Pilot, PilotCamera, PilotController, PilotOutput, CONTROLLER_NAMES, MAX_CAMERAS};
-use subterra::apf::qmdp::QmdpConfig;
+use subterra::apf::{controller_named, Pilot, PilotCamera, PilotController, PilotOutput, QmdpConfig, CONTROLLER_NAMES, MAX_CAMERAS};
 use subterra::depth::{DepthImage, TransitionModel};
 use subterra::Isometry3;
 
@@ -73,7 +72,7 @@ impl PyPilotOutput {
     /// Whether the escape is following an obstacle's boundary.
     #[getter]
     fn escape_active(&self) -> bool {
-        self.inner.escape.is_some_and(|e| e.mode != subterra::apf::escape::EscapeMode::Goal)
+        self.inner.escape.is_some_and(|e| e.mode != subterra::apf::EscapeMode::Goal)
     }
     /// The goal the command pulled toward, body frame [m].
     #[getter]
@@ -215,7 +214,7 @@ impl PyPilot {
 
     /// Follows `path` (at least two 3-vectors [m, world], the last the goal) with a carrot
     /// `lookahead_m` ahead.
-    #[pyo3(signature = (path, *, lookahead_m = subterra::apf::carrot::DEFAULT_LOOKAHEAD_M))]
+    #[pyo3(signature = (path, *, lookahead_m = subterra::apf::DEFAULT_LOOKAHEAD_M))]
     fn set_path(&self, py: Python<'_>, path: &Bound<'_, PyAny>, #[pyo3(from_py_with = arg::lookahead_m)] lookahead_m: f64) -> PyResult<()> {
         let items = path.try_iter().map_err(|_| input_error(py, format!("argument `path` must be a sequence of 3-vectors, got {}", type_name(path))))?;
         let mut points = Vec::new();

@@ -1,4 +1,4 @@
-//! Bindings of `subterra::plan::astar`: `RiskAStar` and its `PlanOutcome`.
+//! Bindings of the core's risk-aware A*: `subterra::plan::RiskAStar` and its `PlanOutcome`.
 //!
 //! Conversions, error mapping and GIL release only; the search lives in the core crate.
 

@@ -1,4 +1,4 @@
-//! Bindings of `subterra::plan::mpc`: `MpcTracker` and `MpcOutput`.
+//! Bindings of the core's MPC tracker: `subterra::plan::MpcTracker` and `MpcOutput`.
 //!
 //! Conversions, error mapping and GIL release only; every algorithm lives in the core crate.
 
@@ -7,7 +7,7 @@ use std::borrow::Cow;
 use glam::DVec2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use subterra::plan::mpc::{ConvexPolygon, MpcConfig, MpcOutput, MpcTracker, RiskGrid, UnicycleState};
+use subterra::plan::{ConvexPolygon, MpcConfig, MpcOutput, MpcTracker, RiskGrid, UnicycleState};
 
 use crate::shared::Shared;
 use crate::convert::{arg, check_elements, real_array, small_vector, type_name, MAX_GRID_CELLS, MAX_PATH_POINTS};

@@ -1,4 +1,4 @@
-//! Bindings of `subterra::plan::navigator` (the wired ground-robot stack) and the recovery
+//! Bindings of `subterra::plan::Navigator` (the wired ground-robot stack) and the recovery
 //! machine's records. Conversions, error mapping and GIL release only.
 
 use glam::DVec2;
@@ -6,8 +6,7 @@ use numpy::{IntoPyArray, PyArray2};
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
-use subterra::plan::navigator::{Navigator, NavigatorConfig, NavigatorOutput};
-use subterra::plan::Transition;
+use subterra::plan::{Navigator, NavigatorConfig, NavigatorOutput, Transition};
 use subterra::Isometry3;
 
 use crate::shared::Shared;
@@ -218,7 +217,7 @@ impl PyNavigator {
         let nav = &mut *this;
         let mut run = |points: Option<&[f32]>| {
             py.detach(|| {
-                nav.step(&subterra::plan::navigator::NavigatorInput {
+                nav.step(&subterra::plan::NavigatorInput {
                     stamp_s,
                     points_sensor: points,
                     world_from_body,

@@ -1,8 +1,8 @@
-//! `subterra.Qmdp`: QMDP action selection over a perception's belief (`subterra::apf::qmdp`).
+//! `subterra.Qmdp`: QMDP action selection over a perception's belief (`subterra::apf::Qmdp`).
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
-use subterra::apf::qmdp::{Qmdp, QmdpAction, QmdpConfig};
+use subterra::apf::{Qmdp, QmdpAction, QmdpConfig};
 
 use crate::errors::IntoPyResult;
 use crate::shared::Shared;

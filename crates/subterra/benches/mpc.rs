@@ -10,8 +10,7 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec2;
 use std::hint::black_box;
-use subterra::plan::mpc::{step, RiskGrid};
-use subterra::plan::{MpcConfig, MpcTracker, UnicycleState};
+use subterra::plan::{unicycle_step, MpcConfig, MpcTracker, RiskGrid, UnicycleState};
 
 const NX: usize = 200;
 const RES: f64 = 0.1;
@@ -70,7 +69,7 @@ fn bench_mpc(c: &mut Criterion) {
         polygons = polygons.max(out.polygons.len());
         let u3 = tracker3.solve(&state, &path, Some(&grid), None).unwrap().inputs[0];
         changes.push((u3.accel_m_s2 - out.inputs[0].accel_m_s2).abs().max((u3.yaw_rate_rad_s - out.inputs[0].yaw_rate_rad_s).abs()));
-        state = step(&state, &out.inputs[0], config.dt_s);
+        state = unicycle_step(&state, &out.inputs[0], config.dt_s);
     }
     times.sort_by(f64::total_cmp);
     changes.sort_by(f64::total_cmp);
@@ -95,7 +94,7 @@ fn bench_mpc(c: &mut Criterion) {
                 steps = 0;
             }
             let out = tracker.solve(black_box(&state), &path, Some(&grid), None).unwrap();
-            state = step(&state, &out.inputs[0], config.dt_s);
+            state = unicycle_step(&state, &out.inputs[0], config.dt_s);
             steps += 1;
             out.command
         });

@@ -4,8 +4,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
-use subterra::depth::transition::TransitionModel;
-use subterra::depth::{DepthImage, DepthPerception, DepthVoxelGrid};
+use subterra::depth::{DepthImage, DepthPerception, DepthVoxelGrid, TransitionModel};
 use subterra::{Isometry3, PerceptionConfig, PinholeCamera};
 
 /// A box 0.8 m ahead filling the middle of the image, a wall beyond the horizon, and a

@@ -3,21 +3,29 @@
 //!
 //! In: the goal relative to the robot in the body frame, and the repulsive forces of one
 //! or more cameras' perception (already belief-weighted, in the body frame). Out: a
-//! [`Command`]. [`memory`] keeps where the belief put obstacles, so that they still repel
-//! out of view, [`escape`] gets the robot out of the field's local minima by following
-//! the remembered obstacles' boundary, and [`carrot`] leads it along a path of waypoints
-//! (all three subterra). [`forces`] weighs each camera's belief into a repulsion, and
-//! [`pilot`] wires it all into the drone's loop, once.
+//! [`Command`]. [`ObstacleMemory`] keeps where the belief put obstacles, so that they still
+//! repel out of view, [`Escape`] gets the robot out of the field's local minima by following
+//! the remembered obstacles' boundary, and [`PathFollower`] leads it along a path of
+//! waypoints (all three subterra). [`BeliefForces`] weighs each camera's belief into a
+//! repulsion, [`Qmdp`] picks actions over the belief instead of the field, and [`Pilot`]
+//! wires it all into the drone's loop, once.
 //!
 //! `apf` reads `depth` (a perception's grid, mounting and belief); `depth` knows nothing of
 //! potentials.
 
-pub mod carrot;
-pub mod escape;
-pub mod forces;
-pub mod memory;
-pub mod pilot;
-pub mod qmdp;
+mod carrot;
+mod escape;
+mod forces;
+mod memory;
+mod pilot;
+mod qmdp;
+
+pub use carrot::{CarrotOutput, PathFollower, DEFAULT_LOOKAHEAD_M};
+pub use escape::{Escape, EscapeMode, EscapeOutput};
+pub use forces::BeliefForces;
+pub use memory::{MemoryOutput, ObstacleMemory, RememberedObstacle};
+pub use pilot::{controller_named, Pilot, PilotCamera, PilotController, PilotOutput, PilotTimings, CONTROLLER_NAMES, MAX_CAMERAS};
+pub use qmdp::{Qmdp, QmdpAction, QmdpConfig};
 
 use std::f64::consts::PI;
 

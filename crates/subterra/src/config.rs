@@ -185,8 +185,9 @@ pub struct ApfConfig {
     pub voxel_position: VoxelPosition,
 }
 
-/// The obstacle memory ([`crate::apf::memory`]; subterra, not in the paper): where the
-/// belief put obstacles, kept in the odometry frame so that they still repel once out of view.
+/// The obstacle memory ([`ObstacleMemory`](crate::apf::ObstacleMemory); subterra, not in the
+/// paper): where the belief put obstacles, kept in the odometry frame so that they still repel
+/// once out of view.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MemoryConfig {
@@ -249,8 +250,8 @@ impl MemoryConfig {
     }
 }
 
-/// Escape from local minima by boundary following ([`crate::apf::escape`]; subterra, not in
-/// the paper).
+/// Escape from local minima by boundary following ([`Escape`](crate::apf::Escape); subterra,
+/// not in the paper).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EscapeConfig {
@@ -434,7 +435,7 @@ impl PerceptionConfig {
     }
 
     /// Preset `flight-escape` (subterra, the default of `subterra fly`): `flight-memory`
-    /// with the escape from local minima on ([`crate::apf::escape`]) and the memory's
+    /// with the escape from local minima on ([`Escape`](crate::apf::Escape)) and the memory's
     /// near-field guard at 3 σ_n ([`MemoryConfig::guard_sigmas`]). With the waypoint
     /// carrot of `subterra fly` it is the configuration measured best (docs/flight.md).
     pub fn flight_escape() -> Self {

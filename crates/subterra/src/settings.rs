@@ -10,7 +10,7 @@
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 
-use crate::apf::qmdp::QmdpConfig;
+use crate::apf::QmdpConfig;
 use crate::error::Result;
 use crate::hero::HeroConfig;
 use crate::plan::RiskAStarConfig;

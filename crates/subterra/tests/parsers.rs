@@ -7,9 +7,7 @@ mod common;
 
 use common::mutate::{apply, edit_strategy};
 use proptest::prelude::*;
-use subterra::plan::mpc::MpcConfig;
-use subterra::plan::navigator::NavigatorConfig;
-use subterra::plan::RiskAStarConfig;
+use subterra::plan::{MpcConfig, NavigatorConfig, RiskAStarConfig};
 use subterra::{Config, PerceptionConfig, TerrainConfig};
 
 fn committed(name: &str) -> String {

@@ -3,8 +3,7 @@
 //! (the Python side: `tests/python/test_pilot.py`).
 
 use glam::DVec3;
-use subterra::apf::pilot::{Pilot, PilotCamera, PilotController};
-use subterra::apf::qmdp::QmdpConfig;
+use subterra::apf::{Pilot, PilotCamera, PilotController, QmdpConfig};
 use subterra::config::PerceptionConfig;
 use subterra::depth::DepthImage;
 use subterra::{Isometry3, PinholeCamera};

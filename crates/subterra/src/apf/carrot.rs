@@ -25,9 +25,9 @@ use glam::DVec3;
 use crate::error::{Error, Result};
 
 /// How far back from the progress the projection looks [m].
-pub const BACK_WINDOW_M: f64 = 0.5;
+pub(super) const BACK_WINDOW_M: f64 = 0.5;
 /// How far beyond the carrot the projection looks [m].
-pub const AHEAD_WINDOW_M: f64 = 1.0;
+pub(super) const AHEAD_WINDOW_M: f64 = 1.0;
 /// Carrot distance used by `subterra fly` [m]: 1.5 m, a little beyond the 1.2 m horizon of
 /// the depth filter, so that the pull points along the path past what the camera sees.
 pub const DEFAULT_LOOKAHEAD_M: f64 = 1.5;

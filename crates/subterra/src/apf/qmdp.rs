@@ -41,13 +41,13 @@ use crate::depth::{DepthPerception, PerceptionOutput};
 use crate::error::{Error, Result};
 
 /// Most actions per axis.
-pub const MAX_ACTIONS_PER_AXIS: usize = 101;
+pub(super) const MAX_ACTIONS_PER_AXIS: usize = 101;
 /// Most actions in all.
-pub const MAX_ACTIONS: usize = 4096;
+pub(super) const MAX_ACTIONS: usize = 4096;
 /// Most look-ahead steps.
-pub const MAX_LOOKAHEAD_STEPS: usize = 100;
+pub(super) const MAX_LOOKAHEAD_STEPS: usize = 100;
 /// Most entries of the reward table (states x actions; 8 bytes each).
-pub const MAX_TABLE_ENTRIES: usize = 1 << 24;
+pub(super) const MAX_TABLE_ENTRIES: usize = 1 << 24;
 
 /// The QMDP controller's settings. The defaults are the authors' (`qmdp_ral.yaml`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -151,7 +151,7 @@ fn axis_count(lo: f64, hi: f64, step: f64) -> usize {
 
 /// The action set in the order the choice breaks ties: `v_x` slowest-varying, `v_z`
 /// fastest, then `0` when the grid misses it. Values within 1e-9 of 0 are 0.
-pub fn actions(config: &QmdpConfig) -> Vec<DVec3> {
+pub(super) fn actions(config: &QmdpConfig) -> Vec<DVec3> {
     let axis = |i: usize| -> Vec<f64> {
         let (lo, step) = (config.action_min_m_s[i], config.action_step_m_s[i]);
         (0..axis_count(lo, config.action_max_m_s[i], step))
@@ -177,7 +177,7 @@ pub fn actions(config: &QmdpConfig) -> Vec<DVec3> {
 }
 
 /// `U(x) = ½·g·(1/|x| - 1/ρ)²` within `ρ`, 0 beyond; `|x|` clamped below at `min_distance_m`.
-pub fn potential(config: &QmdpConfig, x_body: DVec3) -> f64 {
+pub(super) fn potential(config: &QmdpConfig, x_body: DVec3) -> f64 {
     let d = x_body.length().max(config.min_distance_m);
     if d >= config.potential_range_m {
         return 0.0;

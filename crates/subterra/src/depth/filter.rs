@@ -48,7 +48,7 @@ struct Proposal {
 
 /// Particle filter with `N` particles kept as counts per state.
 #[derive(Debug, Clone)]
-pub struct ParticleFilter {
+pub(super) struct ParticleFilter {
     particles: usize,
     resampling: Resampling,
     counts: Vec<u32>,
@@ -63,7 +63,7 @@ pub struct ParticleFilter {
 impl ParticleFilter {
     /// `particles` spread evenly over the model's states (particle `p` starts in state
     /// `p mod S`); `free_proposal_min` is `q_min` of the module docs, in `[0, 1)`.
-    pub fn new(model: &TransitionModel, particles: usize, resampling: Resampling, free_proposal_min: f64, rng: Pcg64Mcg) -> Self {
+    pub(super) fn new(model: &TransitionModel, particles: usize, resampling: Resampling, free_proposal_min: f64, rng: Pcg64Mcg) -> Self {
         let states = model.state_count();
         let mut counts = vec![0u32; states];
         for p in 0..particles {
@@ -87,13 +87,9 @@ impl ParticleFilter {
         Self { particles, resampling, counts, mass: vec![0.0; states], proposals, rng, targets: Vec::new() }
     }
 
-    /// Number of particles.
-    pub fn particles(&self) -> usize {
-        self.particles
-    }
-
     /// Particles per state.
-    pub fn counts(&self) -> &[u32] {
+    #[cfg(test)]
+    pub(super) fn counts(&self) -> &[u32] {
         &self.counts
     }
 
@@ -102,7 +98,7 @@ impl ParticleFilter {
     /// The particles of one state are exchangeable, so instead of one free-or-voxel coin per
     /// particle the number that goes free is one `Binomial(c, q)` draw, and the rest draw
     /// voxel targets in a batch: the same joint distribution of where they land.
-    pub fn propagate(&mut self, model: &TransitionModel) {
+    pub(super) fn propagate(&mut self, model: &TransitionModel) {
         self.mass.fill(0.0);
         let free = self.counts.len() - 1;
         let mut targets = std::mem::take(&mut self.targets);
@@ -144,7 +140,7 @@ impl ParticleFilter {
     }
 
     /// Weights the propagated particles by `log_likelihood` (per state) and resamples.
-    pub fn weight_and_resample(&mut self, log_likelihood: &[f64]) {
+    pub(super) fn weight_and_resample(&mut self, log_likelihood: &[f64]) {
         let max = self
             .mass
             .iter()
@@ -207,7 +203,7 @@ impl ParticleFilter {
     }
 
     /// Writes the belief (particle histogram / N) into `out`.
-    pub fn belief(&self, out: &mut [f64]) {
+    pub(super) fn belief(&self, out: &mut [f64]) {
         let inv = 1.0 / self.particles as f64;
         for (o, &c) in out.iter_mut().zip(&self.counts) {
             *o = c as f64 * inv;
@@ -217,29 +213,29 @@ impl ParticleFilter {
 
 /// Exact histogram Bayes filter.
 #[derive(Debug, Clone)]
-pub struct HistogramFilter {
+pub(super) struct HistogramFilter {
     belief: Vec<f64>,
     predicted: Vec<f64>,
 }
 
 impl HistogramFilter {
     /// Uniform belief over `states`.
-    pub fn new(states: usize) -> Self {
+    pub(super) fn new(states: usize) -> Self {
         Self { belief: vec![1.0 / states as f64; states], predicted: vec![0.0; states] }
     }
 
     /// The belief.
-    pub fn belief(&self) -> &[f64] {
+    pub(super) fn belief(&self) -> &[f64] {
         &self.belief
     }
 
     /// Prediction through the transition model.
-    pub fn predict(&mut self, model: &TransitionModel) {
+    pub(super) fn predict(&mut self, model: &TransitionModel) {
         model.predict(&self.belief, &mut self.predicted);
     }
 
     /// Bayes update with per-state log-likelihoods, normalised with log-sum-exp.
-    pub fn update(&mut self, log_likelihood: &[f64]) {
+    pub(super) fn update(&mut self, log_likelihood: &[f64]) {
         let max = self
             .predicted
             .iter()

@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 
 /// Added to `(z - d_min)/k_d` before the floor, so that a depth on a bin boundary lands in
 /// the bin it starts: in floating point `(0.3 - 0.1)/0.1 = 1.9999999999999998`.
-pub const BIN_EPSILON: f64 = 1e-9;
+pub(super) const BIN_EPSILON: f64 = 1e-9;
 
 /// A voxel of the grid: column block `i`, row block `j`, depth bin `k`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

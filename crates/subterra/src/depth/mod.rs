@@ -4,16 +4,17 @@
 //! Out: a belief over where the nearest obstacle probably is — voxels of a 2.5D grid over
 //! the image, plus "free" — and the belief-weighted repulsive force in the body frame.
 //!
-//! [`grid`] counts pixels into voxels, [`transition`] and [`observation`] are the
-//! filter's models, [`filter`] holds the particle and exact histogram filters, and
-//! [`perception`] wires them into [`DepthPerception`].
+//! [`DepthVoxelGrid`] counts pixels into voxels ([`VoxelCounts`]), [`TransitionModel`] and
+//! the observation model are the filter's models, a particle filter or the exact histogram
+//! filter ([`FilterMode`](crate::config::FilterMode)) tracks the belief, and
+//! [`DepthPerception`] wires them together.
 
 mod alias;
-pub mod filter;
-pub mod grid;
-pub mod observation;
-pub mod perception;
-pub mod transition;
+mod filter;
+mod grid;
+mod observation;
+mod perception;
+mod transition;
 
 pub use grid::{DepthImage, DepthVoxelGrid, StateId, VoxelCounts, VoxelIndex};
 pub use perception::{DepthPerception, MostProbableVoxel, PerceptionOutput, StageTimings};

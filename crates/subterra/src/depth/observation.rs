@@ -15,7 +15,7 @@ const HALF_LN_TWO_PI: f64 = 0.918_938_533_204_672_7;
 
 /// Precomputed per-voxel constants of the observation model.
 #[derive(Debug, Clone)]
-pub struct ObservationModel {
+pub(super) struct ObservationModel {
     /// Per voxel: the expected count of a full voxel, `B`.
     full_count: Vec<f64>,
     /// Per voxel: `1 / (σ_o·B/(k_w·k_h))`.
@@ -30,7 +30,7 @@ pub struct ObservationModel {
 
 impl ObservationModel {
     /// Precomputes the model for `grid`.
-    pub fn new(grid: &DepthVoxelGrid, config: &ObservationConfig) -> Self {
+    pub(super) fn new(grid: &DepthVoxelGrid, config: &ObservationConfig) -> Self {
         let full_block = (grid.config().block_width_px * grid.config().block_height_px) as f64;
         let voxels = grid.voxel_count();
         let mut full_count = Vec::with_capacity(voxels);
@@ -50,7 +50,7 @@ impl ObservationModel {
     }
 
     /// Log-likelihood of the observation for every state (voxels, then `s_free`).
-    pub fn log_likelihood(&self, counts: &VoxelCounts, out: &mut [f64]) {
+    pub(super) fn log_likelihood(&self, counts: &VoxelCounts, out: &mut [f64]) {
         let voxels = self.full_count.len();
         for (((o, &n), &b), &inv) in out[..voxels].iter_mut().zip(&counts.counts).zip(&self.full_count).zip(&self.inv_spread) {
             let r = (n as f64 - b) * inv;

@@ -76,7 +76,7 @@ pub struct PerceptionOutput {
 
 /// Histogram-mode beliefs below this are left out of the sparse view (the dense belief
 /// stays available through [`DepthPerception::belief`]).
-pub const SPARSE_BELIEF_THRESHOLD: f64 = 1e-12;
+pub(super) const SPARSE_BELIEF_THRESHOLD: f64 = 1e-12;
 
 #[derive(Debug, Clone)]
 enum Filter {

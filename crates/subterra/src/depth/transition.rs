@@ -35,7 +35,7 @@ pub(crate) const MAX_OFFSET_REDRAWS: usize = 4096;
 /// `(MAX_CLASSES + 1)²·S·N_d` 8-byte slots (flight: 2.7 MB; 40x30 blocks x 17 bins, S ≈ 20k:
 /// about 70 MB, against 3.3 GB for a dense f64 matrix); a member's first attempt lands in
 /// the grid with probability ≈ (n/(n + n/C))² for n blocks in C classes (flight: 0.55-0.86).
-pub const MAX_CLASSES: usize = 4;
+pub(super) const MAX_CLASSES: usize = 4;
 
 /// A signed offset `(di, dj, k')` of a class table, with its flat state delta
 /// `(dj·N_w + di)·N_d + k'` from the source block's first state.
@@ -83,7 +83,7 @@ impl Classes {
 
 /// Draws voxel successors of one source voxel (see [`TransitionModel::voxel_sampler`]).
 #[derive(Debug, Clone, Copy)]
-pub struct VoxelSampler<'a> {
+pub(crate) struct VoxelSampler<'a> {
     model: &'a TransitionModel,
     from: usize,
     i: i32,
@@ -98,7 +98,7 @@ impl VoxelSampler<'_> {
     /// One draw from `T(from, ·)` restricted to the grid: an offset from the source's class
     /// table, redrawn while it leaves the grid.
     #[inline]
-    pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> usize {
+    pub(crate) fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> usize {
         for _ in 0..MAX_OFFSET_REDRAWS {
             if let Some(to) = self.try_offset(rng.next_u64()) {
                 return to;
@@ -113,7 +113,7 @@ impl VoxelSampler<'_> {
     /// the budget of `MAX_OFFSET_REDRAWS` attempts per draw, after which the remaining
     /// draws are exact ones, leaves the draws independent and exact.
     #[inline]
-    pub fn fill<R: Rng + ?Sized>(&self, rng: &mut R, out: &mut [u32]) {
+    pub(crate) fn fill<R: Rng + ?Sized>(&self, rng: &mut R, out: &mut [u32]) {
         let need = out.len();
         let mut n = 0;
         let mut budget = need.saturating_mul(MAX_OFFSET_REDRAWS);
@@ -133,7 +133,7 @@ impl VoxelSampler<'_> {
     ///
     /// Bits 63..32 pick the slot (multiply-shift), bits 31..0 are the alias coin.
     #[inline]
-    pub fn try_offset(&self, r: u64) -> Option<usize> {
+    pub(crate) fn try_offset(&self, r: u64) -> Option<usize> {
         let (inside, to) = self.candidate(r);
         inside.then_some(to)
     }
@@ -141,7 +141,7 @@ impl VoxelSampler<'_> {
     /// [`Self::try_offset`] without the branch: whether the drawn target is in the grid, and
     /// the target (meaningless when it is not).
     #[inline]
-    pub fn candidate(&self, r: u64) -> (bool, usize) {
+    pub(crate) fn candidate(&self, r: u64) -> (bool, usize) {
         let m = self.model;
         let slot = (((r >> 32) * self.slots.len() as u64) >> 32) as usize;
         let s = self.slots[slot];
@@ -157,7 +157,7 @@ impl VoxelSampler<'_> {
     }
 
     /// The exact O(S) draw, the fallback after [`MAX_OFFSET_REDRAWS`] failed attempts.
-    pub fn sample_exactly<R: Rng + ?Sized>(&self, rng: &mut R) -> usize {
+    pub(crate) fn sample_exactly<R: Rng + ?Sized>(&self, rng: &mut R) -> usize {
         self.model.sample_in_grid_exactly(self.from, rng)
     }
 }
@@ -448,7 +448,7 @@ impl TransitionModel {
 
     /// A sampler of the voxel successors of voxel `from`, for drawing many particles of
     /// one state without decoding the state each time. `from` must be a voxel.
-    pub fn voxel_sampler(&self, from: usize) -> VoxelSampler<'_> {
+    pub(crate) fn voxel_sampler(&self, from: usize) -> VoxelSampler<'_> {
         let (i, j, k) = self.voxel(from);
         let (cw, ch) = (self.column_classes.of[i] as usize, self.row_classes.of[j] as usize);
         let c_w = self.column_classes.bounds.len();

@@ -102,10 +102,10 @@ use std::time::Instant;
 use glam::DVec2;
 
 use crate::error::{Error, Result};
-pub use crate::plan::grid::{RiskGrid, MAX_GRID_CELLS, MAX_SIDE};
+use crate::plan::grid::RiskGrid;
 use crate::terrain::CellIndex;
 
-pub use config::{CostModel, RiskAStarConfig, MAX_LAMBDA_PER_M, MAX_RISK};
+pub use config::{CostModel, RiskAStarConfig};
 pub use entry::EntryPrices;
 pub use outcome::{PlanOutcome, PlanStatus, PlannedPath};
 

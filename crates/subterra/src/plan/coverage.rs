@@ -33,7 +33,7 @@ use crate::error::{Error, Result};
 use crate::plan::grid::RiskGrid;
 
 /// The A*'s 8 moves `(dx, dy)`, in its order (E, N, W, S, NE, NW, SW, SE).
-pub const MOVES: [(i32, i32); 8] = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1)];
+pub(super) const MOVES: [(i32, i32); 8] = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1)];
 
 /// Where a sensor on the robot sees the ground from a pose.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -93,7 +93,7 @@ impl SensorCoverage {
 /// enter an unknown cell unseen (module docs). `known[c]`: whether cell `c` is known (observed
 /// or remembered); `occluding`: the risk at or above which a cell blocks the view; `robot`: the
 /// robot's position [m, world]. `run`: scratch.
-pub fn unseen_entries(grid: &RiskGrid<'_>, known: &[bool], robot: DVec2, coverage: &SensorCoverage, occluding: f32, out: &mut Vec<u8>, run: &mut Vec<u16>) {
+pub(super) fn unseen_entries(grid: &RiskGrid<'_>, known: &[bool], robot: DVec2, coverage: &SensorCoverage, occluding: f32, out: &mut Vec<u8>, run: &mut Vec<u16>) {
     let (nx, ny) = (grid.nx(), grid.ny());
     let res = grid.resolution_m();
     out.clear();

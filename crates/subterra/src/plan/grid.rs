@@ -28,14 +28,14 @@ use crate::error::{Error, Result};
 use crate::terrain::{CellIndex, GridGeometry, Layer, RiskMap};
 
 /// Most cells of a grid (2^24 = 4096 x 4096; the A*'s search state takes 28 bytes per cell).
-pub const MAX_GRID_CELLS: usize = 1 << 24;
+pub(super) const MAX_GRID_CELLS: usize = 1 << 24;
 /// Most cells along one side of a grid (2^16).
-pub const MAX_SIDE: usize = 1 << 16;
+pub(super) const MAX_SIDE: usize = 1 << 16;
 /// Largest cell side accepted [m]; beyond it the geometry is a mistake.
-pub const MAX_RESOLUTION_M: f64 = 1.0e4;
+pub(super) const MAX_RESOLUTION_M: f64 = 1.0e4;
 /// Smallest cell side accepted [m] (1 mm): no range sensor resolves less, and a denormal
 /// side makes every distance a count of cells beyond any search or sampling budget.
-pub const MIN_RESOLUTION_M: f64 = 1.0e-3;
+pub(super) const MIN_RESOLUTION_M: f64 = 1.0e-3;
 
 /// A risk grid: per-cell risks in `[0, 1]` (NaN: unknown) over a world-axis-aligned geometry.
 #[derive(Debug, Clone, Copy)]

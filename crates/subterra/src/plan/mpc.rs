@@ -111,23 +111,25 @@
 mod assemble;
 mod clearance;
 mod config;
-pub mod geometry;
+mod geometry;
 mod line_search;
 mod linearise;
 mod output;
 mod path_shift;
 mod qp;
 mod reference;
-pub mod unicycle;
+mod unicycle;
 
 use std::time::Instant;
 
 use glam::DVec2;
 
 pub use config::{MpcConfig, MpcFootprint, MpcLimits, MpcObstacles, MpcRisk, MpcSolver, MpcTracking, MpcWeights};
-pub use geometry::{ConvexPolygon, RiskGrid};
+pub use geometry::ConvexPolygon;
+use crate::plan::grid::RiskGrid;
 pub use output::{MpcCommand, MpcOutput, MpcStatus};
-pub use unicycle::{step, step_with_jacobians, StepJacobians, UnicycleInput, UnicycleState};
+pub use unicycle::{step, UnicycleInput, UnicycleState};
+use unicycle::{step_with_jacobians, StepJacobians};
 
 use crate::error::{Error, Result};
 use assemble::build_qp;

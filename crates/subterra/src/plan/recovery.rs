@@ -307,7 +307,7 @@ impl RecoveryMachine {
 }
 
 /// `a` wrapped into (-π, π].
-pub fn wrap_angle(a: f64) -> f64 {
+pub(super) fn wrap_angle(a: f64) -> f64 {
     let w = a.rem_euclid(2.0 * PI);
     if w > PI { w - 2.0 * PI } else { w }
 }

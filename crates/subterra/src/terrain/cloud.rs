@@ -32,7 +32,7 @@ pub struct PrefilterStats {
 }
 
 /// Views a flat `[x0, y0, z0, x1, ...]` slice as points, checking its length.
-pub fn as_points<'a>(argument: &str, flat: &'a [f32]) -> Result<&'a [[f32; 3]]> {
+pub(super) fn as_points<'a>(argument: &str, flat: &'a [f32]) -> Result<&'a [[f32; 3]]> {
     let (points, rest) = flat.as_chunks::<3>();
     if !rest.is_empty() {
         return Err(Error::input(argument, format!("must hold (N, 3) coordinates; its length {} is not a multiple of 3", flat.len())));
@@ -42,7 +42,7 @@ pub fn as_points<'a>(argument: &str, flat: &'a [f32]) -> Result<&'a [[f32; 3]]> 
 
 /// The prefilter of one robot.
 #[derive(Debug, Clone)]
-pub struct Prefilter {
+pub(super) struct Prefilter {
     config: PrefilterConfig,
     /// Self box in the body frame, lower corner [m].
     box_min: Vec3,
@@ -52,7 +52,7 @@ pub struct Prefilter {
 
 impl Prefilter {
     /// A prefilter for `robot`; the configs are trusted (validated by the caller).
-    pub fn new(config: PrefilterConfig, robot: &RobotConfig) -> Self {
+    pub(super) fn new(config: PrefilterConfig, robot: &RobotConfig) -> Self {
         let m = config.self_margin_m;
         let box_min = DVec3::new(-robot.length_m / 2.0 - m, -robot.width_m / 2.0 - m, -m).as_vec3();
         let box_max = DVec3::new(robot.length_m / 2.0 + m, robot.width_m / 2.0 + m, robot.height_m + m).as_vec3();
@@ -61,7 +61,7 @@ impl Prefilter {
 
     /// Filters `points_sensor` and appends the kept points, in the body frame, to `out_body`
     /// (cleared first).
-    pub fn apply(&self, points_sensor: &[[f32; 3]], body_from_sensor: &Isometry3, out_body: &mut Vec<[f32; 3]>) -> PrefilterStats {
+    pub(super) fn apply(&self, points_sensor: &[[f32; 3]], body_from_sensor: &Isometry3, out_body: &mut Vec<[f32; 3]>) -> PrefilterStats {
         let c = &self.config;
         out_body.clear();
         out_body.reserve(points_sensor.len());
@@ -120,7 +120,7 @@ fn voxel_key(p: &[f32; 3], inv: f32) -> (i32, i32, i32) {
 }
 
 /// Keeps the first point of each voxel `floor(p / voxel_m)`, in input order.
-pub fn voxel_downsample(points: &mut Vec<[f32; 3]>, voxel_m: f32) {
+pub(super) fn voxel_downsample(points: &mut Vec<[f32; 3]>, voxel_m: f32) {
     let inv = 1.0 / voxel_m;
     let mut seen: HashMap<(i32, i32, i32), ()> = HashMap::with_capacity(points.len());
     points.retain(|p| seen.insert(voxel_key(p, inv), ()).is_none());
@@ -128,7 +128,7 @@ pub fn voxel_downsample(points: &mut Vec<[f32; 3]>, voxel_m: f32) {
 
 /// Removes points with fewer than `min_neighbors` other points in their cube
 /// `floor(p / cell_m)` and the 26 cubes around it.
-pub fn remove_sparse_outliers(points: &mut Vec<[f32; 3]>, cell_m: f32, min_neighbors: u32) {
+pub(super) fn remove_sparse_outliers(points: &mut Vec<[f32; 3]>, cell_m: f32, min_neighbors: u32) {
     let inv = 1.0 / cell_m;
     let mut counts: HashMap<(i32, i32, i32), u32> = HashMap::with_capacity(points.len());
     for p in points.iter() {

@@ -260,7 +260,8 @@ fn enabled() -> bool {
 
 /// `ground.void_min_gap_deg` for the simulated spinning lidars (VLP-16, OS1-64): above the
 /// VLP-16's 2.0° ring spacing [deg].
-pub const SPINNING_LIDAR_VOID_MIN_GAP_DEG: f64 = 2.5;
+#[cfg(test)]
+pub(super) const SPINNING_LIDAR_VOID_MIN_GAP_DEG: f64 = 2.5;
 
 /// Geometry of one robot-centred, world-axis-aligned map.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

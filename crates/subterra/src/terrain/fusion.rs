@@ -24,10 +24,10 @@ use crate::frames::Isometry3;
 
 /// Tolerance on `|RᵀR - I|` and `|det R - 1|` of a pose from the caller (f32 quaternions
 /// converted to matrices stay within ~1e-7).
-pub const RIGID_TOLERANCE: f64 = 1e-5;
+pub(super) const RIGID_TOLERANCE: f64 = 1e-5;
 
 /// Checks that a pose is finite and rigid (a proper rotation), naming `argument` if not.
-pub fn check_rigid(argument: &str, pose: &Isometry3) -> Result<()> {
+pub(super) fn check_rigid(argument: &str, pose: &Isometry3) -> Result<()> {
     let r = pose.rotation;
     if !(r.is_finite() && pose.translation.is_finite()) {
         return Err(Error::input(argument, "contains NaN or infinity"));
@@ -42,7 +42,7 @@ pub fn check_rigid(argument: &str, pose: &Isometry3) -> Result<()> {
 
 /// One labelled scan of the window.
 #[derive(Debug, Clone, Default)]
-pub struct StoredScan {
+pub(super) struct StoredScan {
     /// Time of the scan [s].
     pub stamp_s: f64,
     /// Body position in the world at the scan [m].
@@ -59,14 +59,14 @@ pub struct StoredScan {
 
 impl StoredScan {
     /// Where the scan's point frame (its sensor, world axes) is relative to `body_world_now`.
-    pub fn offset_from(&self, body_world_now: DVec3) -> DVec3 {
+    pub(super) fn offset_from(&self, body_world_now: DVec3) -> DVec3 {
         self.body_world + self.sensor_level - body_world_now
     }
 }
 
 /// The window of recent scans, newest first.
 #[derive(Debug, Clone)]
-pub struct ScanWindow {
+pub(super) struct ScanWindow {
     config: FusionConfig,
     scans: VecDeque<StoredScan>,
     spare: Vec<StoredScan>,
@@ -74,17 +74,17 @@ pub struct ScanWindow {
 
 impl ScanWindow {
     /// An empty window; `config` is trusted (validated by the caller).
-    pub fn new(config: FusionConfig) -> Self {
+    pub(super) fn new(config: FusionConfig) -> Self {
         Self { config, scans: VecDeque::new(), spare: Vec::new() }
     }
 
     /// A scan record to fill, reusing the buffers of an evicted one.
-    pub fn blank(&mut self) -> StoredScan {
+    pub(super) fn blank(&mut self) -> StoredScan {
         self.spare.pop().unwrap_or_default()
     }
 
     /// Adds the newest scan and evicts what the window no longer holds.
-    pub fn push(&mut self, scan: StoredScan) {
+    pub(super) fn push(&mut self, scan: StoredScan) {
         let newest = scan.stamp_s;
         self.scans.push_front(scan);
         while self.scans.len() > self.config.max_scans || self.scans.back().is_some_and(|s| newest - s.stamp_s > self.config.window_s) {
@@ -95,35 +95,30 @@ impl ScanWindow {
     }
 
     /// Drops every scan.
-    pub fn clear(&mut self) {
+    pub(super) fn clear(&mut self) {
         self.spare.extend(self.scans.drain(..));
     }
 
     /// The newest scan.
-    pub fn newest(&self) -> Option<&StoredScan> {
+    pub(super) fn newest(&self) -> Option<&StoredScan> {
         self.scans.front()
     }
 
     /// Stamp of the newest scan.
-    pub fn newest_stamp(&self) -> Option<f64> {
+    pub(super) fn newest_stamp(&self) -> Option<f64> {
         self.scans.front().map(|s| s.stamp_s)
     }
 
     /// The scans fused at odometry `confidence` in [0, 1], newest first.
-    pub fn fused(&self, confidence: f64) -> impl Iterator<Item = &StoredScan> {
+    pub(super) fn fused(&self, confidence: f64) -> impl Iterator<Item = &StoredScan> {
         let newest = self.newest_stamp().unwrap_or(0.0);
         let span = confidence.clamp(0.0, 1.0) * self.config.window_s;
         self.scans.iter().enumerate().filter(move |(i, s)| *i == 0 || newest - s.stamp_s <= span).map(|(_, s)| s)
     }
 
     /// Scans held.
-    pub fn len(&self) -> usize {
+    pub(super) fn len(&self) -> usize {
         self.scans.len()
-    }
-
-    /// Whether no scan is held.
-    pub fn is_empty(&self) -> bool {
-        self.scans.is_empty()
     }
 }
 

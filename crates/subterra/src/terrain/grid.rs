@@ -317,7 +317,7 @@ impl RiskMap {
 }
 
 /// `φ(Φ⁻¹(α))/(1 - α)`, the CVaR of a standard normal at level α.
-pub fn cvar_factor(alpha: f64) -> Result<f64> {
+pub(super) fn cvar_factor(alpha: f64) -> Result<f64> {
     if !(alpha.is_finite() && alpha > 0.0 && alpha < 1.0) {
         return Err(Error::input("alpha", format!("must be in (0, 1), got {alpha}")));
     }
@@ -327,7 +327,7 @@ pub fn cvar_factor(alpha: f64) -> Result<f64> {
 }
 
 /// Φ⁻¹(p) for p in (0, 1): Acklam's rational approximation (relative error < 1.2e-9).
-pub fn inverse_normal_cdf(p: f64) -> f64 {
+pub(super) fn inverse_normal_cdf(p: f64) -> f64 {
     const A: [f64; 6] = [-3.969683028665376e1, 2.209460984245205e2, -2.759285104469687e2, 1.38357751867269e2, -3.066479806614716e1, 2.506628277459239];
     const B: [f64; 5] = [-5.447609879822406e1, 1.615858368580409e2, -1.556989798598866e2, 6.680131188771972e1, -1.328068155288572e1];
     const C: [f64; 6] = [-7.784894002430293e-3, -3.223964580411365e-1, -2.400758277161838, -2.549732539343734, 4.374664141464968, 2.938163982698783];

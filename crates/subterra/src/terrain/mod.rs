@@ -6,22 +6,22 @@
 //! and the combined risk with its uncertainty — a fine one from the newest scan and a
 //! coarse one from the fused window.
 //!
-//! [`cloud`] prefilters, [`ground`] labels ground by line fits, [`fusion`] keeps the window
-//! of scans, [`grid`] is the map geometry and its layers, [`risk`] computes the layers, and
-//! [`mapper`] wires them into [`TerrainMapper`].
+//! [`TerrainMapper`] prefilters the cloud ([`PrefilterConfig`]), labels ground by line fits
+//! ([`GroundConfig`]; alone: [`segment_ground`]), keeps the window of scans
+//! ([`FusionConfig`]) and computes the layers ([`RiskConfig`]) of each [`RiskMap`] (its
+//! geometry a [`GridGeometry`], its layers named by [`Layer`]).
 
-pub mod cloud;
-pub mod config;
-pub mod fusion;
-pub mod grid;
-pub mod ground;
-pub mod mapper;
-pub mod risk;
+mod cloud;
+mod config;
+mod fusion;
+mod grid;
+mod ground;
+mod mapper;
+mod risk;
 
-pub use cloud::{Prefilter, PrefilterStats};
+pub use cloud::PrefilterStats;
 pub use config::{FusionConfig, GroundConfig, LayerConfig, MapConfig, PrefilterConfig, Ramp, RiskConfig, RobotConfig, TerrainConfig, UncertaintyConfig};
-pub use fusion::{check_rigid, ScanWindow, StoredScan};
-pub use grid::{cvar_factor, CellIndex, GridGeometry, Layer, RiskMap, DEFAULT_LETHAL_RISK};
-pub use ground::{segment_ground, GroundLine, GroundSegmenter, PolarBin};
+pub use grid::{CellIndex, GridGeometry, Layer, RiskMap, DEFAULT_LETHAL_RISK};
+pub use ground::segment_ground;
 pub use mapper::{TerrainMapper, TerrainOutput, TerrainStats, TerrainTimings};
 pub use risk::MissionItem;

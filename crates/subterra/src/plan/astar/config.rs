@@ -14,9 +14,9 @@ use crate::terrain::CellIndex;
 
 /// Largest risk used in `-ln(1 - r)`: `1 - 2^-24`, the largest `f32` below 1. Keeps the hazard
 /// finite (at most `24·ln 2 = 16.64` per metre).
-pub const MAX_RISK: f64 = 1.0 - 1.0 / 16_777_216.0;
+pub(crate) const MAX_RISK: f64 = 1.0 - 1.0 / 16_777_216.0;
 /// Largest length weight λ accepted [1/m]; keeps every path cost finite.
-pub const MAX_LAMBDA_PER_M: f64 = 1.0e6;
+pub(crate) const MAX_LAMBDA_PER_M: f64 = 1.0e6;
 
 /// How a cell's risk becomes a cost per metre.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]

@@ -4,14 +4,15 @@
 #[cfg(doc)]
 use super::RiskAStar;
 
-/// Perception-aware prices for [`RiskAStar::plan_with`] ([`crate::plan::coverage`]): the
-/// moves that would enter an unknown cell before the sensor has seen it cost as if the cell's
-/// risk were `unseen_risk` instead of the planner's `unknown_risk` (in the cost and in the
-/// accumulated risk).
+/// Perception-aware prices for [`RiskAStar::plan_with`]
+/// ([`SensorCoverage`](crate::plan::SensorCoverage)): the moves that would enter an unknown
+/// cell before the sensor has seen it cost as if the cell's risk were `unseen_risk` instead of
+/// the planner's `unknown_risk` (in the cost and in the accumulated risk).
 #[derive(Debug, Clone, Copy)]
 pub struct EntryPrices<'a> {
     /// One byte per cell, row-major: bit `k` set when move `k` (E, N, W, S, NE, NW, SW, SE)
-    /// into the cell enters it unseen ([`crate::plan::coverage::unseen_entries`]).
+    /// into the cell enters it unseen (as the navigator marks them from its
+    /// [`SensorCoverage`](crate::plan::SensorCoverage)).
     pub unseen: &'a [u8],
     /// The risk of an unknown cell entered unseen, in [0, 1] [1/m].
     pub unseen_risk: f64,

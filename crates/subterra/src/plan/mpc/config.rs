@@ -58,7 +58,7 @@ pub struct MpcTracking {
     pub tangent_half_window_m: f64,
 }
 
-/// Weights of the cost (see the module notes of [`mpc`](super)).
+/// Weights of the cost (see [`MpcTracker`](super::MpcTracker) and `docs/mpc.md`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MpcWeights {

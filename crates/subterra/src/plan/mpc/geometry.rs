@@ -21,7 +21,7 @@
 
 use glam::DVec2;
 
-pub use crate::plan::grid::RiskGrid;
+use crate::plan::grid::RiskGrid;
 
 /// A convex polygon in the world frame, vertices counter-clockwise.
 #[derive(Debug, Clone, PartialEq)]
@@ -52,7 +52,7 @@ pub(crate) struct Footprint {
 
 impl Footprint {
     /// The `length x width` rectangle centred on `position` with body x along `heading_rad`.
-    pub fn at(position: DVec2, heading_rad: f64, length_m: f64, width_m: f64) -> Self {
+    pub(super) fn at(position: DVec2, heading_rad: f64, length_m: f64, width_m: f64) -> Self {
         let (sin, cos) = heading_rad.sin_cos();
         let heading = DVec2::new(cos, sin);
         let (hl, hw) = (0.5 * length_m, 0.5 * width_m);

@@ -42,20 +42,20 @@ pub(crate) struct CscBuilder {
 
 impl CscBuilder {
     /// Starts an empty matrix.
-    pub fn clear(&mut self) {
+    pub(super) fn clear(&mut self) {
         self.entries.clear();
         self.rows = 0;
     }
 
     /// Adds `value` at `(row, col)`.
     #[inline]
-    pub fn push(&mut self, row: usize, col: usize, value: f64) {
+    pub(super) fn push(&mut self, row: usize, col: usize, value: f64) {
         self.entries.push((row, col, value));
         self.rows = self.rows.max(row + 1);
     }
 
     /// The matrix with `rows x cols`, written into `out` (its buffers are reused).
-    pub fn finish(&mut self, rows: usize, cols: usize, out: &mut Csc) {
+    pub(super) fn finish(&mut self, rows: usize, cols: usize, out: &mut Csc) {
         out.rows = rows.max(self.rows);
         out.cols = cols;
         self.counts.clear();
@@ -155,12 +155,12 @@ const REFINEMENT_TOLERANCE: f64 = 1e-7;
 
 impl QpSolver {
     /// No solver yet; QPs stop after `max_iter` interior-point iterations.
-    pub fn new(max_iter: u32) -> Self {
+    pub(super) fn new(max_iter: u32) -> Self {
         Self { cache: Vec::new(), max_iter }
     }
 
     /// Forgets the solvers (the next QP builds a new one).
-    pub fn reset(&mut self) {
+    pub(super) fn reset(&mut self) {
         self.cache.clear();
     }
 
@@ -185,7 +185,7 @@ impl QpSolver {
 
     /// Solves `qp`, writing the primal solution into `z`. Returns the outcome and the
     /// interior-point iterations.
-    pub fn solve(&mut self, qp: &QpProblem, z: &mut Vec<f64>) -> (QpOutcome, u32) {
+    pub(super) fn solve(&mut self, qp: &QpProblem, z: &mut Vec<f64>) -> (QpOutcome, u32) {
         // The matching solver, moved to the front; else a new one there.
         match self.cache.iter().position(|(pattern, _)| pattern.matches(qp)) {
             Some(i) => {

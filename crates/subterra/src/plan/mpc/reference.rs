@@ -24,7 +24,7 @@ pub(crate) struct PathPoint {
 impl Reference {
     /// Replaces the path. `path` needs at least two points, all finite, and a positive
     /// length; consecutive repeated points are dropped. Errors name `reference_path`.
-    pub fn set(&mut self, path: &[DVec2]) -> Result<()> {
+    pub(super) fn set(&mut self, path: &[DVec2]) -> Result<()> {
         if path.len() < 2 {
             return Err(Error::input("reference_path", format!("needs at least 2 points, got {}", path.len())));
         }
@@ -54,13 +54,13 @@ impl Reference {
     }
 
     /// Total length [m].
-    pub fn length(&self) -> f64 {
+    pub(super) fn length(&self) -> f64 {
         self.s[self.s.len() - 1]
     }
 
     /// Arc length of the point of the path closest to `p` (the first such point along the
     /// path when several are equally close).
-    pub fn project(&self, p: DVec2) -> f64 {
+    pub(super) fn project(&self, p: DVec2) -> f64 {
         let mut best = (f64::INFINITY, 0.0);
         for i in 0..self.points.len() - 1 {
             let (a, b) = (self.points[i], self.points[i + 1]);
@@ -78,7 +78,7 @@ impl Reference {
     /// The point at arc length `s` (clamped to the path) with the direction of the chord
     /// from `s - half_window_m` to `s + half_window_m` (both clamped) as its tangent, so the
     /// tangent turns smoothly through a corner; `half_window_m = 0` gives the segment's own.
-    pub fn at_smoothed(&self, s: f64, half_window_m: f64) -> PathPoint {
+    pub(super) fn at_smoothed(&self, s: f64, half_window_m: f64) -> PathPoint {
         let here = self.at(s);
         if half_window_m <= 0.0 {
             return here;
@@ -91,7 +91,7 @@ impl Reference {
     }
 
     /// The point at arc length `s` (clamped to the path).
-    pub fn at(&self, s: f64) -> PathPoint {
+    pub(super) fn at(&self, s: f64) -> PathPoint {
         let segments = self.points.len() - 1;
         // Last segment whose start is at or before s.
         let i = self.s.partition_point(|&si| si <= s).saturating_sub(1).min(segments - 1);

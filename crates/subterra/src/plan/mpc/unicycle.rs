@@ -68,7 +68,7 @@ pub struct UnicycleInput {
 /// `∂x⁺/∂x` (4x4) and `∂x⁺/∂u` (4x2) of one step, rows and columns in `[x, y, θ, v]`,
 /// `[a, ω]` order.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StepJacobians {
+pub(crate) struct StepJacobians {
     /// `∂x⁺/∂x`.
     pub a: [[f64; 4]; 4],
     /// `∂x⁺/∂u`.
@@ -111,7 +111,7 @@ pub fn step(state: &UnicycleState, input: &UnicycleInput, dt_s: f64) -> Unicycle
 }
 
 /// One exact step and its Jacobians at `(state, input)`.
-pub fn step_with_jacobians(state: &UnicycleState, input: &UnicycleInput, dt_s: f64) -> (UnicycleState, StepJacobians) {
+pub(crate) fn step_with_jacobians(state: &UnicycleState, input: &UnicycleInput, dt_s: f64) -> (UnicycleState, StepJacobians) {
     let t = dt_s;
     let (v, a, w) = (state.speed_m_s, input.accel_m_s2, input.yaw_rate_rad_s);
     let [c0, c1, c2, s0, s1, s2] = moments(w * t);

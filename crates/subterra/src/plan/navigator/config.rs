@@ -213,17 +213,17 @@ impl Default for NavigatorSettings {
 
 /// Largest search or memory range accepted [m]: the navigator works on a local map (20 m by
 /// default); searches and memories kilometres wide are a mistake and would take seconds a step.
-pub const MAX_RANGE_SETTING_M: f64 = 100.0;
+pub(crate) const MAX_RANGE_SETTING_M: f64 = 100.0;
 /// Largest inflation, growth or sweep margin accepted [m]: each lethal cell stamps a disc of
 /// this radius; metres of margin close every passage of a mine anyway.
-pub const MAX_MORPHOLOGY_M: f64 = 2.0;
+pub(crate) const MAX_MORPHOLOGY_M: f64 = 2.0;
 
 /// Largest `turn_room_price` accepted [1]: at 100 a metre hugging a wall costs as much as
 /// 100 m in the open; anything above that is a wall of its own.
-pub const MAX_TURN_ROOM_PRICE: f64 = 100.0;
+pub(super) const MAX_TURN_ROOM_PRICE: f64 = 100.0;
 
 /// Most footprint replans accepted (`footprint_replans`): each is a whole A* search.
-pub const MAX_FOOTPRINT_REPLANS: u32 = 16;
+pub(super) const MAX_FOOTPRINT_REPLANS: u32 = 16;
 
 impl NavigatorSettings {
     /// Checks every field, naming it (`navigator.<field>`).

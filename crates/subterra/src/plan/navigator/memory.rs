@@ -18,7 +18,7 @@ use crate::terrain::GridGeometry;
 /// A cell of the world's grid at the map's resolution `res`: it covers
 /// `[x·res, (x+1)·res) x [y·res, (y+1)·res)` (the terrain map's global cells).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct WorldCell {
+pub(crate) struct WorldCell {
     /// Global column (along world x).
     pub x: i64,
     /// Global row (along world y).
@@ -27,17 +27,17 @@ pub struct WorldCell {
 
 impl WorldCell {
     /// The world cell of flat index `flat` of a map of geometry `g`.
-    pub fn of_flat(g: &GridGeometry, flat: usize) -> Self {
+    pub(crate) fn of_flat(g: &GridGeometry, flat: usize) -> Self {
         Self { x: g.origin_cell.0 + (flat % g.nx) as i64, y: g.origin_cell.1 + (flat / g.nx) as i64 }
     }
 
     /// The world cell holding the world position `p` at resolution `res`.
-    pub fn containing(p: DVec2, res: f64) -> Self {
+    pub(crate) fn containing(p: DVec2, res: f64) -> Self {
         Self { x: (p.x / res).floor() as i64, y: (p.y / res).floor() as i64 }
     }
 
     /// Its flat index on a map of geometry `g`, if the map holds it.
-    pub fn flat_on(self, g: &GridGeometry) -> Option<usize> {
+    pub(crate) fn flat_on(self, g: &GridGeometry) -> Option<usize> {
         let (ix, iy) = (self.x - g.origin_cell.0, self.y - g.origin_cell.1);
         (ix >= 0 && iy >= 0 && ix < g.nx as i64 && iy < g.ny as i64).then(|| iy as usize * g.nx + ix as usize)
     }
@@ -103,22 +103,22 @@ pub(crate) struct HazardMemory {
 
 impl HazardMemory {
     /// Cells remembered.
-    pub fn len(&self) -> usize {
+    pub(super) fn len(&self) -> usize {
         self.cells.len()
     }
 
     /// The remembered rating of `cell`.
-    pub fn get(&self, cell: WorldCell) -> Option<f32> {
+    pub(super) fn get(&self, cell: WorldCell) -> Option<f32> {
         self.cells.get(&cell).map(|h| h.risk)
     }
 
     /// Whether `cell` is remembered as a void.
-    pub fn is_void(&self, cell: WorldCell) -> bool {
+    pub(super) fn is_void(&self, cell: WorldCell) -> bool {
         self.cells.get(&cell).is_some_and(|h| h.void)
     }
 
     /// The remembered cells the map rated a void at least once.
-    pub fn voids(&self) -> impl Iterator<Item = WorldCell> + '_ {
+    pub(super) fn voids(&self) -> impl Iterator<Item = WorldCell> + '_ {
         self.cells.iter().filter(|(_, h)| h.void).map(|(&cell, _)| cell)
     }
 
@@ -129,7 +129,7 @@ impl HazardMemory {
     /// lethal cell within `record_m` (its newest rating, and whether `negative` is lethal
     /// there: a void); then raises each remembered cell on the grid to its rating (unobserved
     /// ones set to it).
-    pub fn update(&mut self, risk: &mut [f32], ground_points: &[f32], negative: &[f32], g: &GridGeometry, position: DVec2, rules: &HazardRules) {
+    pub(super) fn update(&mut self, risk: &mut [f32], ground_points: &[f32], negative: &[f32], g: &GridGeometry, position: DVec2, rules: &HazardRules) {
         let here = in_cells(position, g.resolution_m);
         let range = rules.range_m / g.resolution_m;
         self.cells.retain(|&cell, _| {
@@ -154,7 +154,7 @@ impl HazardMemory {
     }
 
     /// Forgets the cells whose centres are farther than `keep_m` from `position`.
-    pub fn forget_beyond(&mut self, position: DVec2, resolution_m: f64, keep_m: f64) {
+    pub(super) fn forget_beyond(&mut self, position: DVec2, resolution_m: f64, keep_m: f64) {
         forget_beyond(&mut self.cells, position, resolution_m, keep_m);
     }
 }
@@ -169,7 +169,7 @@ pub(crate) struct NearMemory {
 
 impl NearMemory {
     /// The remembered rating of `cell`.
-    pub fn get(&self, cell: WorldCell) -> Option<f32> {
+    pub(super) fn get(&self, cell: WorldCell) -> Option<f32> {
         self.cells.get(&cell).map(|&(r, _)| r)
     }
 
@@ -180,7 +180,7 @@ impl NearMemory {
     /// at least `blind_m` from `position`. Inside the sensor's blind ring a rating without a
     /// point of its own is a ground line drawn on into ground the sensor cannot see.
     #[allow(clippy::too_many_arguments)]
-    pub fn record(&mut self, risk: &[f32], count: &[f32], g: &GridGeometry, position: DVec2, radius_m: f64, blind_m: f64, highest: bool) {
+    pub(super) fn record(&mut self, risk: &[f32], count: &[f32], g: &GridGeometry, position: DVec2, radius_m: f64, blind_m: f64, highest: bool) {
         let radius = radius_m / g.resolution_m;
         let blind2 = (blind_m / g.resolution_m).powi(2);
         let here = in_cells(position, g.resolution_m);
@@ -195,7 +195,7 @@ impl NearMemory {
     }
 
     /// Whether `cell` is held below `lethal` and was shown to be ground ([`Self::record`]).
-    pub fn shown_below_lethal(&self, cell: WorldCell, lethal: f32) -> bool {
+    pub(super) fn shown_below_lethal(&self, cell: WorldCell, lethal: f32) -> bool {
         self.cells.get(&cell).is_some_and(|&(r, shown)| shown && r < lethal)
     }
 
@@ -203,14 +203,14 @@ impl NearMemory {
     /// the hazard memory, which keeps only patches (a lone cell rated lethal once, a noise
     /// speckle, would otherwise stay an obstacle beside the robot for as long as it is in the
     /// blind ring).
-    pub fn below_lethal(&self, cell: WorldCell, lethal: f32) -> Option<f32> {
+    pub(super) fn below_lethal(&self, cell: WorldCell, lethal: f32) -> Option<f32> {
         self.get(cell).filter(|&r| r < lethal)
     }
 
     /// Each cell of `risk` still unobserved (NaN) within `radius_m` of `position` whose
     /// remembered rating is above `above` (the planner's price of the unseen) and below
     /// `lethal` takes it ([`NearMemory::below_lethal`]).
-    pub fn recall(&self, risk: &mut [f32], g: &GridGeometry, position: DVec2, radius_m: f64, above: f32, lethal: f32) {
+    pub(super) fn recall(&self, risk: &mut [f32], g: &GridGeometry, position: DVec2, radius_m: f64, above: f32, lethal: f32) {
         for_cells_within(g, position, radius_m, |cell, c| {
             if risk[c].is_nan() {
                 if let Some(r) = self.below_lethal(cell, lethal).filter(|&r| r > above) {
@@ -221,7 +221,7 @@ impl NearMemory {
     }
 
     /// Forgets the cells whose centres are farther than `keep_m` from `position`.
-    pub fn forget_beyond(&mut self, position: DVec2, resolution_m: f64, keep_m: f64) {
+    pub(super) fn forget_beyond(&mut self, position: DVec2, resolution_m: f64, keep_m: f64) {
         forget_beyond(&mut self.cells, position, resolution_m, keep_m);
     }
 }
@@ -235,12 +235,12 @@ pub(crate) struct DrivenMemory {
 
 impl DrivenMemory {
     /// Whether the robot has stood on `cell`.
-    pub fn contains(&self, cell: WorldCell) -> bool {
+    pub(super) fn contains(&self, cell: WorldCell) -> bool {
         self.cells.contains(&cell)
     }
 
     /// Cells remembered.
-    pub fn len(&self) -> usize {
+    pub(super) fn len(&self) -> usize {
         self.cells.len()
     }
 
@@ -248,7 +248,7 @@ impl DrivenMemory {
     /// length along `heading_rad` (those whose centres lie inside it shrunk by half a cell on
     /// every side: cells wholly under it, not a rim cell half over a drop), and forgets those
     /// farther than `range_m` from `position`.
-    pub fn stamp(&mut self, position: DVec2, heading_rad: f64, length_m: f64, width_m: f64, resolution_m: f64, range_m: f64) {
+    pub(super) fn stamp(&mut self, position: DVec2, heading_rad: f64, length_m: f64, width_m: f64, resolution_m: f64, range_m: f64) {
         let here = in_cells(position, resolution_m);
         let range = range_m / resolution_m;
         self.cells.retain(|&cell| cell.distance2(here) <= range * range);

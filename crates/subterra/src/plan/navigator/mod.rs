@@ -107,8 +107,7 @@ use std::time::Instant;
 
 use glam::DVec2;
 
-pub use config::{NavigatorConfig, NavigatorSettings, MAX_MORPHOLOGY_M, MAX_RANGE_SETTING_M, UNSEEN_RISK_PER_M};
-pub use memory::WorldCell;
+pub use config::{NavigatorConfig, NavigatorSettings, UNSEEN_RISK_PER_M};
 pub use tick::{NavigatorInput, NavigatorOutput, NavigatorTimings};
 
 use self::memory::{DrivenMemory, HazardMemory, NearMemory};

@@ -40,7 +40,7 @@ pub(crate) enum Blocked {
 
 impl Blocked {
     /// In words, for the event log.
-    pub fn describe(&self) -> String {
+    pub(super) fn describe(&self) -> String {
         match *self {
             Blocked::Risky { at, risk } => format!("the footprint would sweep a cell of risk {risk:.2} at ({:.2}, {:.2})", at.x, at.y),
             Blocked::Unknown { at } => format!("the footprint would sweep an unknown cell at ({:.2}, {:.2})", at.x, at.y),
@@ -132,12 +132,12 @@ impl SafetyView<'_> {
     /// The first cell that may not be swept among those the footprint (plus the margin) would
     /// newly cover at any of `poses` (`(position, heading)`) starting from `from`: the cells it
     /// covers at `from` already are where the robot is, and a motion away from them is allowed.
-    pub fn sweep(&self, from: (DVec2, f64), poses: impl IntoIterator<Item = (DVec2, f64)>) -> Option<Blocked> {
+    pub(super) fn sweep(&self, from: (DVec2, f64), poses: impl IntoIterator<Item = (DVec2, f64)>) -> Option<Blocked> {
         self.first_blocked(from, poses).map(|(_, blocked)| blocked)
     }
 
     /// [`SafetyView::sweep`], with the index among `poses` of the first pose that is blocked.
-    pub fn first_blocked(&self, from: (DVec2, f64), poses: impl IntoIterator<Item = (DVec2, f64)>) -> Option<(usize, Blocked)> {
+    pub(super) fn first_blocked(&self, from: (DVec2, f64), poses: impl IntoIterator<Item = (DVec2, f64)>) -> Option<(usize, Blocked)> {
         let mut here = Vec::new();
         self.footprint_cells(from.0, from.1, |cell| here.push(cell));
         here.sort_unstable();
@@ -157,7 +157,7 @@ impl SafetyView<'_> {
 
     /// The poses of a turn in place at `position` from `from_rad` by `angle_rad` (signed), so
     /// spaced that no corner moves more than half a cell between two.
-    pub fn turn_poses(&self, position: DVec2, from_rad: f64, angle_rad: f64) -> impl Iterator<Item = (DVec2, f64)> {
+    pub(super) fn turn_poses(&self, position: DVec2, from_rad: f64, angle_rad: f64) -> impl Iterator<Item = (DVec2, f64)> {
         let reach = 0.5 * self.robot.length_m.hypot(self.robot.width_m) + self.margin_m;
         let step = 0.5 * self.grid.resolution_m() / reach;
         let n = (angle_rad.abs() / step).ceil().max(1.0) as usize;

@@ -137,7 +137,7 @@ const NO_BIN: u32 = u32::MAX;
 
 /// One accepted ground line of a sector.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GroundLine {
+pub(super) struct GroundLine {
     /// Slope dz/dr [1].
     pub m: f64,
     /// Height at r = 0 [m].
@@ -154,7 +154,7 @@ pub struct GroundLine {
 
 /// What the segmentation knows about one polar bin (see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PolarBin {
+pub(super) struct PolarBin {
     /// Whether an accepted line covers the bin and the queried radius lies between the
     /// line's first and last prototype.
     pub covered: bool,
@@ -240,7 +240,7 @@ impl BinLine {
 /// Ground segmentation with reusable buffers. The config is trusted once [`new`](Self::new)
 /// has validated it.
 #[derive(Debug, Clone)]
-pub struct GroundSegmenter {
+pub(super) struct GroundSegmenter {
     config: GroundConfig,
     bins: usize,
     /// Per point: flat polar bin `s·B + k`, or [`NO_BIN`].
@@ -277,7 +277,7 @@ pub struct GroundSegmenter {
 
 impl GroundSegmenter {
     /// Validates `config` and sizes the polar tables.
-    pub fn new(config: GroundConfig) -> Result<Self> {
+    pub(super) fn new(config: GroundConfig) -> Result<Self> {
         config.validate()?;
         let bins = config.bins();
         let polar = config.sectors as usize * bins;
@@ -306,14 +306,9 @@ impl GroundSegmenter {
         })
     }
 
-    /// The config.
-    pub fn config(&self) -> &GroundConfig {
-        &self.config
-    }
-
     /// Segments `points` (sensor-centred, z up; see the module doc) and writes each point's
     /// height above its ground line to `heights_out` (NaN for points without a bin).
-    pub fn segment(&mut self, points: &[[f32; 3]], sensor_height_m: f64, heights_out: &mut Vec<f32>) -> Result<()> {
+    pub(super) fn segment(&mut self, points: &[[f32; 3]], sensor_height_m: f64, heights_out: &mut Vec<f32>) -> Result<()> {
         if !sensor_height_m.is_finite() {
             return Err(Error::input("sensor_height_m", format!("must be finite, got {sensor_height_m}")));
         }
@@ -360,7 +355,7 @@ impl GroundSegmenter {
     /// Two positions `(x, y)` (sensor-centred, level) on the centre ray of every void bin of
     /// the last segmentation (at a quarter and three quarters of the bin), into `out`: where
     /// the map records that the floor was found missing.
-    pub fn void_samples(&self, out: &mut Vec<[f32; 2]>) {
+    pub(super) fn void_samples(&self, out: &mut Vec<[f32; 2]>) {
         out.clear();
         let bins = self.bins;
         let sectors = self.config.sectors as usize;
@@ -382,23 +377,16 @@ impl GroundSegmenter {
 
     /// Whether a height above ground (from [`segment`](Self::segment)) is ground.
     #[inline]
-    pub fn is_ground(&self, height_above_ground_m: f32) -> bool {
+    pub(super) fn is_ground(&self, height_above_ground_m: f32) -> bool {
         height_above_ground_m.abs() <= self.config.max_dist_to_line_m as f32
-    }
-
-    /// The accepted lines of `sector`, in order of radius.
-    pub fn lines(&self, sector: usize) -> &[GroundLine] {
-        match self.sector_lines.get(sector) {
-            Some(&(a, b)) => &self.lines[a as usize..b as usize],
-            None => &[],
-        }
     }
 
     /// What the last segmentation knows at the sensor-centred horizontal position
     /// `(x, y)` [m]; `None` outside the polar range. Uses a fast `atan2` (error < 2e-5 rad),
     /// so a position within that of a sector boundary may be given the neighbouring sector.
+    #[cfg(test)]
     #[inline]
-    pub fn query(&self, x: f64, y: f64) -> Option<PolarBin> {
+    pub(super) fn query(&self, x: f64, y: f64) -> Option<PolarBin> {
         let r = (x * x + y * y).sqrt();
         if r.partial_cmp(&self.config.max_range_m).is_none_or(Ordering::is_ge) {
             return None;
@@ -447,8 +435,9 @@ impl GroundSegmenter {
 }
 
 /// Labels each point of `points` (row-major `(N, 3)`, sensor-centred, z up) ground (`true`)
-/// or obstacle (`false`) by the algorithm of the [module doc](self); `sensor_height_m` is
-/// the origin's height above the ground near it [m].
+/// or obstacle (`false`) by line fits in cylindrical coordinates (Himmelsbach et al., IEEE IV
+/// 2010; set out exactly in the notes of `terrain/ground/mod.rs`); `sensor_height_m` is the
+/// origin's height above the ground near it [m].
 pub fn segment_ground(points: &[f32], config: &GroundConfig, sensor_height_m: f64) -> Result<Vec<bool>> {
     let points = as_points("points", points)?;
     let mut segmenter = GroundSegmenter::new(*config)?;

@@ -14,7 +14,7 @@ impl MapBuilder {
     /// sensor, world frame): `out` gets the non-empty cells. `sensor_above_body_m` lifts the
     /// sensor-centred heights to the scan's body origin. `voids`: the scan's void samples
     /// (sensor-centred `(x, y)`, [`GroundSegmenter::void_samples`]), counted per cell.
-    pub fn bin_scan(&mut self, points: &[[f32; 3]], heights: &[f32], voids: &[[f32; 2]], origin_world: DVec3, sensor_above_body_m: f64, out: &mut Vec<BinnedCell>) {
+    pub(crate) fn bin_scan(&mut self, points: &[[f32; 3]], heights: &[f32], voids: &[[f32; 2]], origin_world: DVec3, sensor_above_body_m: f64, out: &mut Vec<BinnedCell>) {
         let g = GridGeometry::centred_on(&self.scratch_map, origin_world.x, origin_world.y);
         let n = g.cells();
         if self.scratch.len() != n {

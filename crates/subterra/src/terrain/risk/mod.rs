@@ -88,7 +88,7 @@ pub(crate) struct ScanSource<'a> {
 /// One non-empty cell of a scan binned once when it arrived: its global cell index and the
 /// sums of its points, heights relative to that scan's body origin.
 #[derive(Debug, Clone, Copy)]
-pub struct BinnedCell {
+pub(super) struct BinnedCell {
     /// Global cell index along x (`floor(x_world / res)`).
     pub gx: i64,
     /// Global cell index along y.
@@ -190,13 +190,13 @@ pub(crate) struct MapBuilder {
 impl MapBuilder {
     /// The scratch map the scans of one fusion window are binned into: the map grown by the
     /// distance the robot can drive within the window (plus 1 m of slack for odometry).
-    pub fn scratch_map(map: &MapConfig, robot: &RobotConfig, window_s: f64) -> MapConfig {
+    pub(super) fn scratch_map(map: &MapConfig, robot: &RobotConfig, window_s: f64) -> MapConfig {
         let margin = robot.max_speed_m_s * window_s + 1.0;
         MapConfig { size_x_m: map.size_x_m + 2.0 * margin, size_y_m: map.size_y_m + 2.0 * margin, ..*map }
     }
 
     /// Configs are trusted (validated by the mapper).
-    pub fn new(map: MapConfig, robot: RobotConfig, layers: LayerConfig, risk: RiskConfig, uncertainty: UncertaintyConfig, ground_threshold: f64, window_s: f64) -> Self {
+    pub(super) fn new(map: MapConfig, robot: RobotConfig, layers: LayerConfig, risk: RiskConfig, uncertainty: UncertaintyConfig, ground_threshold: f64, window_s: f64) -> Self {
         let scratch_map = Self::scratch_map(&map, &robot, window_s);
         let res = map.resolution_m;
         let odd_half = |size: f64| ((size / res).round() as usize).max(1) / 2;
@@ -228,7 +228,7 @@ impl MapBuilder {
     }
 
     /// The map centred on `body_world` from `sources`, with the newest scan's polar ground.
-    pub fn build(
+    pub(super) fn build(
         &mut self,
         body_world: DVec3,
         stamp_s: f64,
