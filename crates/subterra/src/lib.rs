@@ -17,6 +17,9 @@
 //! and every random stream is seeded by the caller.
 
 #![warn(missing_docs)]
+// `pub` is the public API: an item the crate's users cannot reach is `pub(crate)` or narrower,
+// and every type reachable through the API can be named (re-exported at its module's root).
+#![warn(unreachable_pub, unnameable_types)]
 
 pub mod apf;
 pub mod camera;
