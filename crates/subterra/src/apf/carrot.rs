@@ -1,24 +1,7 @@
 //! A carrot ahead along a path of waypoints: the goal a potential field pulls toward when
 //! the way to the real goal is long and winding (subterra; the paper flies to one goal).
 //!
-//! A potential field only sees what is near. Pulled straight at a goal 30 m down a winding
-//! tunnel it flies into the first bend's wall; pulled toward a point a little ahead along a
-//! path that keeps clear of the walls (the tunnel world's waypoint regions, or a user's
-//! path), it only has to deal with what is near. This is pure pursuit's lookahead point
-//! (Coulter 1992, "Implementation of the Pure Pursuit Path Tracking Algorithm", CMU-RI-TR-92-01).
-//!
-//! In: the path (at least two points, world frame) once, then the robot's position per
-//! step. Out: the carrot, the remaining distance along the path and the progress made.
-//!
-//! # One update, exactly
-//! 1. **Project.** The robot's position is projected onto the path, looking only at arc
-//!    lengths within `[s - BACK_WINDOW_M, s + lookahead_m + AHEAD_WINDOW_M]` of the progress `s`
-//!    so far (the path's later legs, behind a wall, are not jumped to); the nearest
-//!    point's arc length becomes the progress if it is larger (the progress never goes back).
-//! 2. **Carrot.** The point of the path `lookahead_m` beyond the progress (the path's last
-//!    point once that is past its end).
-//! 3. **Remaining.** The arc length from the progress to the end, plus the robot's
-//!    distance to its projection.
+//! Documented on [`PathFollower`].
 
 use glam::DVec3;
 
@@ -43,7 +26,26 @@ pub struct CarrotOutput {
     pub remaining_m: f64,
 }
 
-/// A path with its progress (module docs).
+/// A path with its progress.
+///
+/// A potential field only sees what is near. Pulled straight at a goal 30 m down a winding
+/// tunnel it flies into the first bend's wall; pulled toward a point a little ahead along a
+/// path that keeps clear of the walls (the tunnel world's waypoint regions, or a user's
+/// path), it only has to deal with what is near. This is pure pursuit's lookahead point
+/// (Coulter 1992, "Implementation of the Pure Pursuit Path Tracking Algorithm", CMU-RI-TR-92-01).
+///
+/// In: the path (at least two points, world frame) once, then the robot's position per
+/// step. Out: the carrot, the remaining distance along the path and the progress made.
+///
+/// # One update, exactly
+/// 1. **Project.** The robot's position is projected onto the path, looking only at arc
+///    lengths within `[s - BACK_WINDOW_M, s + lookahead_m + AHEAD_WINDOW_M]` of the progress `s`
+///    so far (the path's later legs, behind a wall, are not jumped to); the nearest
+///    point's arc length becomes the progress if it is larger (the progress never goes back).
+/// 2. **Carrot.** The point of the path `lookahead_m` beyond the progress (the path's last
+///    point once that is past its end).
+/// 3. **Remaining.** The arc length from the progress to the end, plus the robot's
+///    distance to its projection.
 #[derive(Debug, Clone)]
 pub struct PathFollower {
     points: Vec<DVec3>,
@@ -108,7 +110,7 @@ impl PathFollower {
         self.points[i] + f * (self.points[i + 1] - self.points[i])
     }
 
-    /// Steps 1-3 for the robot at `position_world` (module docs).
+    /// Steps 1-3 for the robot at `position_world`.
     pub fn update(&mut self, position_world: DVec3) -> Result<CarrotOutput> {
         if !position_world.is_finite() {
             return Err(Error::input("position_world", format!("must be finite, got {position_world}")));

@@ -1,69 +1,7 @@
 //! Escape from local minima of the potential field by boundary following (subterra; the
 //! paper's controller has none).
 //!
-//! A potential field stops where the goal's pull and the obstacles' push cancel: a pole
-//! straight ahead of the goal, a wall across the way, the inside of a U. [`Escape`] watches
-//! the progress toward the goal and, once it has stalled near a known obstacle, replaces
-//! the goal by a target on the obstacle's boundary, so that the robot goes round it; it
-//! lets go as soon as the robot is clearly closer to the goal than where it got stuck.
-//! This is the leave rule of the Bug family of planners (Lumelsky and Stepanov 1987,
-//! "Path-planning strategies for a point mobile automaton moving amidst unknown obstacles
-//! of arbitrary shape"): follow the boundary from the hit point until the distance to the
-//! goal is below the hit point's.
-//!
-//! In, per control step: the time, the odometry pose `world_from_body`, the goal (or a
-//! path's carrot) in the world frame, the remaining distance to the goal along the way,
-//! the obstacle points the robot remembers in the world frame (the obstacle memory's
-//! cells) and the repulsive force in the body frame. Out: the goal to attract toward, in
-//! the body frame — the real goal, or the boundary target while escaping — the repulsion
-//! the command should use, and the mode.
-//!
-//! # One step, exactly
-//! 1. **Progress.** When the remaining distance falls `progress_m` below its reference,
-//!    the reference becomes the remaining distance and its time the step's time. A gap of
-//!    more than 0.5 s since the last step (the robot was not stepped: it hovered without
-//!    depth or odometry) moves the reference's time on by the gap: time not flown is not a
-//!    stall.
-//! 2. **Engage** (following off): when the reference is `stall_s` old and an obstacle is
-//!    known — a remembered point within `follow_range_m` horizontally and `z_band_m`
-//!    vertically, or a repulsive force — following starts: the hit distance is the
-//!    remaining distance, the standoff is the horizontal distance to the nearest point
-//!    clamped to `[min_standoff_m, max_standoff_m]`, and the side is the one whose tangent
-//!    points more along the sum of the unit vectors toward the goal and along the robot's
-//!    heading (the boundary on the robot's left, i.e. counter-clockwise round it, on a tie,
-//!    as in front of a pole straight ahead). Facing the goal, that is the side toward the
-//!    goal; turned away by the field, as a robot usually is after `stall_s` in front of an
-//!    obstacle, it is the way round the robot faces: a forward-only robot that turns about
-//!    first spends seconds while the field pushes it around (tunnel seed 1, a cable).
-//! 3. **Release** (following on): when the remaining distance is `release_m` below the
-//!    hit distance; the progress reference restarts from there. The side flips when it
-//!    leads away — the remaining distance `max_detour_m` above where this side began (a
-//!    tunnel wall followed back up the tunnel, a long wall's far end) — or after
-//!    `side_timeout_s` on it; after `max_flips` flips following stops and the stall must
-//!    be detected afresh.
-//! 4. **Follow.** With `n` the horizontal unit vector from the nearest known point to
-//!    the robot (the last one kept when none is in range; else the repulsion's direction;
-//!    else away from the goal) at distance `d`, and `t = side·(ẑ × n)` the tangent, the
-//!    target lies 1 m along `t + clamp(gain·(standoff - d), -1, 1)·n` (normalised), at the
-//!    goal's height difference capped to that metre: the robot circles the boundary at the
-//!    standoff. When the nearest point jumps to another obstacle (a tube's far wall) the
-//!    tangent that keeps the direction of travel is taken, and the side with it. The repulsion still acts, capped at `follow_repulsion_ratio` times the
-//!    attraction's full strength `ρ_r·ξ`: near an obstacle the field's push is what held
-//!    the robot in the minimum (0.3-0.7 N against a 0.2 N pull, so the forward speed of
-//!    eq. 10 is 0), and the boundary term keeps the distance instead. A jump counts as a
-//!    reversal only when the new tangent points back by more than 120°; when it is within
-//!    60° of square to the heading — a wall ahead, in a concave corner or beyond the pole
-//!    followed — the way round turns along it toward the goal when that way keeps clear
-//!    (step 5; the side may change), else along it on the same side (out of a U).
-//! 5. **A clear way** (for step 4's turn toward the goal): along the next 0.5 m the
-//!    direction keeps every known point within the z band at least `min(d₀,
-//!    lookahead_keep_m)` away, `d₀` being the nearest one's distance now — a collision
-//!    margin, not the standoff (between the poles of a hall, 1.2 m apart, no direction
-//!    keeps 0.55 m from both). The followed direction itself is not turned by this check:
-//!    turning it away from every point it would close in on makes it turn the robot about
-//!    wherever points stand on both sides (a tunnel's tight places), and the wall ahead in
-//!    a concave corner that such a turn was meant for is already avoided by not turning
-//!    toward the goal into it (step 4). docs/flight.md has the measured comparison.
+//! Documented on [`Escape`].
 
 use glam::DVec3;
 
@@ -116,13 +54,77 @@ pub struct EscapeOutput {
     /// The boundary point followed, in the world frame [m] (while following).
     pub boundary_world: Option<DVec3>,
     /// The repulsion the command should use, body frame [N]: the one given, or while
-    /// following, that one capped (module docs, step 4).
+    /// following, that one capped ([`Escape`], step 4).
     pub repulsive_body: DVec3,
     /// How many times following has engaged so far.
     pub engagements: u32,
 }
 
-/// The escape state machine (module docs).
+/// The escape state machine.
+///
+/// A potential field stops where the goal's pull and the obstacles' push cancel: a pole
+/// straight ahead of the goal, a wall across the way, the inside of a U. [`Escape`] watches
+/// the progress toward the goal and, once it has stalled near a known obstacle, replaces
+/// the goal by a target on the obstacle's boundary, so that the robot goes round it; it
+/// lets go as soon as the robot is clearly closer to the goal than where it got stuck.
+/// This is the leave rule of the Bug family of planners (Lumelsky and Stepanov 1987,
+/// "Path-planning strategies for a point mobile automaton moving amidst unknown obstacles
+/// of arbitrary shape"): follow the boundary from the hit point until the distance to the
+/// goal is below the hit point's.
+///
+/// In, per control step: the time, the odometry pose `world_from_body`, the goal (or a
+/// path's carrot) in the world frame, the remaining distance to the goal along the way,
+/// the obstacle points the robot remembers in the world frame (the obstacle memory's
+/// cells) and the repulsive force in the body frame. Out: the goal to attract toward, in
+/// the body frame — the real goal, or the boundary target while escaping — the repulsion
+/// the command should use, and the mode.
+///
+/// # One step, exactly
+/// 1. **Progress.** When the remaining distance falls `progress_m` below its reference,
+///    the reference becomes the remaining distance and its time the step's time. A gap of
+///    more than 0.5 s since the last step (the robot was not stepped: it hovered without
+///    depth or odometry) moves the reference's time on by the gap: time not flown is not a
+///    stall.
+/// 2. **Engage** (following off): when the reference is `stall_s` old and an obstacle is
+///    known — a remembered point within `follow_range_m` horizontally and `z_band_m`
+///    vertically, or a repulsive force — following starts: the hit distance is the
+///    remaining distance, the standoff is the horizontal distance to the nearest point
+///    clamped to `[min_standoff_m, max_standoff_m]`, and the side is the one whose tangent
+///    points more along the sum of the unit vectors toward the goal and along the robot's
+///    heading (the boundary on the robot's left, i.e. counter-clockwise round it, on a tie,
+///    as in front of a pole straight ahead). Facing the goal, that is the side toward the
+///    goal; turned away by the field, as a robot usually is after `stall_s` in front of an
+///    obstacle, it is the way round the robot faces: a forward-only robot that turns about
+///    first spends seconds while the field pushes it around (tunnel seed 1, a cable).
+/// 3. **Release** (following on): when the remaining distance is `release_m` below the
+///    hit distance; the progress reference restarts from there. The side flips when it
+///    leads away — the remaining distance `max_detour_m` above where this side began (a
+///    tunnel wall followed back up the tunnel, a long wall's far end) — or after
+///    `side_timeout_s` on it; after `max_flips` flips following stops and the stall must
+///    be detected afresh.
+/// 4. **Follow.** With `n` the horizontal unit vector from the nearest known point to
+///    the robot (the last one kept when none is in range; else the repulsion's direction;
+///    else away from the goal) at distance `d`, and `t = side·(ẑ × n)` the tangent, the
+///    target lies 1 m along `t + clamp(gain·(standoff - d), -1, 1)·n` (normalised), at the
+///    goal's height difference capped to that metre: the robot circles the boundary at the
+///    standoff. When the nearest point jumps to another obstacle (a tube's far wall) the
+///    tangent that keeps the direction of travel is taken, and the side with it. The repulsion still acts, capped at `follow_repulsion_ratio` times the
+///    attraction's full strength `ρ_r·ξ`: near an obstacle the field's push is what held
+///    the robot in the minimum (0.3-0.7 N against a 0.2 N pull, so the forward speed of
+///    eq. 10 is 0), and the boundary term keeps the distance instead. A jump counts as a
+///    reversal only when the new tangent points back by more than 120°; when it is within
+///    60° of square to the heading — a wall ahead, in a concave corner or beyond the pole
+///    followed — the way round turns along it toward the goal when that way keeps clear
+///    (step 5; the side may change), else along it on the same side (out of a U).
+/// 5. **A clear way** (for step 4's turn toward the goal): along the next 0.5 m the
+///    direction keeps every known point within the z band at least `min(d₀,
+///    lookahead_keep_m)` away, `d₀` being the nearest one's distance now — a collision
+///    margin, not the standoff (between the poles of a hall, 1.2 m apart, no direction
+///    keeps 0.55 m from both). The followed direction itself is not turned by this check:
+///    turning it away from every point it would close in on makes it turn the robot about
+///    wherever points stand on both sides (a tunnel's tight places), and the wall ahead in
+///    a concave corner that such a turn was meant for is already avoided by not turning
+///    toward the goal into it (step 4). docs/flight.md has the measured comparison.
 #[derive(Debug, Clone)]
 pub struct Escape {
     config: EscapeConfig,
@@ -148,7 +150,7 @@ fn horizontal(v: DVec3) -> DVec3 {
     DVec3::new(v.x, v.y, 0.0)
 }
 
-/// The known points near the robot, relative to it, for a clear way (module docs, step 5).
+/// The known points near the robot, relative to it, for a clear way ([`Escape`], step 5).
 struct Lookahead {
     /// Horizontal offsets from the robot of the points within the z band and reach.
     near: Vec<DVec3>,
@@ -243,7 +245,7 @@ impl Escape {
         best
     }
 
-    /// Steps 1-4 for one control step (module docs).
+    /// Steps 1-4 for one control step.
     ///
     /// `remaining_m`: the distance still to go (straight to the goal, or along a path);
     /// `obstacles_world`: remembered obstacle points; `repulsive_body`: the repulsion the
@@ -413,7 +415,7 @@ impl Escape {
         self.heading = None;
     }
 
-    /// The horizontal unit vector from the boundary to the robot (module docs, step 4).
+    /// The horizontal unit vector from the boundary to the robot ([`Escape`], step 4).
     fn normal(&self, position: DVec3, nearest: Option<(DVec3, f64)>, repulsive_world: DVec3, to_goal: DVec3) -> DVec3 {
         if let Some((p, d)) = nearest {
             if d > TINY_M {

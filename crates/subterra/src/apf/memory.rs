@@ -2,51 +2,7 @@
 //! so that an obstacle still repels after it has left the camera's view (subterra; the
 //! paper's filter has none).
 //!
-//! In: each frame's [`PerceptionOutput`] (its belief), the odometry pose `world_from_body`
-//! and the time stamp. Out: a repulsive force in the body frame, added to the belief's.
-//!
-//! # One update, exactly
-//! 1. **Record.** Every voxel whose belief is at least `min_belief` (the free state never)
-//!    puts its point (the one its repulsion comes from, `apf.voxel_position`), in the
-//!    world frame, into the cell of side `cell_m` that holds it; the cell keeps the newest
-//!    point, the largest belief of this frame, and the time.
-//! 2. **Guard** (with `guard_sigmas > 0` and the frame's counts given). Every voxel whose
-//!    point lies within `rho_0_m` and whose count is at least `guard_sigmas · σ_n` is
-//!    recorded as in step 1 with weight 1, whatever the belief holds. The free hypothesis
-//!    explains the largest count as `N(0, σ_n)` (the observation model), so at 3 σ_n such a
-//!    count is an object, not speckle; the belief over *one* obstacle, though, can stay on
-//!    a full wall voxel 1 m behind a 14 mm cable while the cable closes to contact (tunnel
-//!    seeds 25 and 35, docs/flight.md). The guard acts only where the memory's own short
-//!    cut-off acts, so it adds no long-range push.
-//! 3. **Forget.** A cell is forgotten `timeout_s` after an obstacle was last recorded in
-//!    it, or `in_view_timeout_s` after, when its point lies in the camera's view now
-//!    (inside the image and between `grid.depth_min_m` and `grid.depth_max_m` along the
-//!    optical axis): there the filter sees the place, and its belief is the better word
-//!    (occlusion is not modelled, and a belief that moved to another obstacle in view also
-//!    lets a cell go after that second). Past `max_cells` the oldest cells go first. Both
-//!    timeouts are multiplied by the odometry confidence in [0, 1]
-//!    ([`ObstacleMemory::set_confidence`], 1 by default): at 0 only this frame's cells stay.
-//! 4. **Repel.** `F = Σ_c w_c·F_rep(p_c) / max(1, Σ_{c: |p_c| < ρ_m} w_c)`: the potential
-//!    of [`repulsive_force`] with the memory's own cut-off `ρ_m = rho_0_m` (the belief's
-//!    `η` and `min_distance_m`), over the cells' points `p_c` in the body frame, weighted
-//!    by their beliefs and normalised like a belief once the weights within `ρ_m` sum past 1
-//!    (a guarded cell counts 1 there: the force is the mean over what is near, as the
-//!    belief's is an expectation, not a sum that grows with a wall's area).
-//!    Cells the belief holds now count too: an obstacle in view within `ρ_m` is pushed
-//!    against by the belief and by the memory, up to twice as hard.
-//!
-//! Why: the simulated D435's 80° x 64° view (fx = 385 px on 640 x 480) is narrow. A
-//! robot that turns away from a thin pole until the pole leaves the view flies on past it
-//! blind, and grazes it (highbay seeds 13, 15, 17, docs/flight.md); and a belief over one
-//! obstacle can jump to a fuller voxel beyond `ρ_0` and drop a thin pole close ahead
-//! (seeds 10, 14): the memory keeps the pole for `in_view_timeout_s` more, and the
-//! `flight-memory` preset's σ_o = 300 has the pole believed from farther away, in time to
-//! turn. The cut-off `ρ_m` is short (0.6 m, against the belief's 1.4 m) so that
-//! what is remembered only acts near contact: a long-range memory holds the robot in front
-//! of every large obstacle it has turned away from.
-//!
-//! Cells are kept in a `BTreeMap`, so the sums run in one order: the same calls give
-//! bit-identical forces.
+//! Documented on [`ObstacleMemory`].
 
 use std::collections::BTreeMap;
 use std::cmp::Ordering;
@@ -84,7 +40,53 @@ pub struct MemoryOutput {
     pub nearest_m: Option<f64>,
 }
 
-/// The memory of one camera's belief (module docs).
+/// The memory of one camera's belief.
+///
+/// In: each frame's [`PerceptionOutput`] (its belief), the odometry pose `world_from_body`
+/// and the time stamp. Out: a repulsive force in the body frame, added to the belief's.
+///
+/// # One update, exactly
+/// 1. **Record.** Every voxel whose belief is at least `min_belief` (the free state never)
+///    puts its point (the one its repulsion comes from, `apf.voxel_position`), in the
+///    world frame, into the cell of side `cell_m` that holds it; the cell keeps the newest
+///    point, the largest belief of this frame, and the time.
+/// 2. **Guard** (with `guard_sigmas > 0` and the frame's counts given). Every voxel whose
+///    point lies within `rho_0_m` and whose count is at least `guard_sigmas · σ_n` is
+///    recorded as in step 1 with weight 1, whatever the belief holds. The free hypothesis
+///    explains the largest count as `N(0, σ_n)` (the observation model), so at 3 σ_n such a
+///    count is an object, not speckle; the belief over *one* obstacle, though, can stay on
+///    a full wall voxel 1 m behind a 14 mm cable while the cable closes to contact (tunnel
+///    seeds 25 and 35, docs/flight.md). The guard acts only where the memory's own short
+///    cut-off acts, so it adds no long-range push.
+/// 3. **Forget.** A cell is forgotten `timeout_s` after an obstacle was last recorded in
+///    it, or `in_view_timeout_s` after, when its point lies in the camera's view now
+///    (inside the image and between `grid.depth_min_m` and `grid.depth_max_m` along the
+///    optical axis): there the filter sees the place, and its belief is the better word
+///    (occlusion is not modelled, and a belief that moved to another obstacle in view also
+///    lets a cell go after that second). Past `max_cells` the oldest cells go first. Both
+///    timeouts are multiplied by the odometry confidence in [0, 1]
+///    ([`ObstacleMemory::set_confidence`], 1 by default): at 0 only this frame's cells stay.
+/// 4. **Repel.** `F = Σ_c w_c·F_rep(p_c) / max(1, Σ_{c: |p_c| < ρ_m} w_c)`: the potential
+///    of [`repulsive_force`] with the memory's own cut-off `ρ_m = rho_0_m` (the belief's
+///    `η` and `min_distance_m`), over the cells' points `p_c` in the body frame, weighted
+///    by their beliefs and normalised like a belief once the weights within `ρ_m` sum past 1
+///    (a guarded cell counts 1 there: the force is the mean over what is near, as the
+///    belief's is an expectation, not a sum that grows with a wall's area).
+///    Cells the belief holds now count too: an obstacle in view within `ρ_m` is pushed
+///    against by the belief and by the memory, up to twice as hard.
+///
+/// Why: the simulated D435's 80° x 64° view (fx = 385 px on 640 x 480) is narrow. A
+/// robot that turns away from a thin pole until the pole leaves the view flies on past it
+/// blind, and grazes it (highbay seeds 13, 15, 17, docs/flight.md); and a belief over one
+/// obstacle can jump to a fuller voxel beyond `ρ_0` and drop a thin pole close ahead
+/// (seeds 10, 14): the memory keeps the pole for `in_view_timeout_s` more, and the
+/// `flight-memory` preset's σ_o = 300 has the pole believed from farther away, in time to
+/// turn. The cut-off `ρ_m` is short (0.6 m, against the belief's 1.4 m) so that
+/// what is remembered only acts near contact: a long-range memory holds the robot in front
+/// of every large obstacle it has turned away from.
+///
+/// Cells are kept in a `BTreeMap`, so the sums run in one order: the same calls give
+/// bit-identical forces.
 #[derive(Debug, Clone)]
 pub struct ObstacleMemory {
     config: MemoryConfig,
@@ -179,7 +181,7 @@ impl ObstacleMemory {
     /// Steps 1-4 for one frame of `output` (from the perception this memory was built for)
     /// taken at `stamp_s` [s] with the odometry pose `world_from_body`; `counts`, the same
     /// frame's voxel counts ([`DepthPerception::last_counts`]), feed the near-field guard
-    /// (module docs; without them, or with `guard_sigmas = 0`, there is no guard).
+    /// (see [`ObstacleMemory`]; without them, or with `guard_sigmas = 0`, there is no guard).
     pub fn update(&mut self, output: &PerceptionOutput, counts: Option<&VoxelCounts>, stamp_s: f64, world_from_body: &Isometry3) -> Result<MemoryOutput> {
         if !stamp_s.is_finite() {
             return Err(Error::input("stamp", format!("must be finite, got {stamp_s}")));

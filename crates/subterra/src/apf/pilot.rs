@@ -1,27 +1,7 @@
 //! The drone's loop, wired once: depth frames, odometry and a goal in the world become a
 //! velocity command. `subterra fly`, `perceive`, `replay` and a live node all call this.
 //!
-//! In: one depth frame per camera, the time stamp and the odometry pose `world_from_body`.
-//! Out: a [`Command`] with everything that made it ([`PilotOutput`]).
-//!
-//! # One step, exactly
-//! 1. **Goal.** The point the attraction pulls toward: the goal, or with a path the carrot
-//!    `lookahead_m` ahead along it ([`PathFollower`]); and the distance still to go.
-//! 2. **Perceive.** Each camera's filter takes its frame ([`DepthPerception::update`]).
-//! 3. **Belief's push.** Per camera, the belief-weighted repulsion ([`BeliefForces`]), or
-//!    with the QMDP controller the chosen evasive velocity in its place ([`Qmdp`]); summed
-//!    over the cameras in their order.
-//! 4. **Memory.** With `memory.enabled`, each camera's [`ObstacleMemory`] records its belief
-//!    (and, with `memory.guard_sigmas`, the frame's near-field counts) at the pose and adds
-//!    its repulsion.
-//! 5. **Escape.** With `escape.enabled`, [`Escape`] watches the progress and, in a local
-//!    minimum, follows the remembered obstacles' boundary: it may replace the goal and cap
-//!    the repulsion.
-//! 6. **Command.** [`ApfController::command`] (eq. 10) toward the goal in the body frame.
-//!
-//! Several cameras each keep their own filter and memory; their forces add in the body
-//! frame (the authors flew a forward and an upward camera). The QMDP controller scores one
-//! camera's belief: it takes exactly one camera.
+//! Documented on [`Pilot`].
 
 use std::time::Instant;
 
@@ -130,7 +110,29 @@ enum Goal {
     Path(PathFollower),
 }
 
-/// The drone's perception and control (module docs).
+/// The drone's perception and control.
+///
+/// In: one depth frame per camera, the time stamp and the odometry pose `world_from_body`.
+/// Out: a [`Command`] with everything that made it ([`PilotOutput`]).
+///
+/// # One step, exactly
+/// 1. **Goal.** The point the attraction pulls toward: the goal, or with a path the carrot
+///    `lookahead_m` ahead along it ([`PathFollower`]); and the distance still to go.
+/// 2. **Perceive.** Each camera's filter takes its frame ([`DepthPerception::update`]).
+/// 3. **Belief's push.** Per camera, the belief-weighted repulsion ([`BeliefForces`]), or
+///    with the QMDP controller the chosen evasive velocity in its place ([`Qmdp`]); summed
+///    over the cameras in their order.
+/// 4. **Memory.** With `memory.enabled`, each camera's [`ObstacleMemory`] records its belief
+///    (and, with `memory.guard_sigmas`, the frame's near-field counts) at the pose and adds
+///    its repulsion.
+/// 5. **Escape.** With `escape.enabled`, [`Escape`] watches the progress and, in a local
+///    minimum, follows the remembered obstacles' boundary: it may replace the goal and cap
+///    the repulsion.
+/// 6. **Command.** [`ApfController::command`] (eq. 10) toward the goal in the body frame.
+///
+/// Several cameras each keep their own filter and memory; their forces add in the body
+/// frame (the authors flew a forward and an upward camera). The QMDP controller scores one
+/// camera's belief: it takes exactly one camera.
 #[derive(Debug, Clone)]
 pub struct Pilot {
     config: PerceptionConfig,
@@ -251,7 +253,7 @@ impl Pilot {
         Ok(())
     }
 
-    /// One control step (module docs): `frames[n]` is camera `n`'s image of its size,
+    /// One control step (see [`Pilot`]): `frames[n]` is camera `n`'s image of its size,
     /// taken at `stamp_s` [s] with the odometry pose `world_from_body`.
     pub fn step(&mut self, frames: &[DepthImage<'_>], stamp_s: f64, world_from_body: &Isometry3) -> Result<PilotOutput> {
         let started = Instant::now();

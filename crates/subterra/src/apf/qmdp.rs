@@ -3,36 +3,7 @@
 //! set of evasive velocities is scored by its expected reward under the belief, and the
 //! best one takes the force's place beside the goal's attraction.
 //!
-//! In: the voxel points of one [`DepthPerception`] (the points its forces come from,
-//! `apf.voxel_position`, in the body frame) and each frame's [`PerceptionOutput`]. Out: a
-//! [`QmdpAction`], an evasive velocity in the body frame [m/s] that
-//! [`ApfController::command`](super::ApfController::command) adds to the attraction in place
-//! of the repulsive force (the authors' `goal_to_vel` node adds the two the same way).
-//!
-//! # The model, exactly
-//! - **Actions** `a = (v_x, v_y, v_z)`: every point of the grid `min + i·step <= max` per
-//!   axis (the authors: `v_x` in [-0.8, 0], `v_y`, `v_z` in [-0.8, 0.8], steps of 0.2; a
-//!   robot can back off, not charge), plus `a = 0` when the grid misses it: 5 x 9 x 9 = 405.
-//! - **Motion**: holonomic, for the look-ahead only: after `t` seconds an obstacle at the
-//!   body-frame point `p` is at `p - a·t` (the authors' `apply_action`, holonomic case).
-//! - **Reward** of action `a` when the obstacle is in state `s` (a voxel at `p_s`):
-//!   `R(s, a) = -Σ_i q_i·a_i² - Σ_{k=0..K} U(p_s - a·k·Δt)`, `K = lookahead_s / step_s`,
-//!   with the potential `U(x) = ½·g·(1/|x| - 1/ρ)²` within `ρ`, zero beyond (`|x|`
-//!   clamped below at `min_distance_m`, so that it stays finite). The free state repels
-//!   nothing: `R(s_free, a) = -Σ_i q_i·a_i²`.
-//! - **Choice**: `a* = argmax_a Σ_s b(s)·R(s, a)`, the first of equals in the order above.
-//!
-//! Why the expected *reward* is the QMDP choice here: QMDP picks `argmax_a Σ_s b(s)·Q(s, a)`
-//! with `Q` the fully observed MDP's action values, which the authors compute by value
-//! iteration, `Q ← R + γ·T·max_a Q`. The belief's transition `T` (the obstacle's motion
-//! model) does not depend on the action, so every iteration adds the same vector
-//! `γ·T·max_a Q` to every action's column: `Q(·, a) - Q(·, a') = R(·, a) - R(·, a')` after
-//! any number of iterations, and the choice is the reward's. (A test checks it against 20
-//! iterations of the authors' recursion.) The table `R` is computed once, when the
-//! controller is made; a frame costs one pass over the belief's states.
-//!
-//! [`DepthPerception`]: crate::depth::DepthPerception
-//! [`PerceptionOutput`]: crate::depth::PerceptionOutput
+//! Documented on [`Qmdp`].
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -198,6 +169,37 @@ pub struct QmdpAction {
 }
 
 /// The QMDP controller of one perception: the reward table and the choice.
+///
+/// In: the voxel points of one [`DepthPerception`] (the points its forces come from,
+/// `apf.voxel_position`, in the body frame) and each frame's [`PerceptionOutput`]. Out: a
+/// [`QmdpAction`], an evasive velocity in the body frame [m/s] that
+/// [`ApfController::command`](super::ApfController::command) adds to the attraction in place
+/// of the repulsive force (the authors' `goal_to_vel` node adds the two the same way).
+///
+/// # The model, exactly
+/// - **Actions** `a = (v_x, v_y, v_z)`: every point of the grid `min + i·step <= max` per
+///   axis (the authors: `v_x` in [-0.8, 0], `v_y`, `v_z` in [-0.8, 0.8], steps of 0.2; a
+///   robot can back off, not charge), plus `a = 0` when the grid misses it: 5 x 9 x 9 = 405.
+/// - **Motion**: holonomic, for the look-ahead only: after `t` seconds an obstacle at the
+///   body-frame point `p` is at `p - a·t` (the authors' `apply_action`, holonomic case).
+/// - **Reward** of action `a` when the obstacle is in state `s` (a voxel at `p_s`):
+///   `R(s, a) = -Σ_i q_i·a_i² - Σ_{k=0..K} U(p_s - a·k·Δt)`, `K = lookahead_s / step_s`,
+///   with the potential `U(x) = ½·g·(1/|x| - 1/ρ)²` within `ρ`, zero beyond (`|x|`
+///   clamped below at `min_distance_m`, so that it stays finite). The free state repels
+///   nothing: `R(s_free, a) = -Σ_i q_i·a_i²`.
+/// - **Choice**: `a* = argmax_a Σ_s b(s)·R(s, a)`, the first of equals in the order above.
+///
+/// Why the expected *reward* is the QMDP choice here: QMDP picks `argmax_a Σ_s b(s)·Q(s, a)`
+/// with `Q` the fully observed MDP's action values, which the authors compute by value
+/// iteration, `Q ← R + γ·T·max_a Q`. The belief's transition `T` (the obstacle's motion
+/// model) does not depend on the action, so every iteration adds the same vector
+/// `γ·T·max_a Q` to every action's column: `Q(·, a) - Q(·, a') = R(·, a) - R(·, a')` after
+/// any number of iterations, and the choice is the reward's. (A test checks it against 20
+/// iterations of the authors' recursion.) The table `R` is computed once, when the
+/// controller is made; a frame costs one pass over the belief's states.
+///
+/// [`DepthPerception`]: crate::depth::DepthPerception
+/// [`PerceptionOutput`]: crate::depth::PerceptionOutput
 #[derive(Debug, Clone)]
 pub struct Qmdp {
     config: QmdpConfig,
@@ -368,7 +370,7 @@ mod tests {
     #[test]
     fn the_choice_is_that_of_the_authors_value_iteration_for_any_transition() {
         // Q <- R + 0.95·T·max_a Q, 20 times, with a random stochastic T: the argmax of
-        // b·Q(·, a) is the argmax of b·R(·, a) (module notes).
+        // b·Q(·, a) is the argmax of b·R(·, a) (the docs of `Qmdp`).
         let points: Vec<DVec3> = (0..12).map(|i| DVec3::new(0.3 + 0.1 * i as f64, 0.2 * ((i % 5) as f64 - 2.0), 0.1 * ((i % 3) as f64 - 1.0))).collect();
         let mut q = Qmdp::from_points(&points, QmdpConfig::default(), 1).unwrap();
         let (s, n) = (q.state_count(), q.actions().len());

@@ -1,22 +1,6 @@
 //! The transition model `T(s -> s') ∝ hn(L1(s, s'); σ_s) · hn(z(s'); σ_z)`, precomputed once.
 //!
-//! `hn(x; σ) = exp(-x²/2σ²)`, `L1` is the Manhattan distance in voxels and `z(s')` the
-//! depth of the target voxel's centre. The free state sits on the grid's left, right,
-//! top, bottom and far faces (`L1(v, s_free)` = the face distance of `v`); its depth in the
-//! bias factor is [`FreeStateDepth`]: 0 (factor 1, as the authors' code stores `s_free` at
-//! the point (0, 0, 0)) or the horizon `d_max` (factor `e^{-d_max²/2σ_z²}`).
-//!
-//! Memory is O(S·N_d), never O(S²): the in-grid kernel depends only on the offset and
-//! the target depth, so alias tables over offsets serve every source voxel of a class.
-//! Source columns are cut into at most [`MAX_CLASSES`] runs, rows likewise, and each
-//! (source depth bin, column class, row class) has one table over the signed offsets
-//! `(di, dj, k')` that keep *some* member of the class inside the grid (O(S) entries each,
-//! at most `MAX_CLASSES²·N_d` tables). A draw from voxel `v` first picks "free or grid"
-//! with `v`'s own probability of going free, then an offset from its class table,
-//! redrawing offsets that leave the grid — which is exactly the conditional over `v`'s
-//! in-grid targets. A member rejects only the offsets outside its own range that other
-//! members keep, so most draws succeed at the first attempt, corners included.
-//! The free state's row is one alias table over all states.
+//! Documented on [`TransitionModel`].
 
 use rand::Rng;
 
@@ -163,6 +147,24 @@ impl VoxelSampler<'_> {
 }
 
 /// The precomputed transition model of one grid.
+///
+/// `hn(x; σ) = exp(-x²/2σ²)`, `L1` is the Manhattan distance in voxels and `z(s')` the
+/// depth of the target voxel's centre. The free state sits on the grid's left, right,
+/// top, bottom and far faces (`L1(v, s_free)` = the face distance of `v`); its depth in the
+/// bias factor is [`FreeStateDepth`]: 0 (factor 1, as the authors' code stores `s_free` at
+/// the point (0, 0, 0)) or the horizon `d_max` (factor `e^{-d_max²/2σ_z²}`).
+///
+/// Memory is O(S·N_d), never O(S²): the in-grid kernel depends only on the offset and
+/// the target depth, so alias tables over offsets serve every source voxel of a class.
+/// Source columns are cut into at most [`MAX_CLASSES`] runs, rows likewise, and each
+/// (source depth bin, column class, row class) has one table over the signed offsets
+/// `(di, dj, k')` that keep *some* member of the class inside the grid (O(S) entries each,
+/// at most `MAX_CLASSES²·N_d` tables). A draw from voxel `v` first picks "free or grid"
+/// with `v`'s own probability of going free, then an offset from its class table,
+/// redrawing offsets that leave the grid — which is exactly the conditional over `v`'s
+/// in-grid targets. A member rejects only the offsets outside its own range that other
+/// members keep, so most draws succeed at the first attempt, corners included.
+/// The free state's row is one alias table over all states.
 #[derive(Debug, Clone)]
 pub struct TransitionModel {
     n_w: usize,

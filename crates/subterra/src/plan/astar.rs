@@ -1,93 +1,6 @@
 //! Risk-aware A* on an 8-connected grid (STEP, Fan et al. 2021).
 //!
-//! In: a [`RiskGrid`] ([`crate::plan::grid`]: row-major `(ny, nx)` risks, row `iy` along world y, column `ix` along
-//! world x, the layout of the terrain [`RiskMap`] layers), a start and a goal. Out: a
-//! [`PlanOutcome`]: the least-cost path, its cost, length and accumulated risk, the carrot point,
-//! or the reason there is no path.
-//!
-//! # Cost model
-//!
-//! A cell's risk `r` is the probability of failing per metre travelled in it.
-//! 1. NaN (unknown) is replaced by [`RiskAStarConfig::unknown_risk`].
-//! 2. A cell is **untraversable** iff `r >= min(r_inst, lethal_risk)`: a lethal cell (the
-//!    terrain map's `risk.lethal_risk`) stays untraversable however far the recovery raises
-//!    `r_inst`.
-//! 3. Traversable cells have the hazard `ρ = -ln(1 - r)` [1/m], computed in `f64` as
-//!    `-ln_1p(-r)` with `r` clamped to at most [`MAX_RISK`] `= 1 - 2^-24` (the largest `f32`
-//!    below 1, so the clamp changes no `f32` risk and `ρ <= 16.64`), and the cost
-//!    `c = λ + ρ` [1/m].
-//! 4. A move between 8-neighbours `a`, `b` whose centres are `d` apart (`d = res` or
-//!    `res·√2`) costs `d·(c(a) + c(b))/2`. This is scikit-image's `MCP_Geometric` on the costs
-//!    `c` (unit sampling) times `res`, so optimal costs are comparable.
-//! 5. Diagonal moves. With `allow_corner_cutting = false` (the default) a diagonal move from
-//!    `a` to `a + (dx, dy)` is allowed only if both cells sharing that corner, `a + (dx, 0)` and
-//!    `a + (0, dy)`, are traversable (their risk does not enter the move's cost): the robot never
-//!    squeezes between two untraversable cells or brushes an untraversable corner. With
-//!    `allow_corner_cutting = true` every traversable 8-neighbour is reachable
-//!    (`MCP_Geometric`'s rule).
-//!
-//! 6. Perception-aware prices (optional, [`EntryPrices`]): a move that enters an unknown
-//!    cell the sensor will not have seen on the way ([`crate::plan::coverage`]) adds
-//!    `d·(c(unseen_risk) - c(unknown_risk))` to the cost and `d·(ρ(unseen_risk) -
-//!    ρ(unknown_risk))` to `S`.
-//! 7. Clearance prices (optional, [`EntryPrices::clearance`]): cell `i`'s cost gains
-//!    `k_i·c_min`, with `c_min` the least cell cost ([`RiskAStarConfig::min_cell_cost`]: `λ`,
-//!    or 1 with the additive model) and `k_i >= 0` given per cell. The navigator can price
-//!    the ground where the robot could not turn in place without touching an obstacle this
-//!    way (`navigator.turn_room_price`); it adds to the cost only, never to `S`: it is about
-//!    room, not risk.
-//!
-//! Without clearance prices a path's cost is therefore `λ·L + S`, with `L = Σ d` its length [m] and
-//! `S = Σ d·(ρ(a) + ρ(b))/2` its risk integral; its **accumulated risk** is `1 - exp(-S)`
-//! (computed as `-expm1(-S)`), STEP's `1 - exp(-Σ d·(-ln(1 - r̄)))` with the same
-//! cell averaging as the cost.
-//!
-//! # Search
-//!
-//! A* from the start cell to the goal cell. `g` is the cost from the start; the heuristic is
-//! `h = λ·res·octile(n, goal)` with `octile = max(|Δx|, |Δy|) + (√2 - 1)·min(|Δx|, |Δy|)` cells,
-//! the length of the shortest 8-connected path, so `h` is admissible and consistent (every move
-//! costs at least `λ·d` because `ρ >= 0`): the first time the goal is popped its `g` is the
-//! optimal cost, and a closed cell is never reopened. It is never smaller than the paper's
-//! `λ·euclid` bound (a better-informed heuristic: up to ties, A* with it expands a subset of
-//! the cells it would expand with `λ·euclid`). An expanded cell's `g` is set to `-inf`, so one
-//! comparison `g_new < g` skips closed and untraversable neighbours. The open list is an
-//! indexed binary heap holding each open cell once, ordered by `f = g + h`, ties broken by the
-//! smaller `h` (as `f32`) and then the smaller flat index `iy·nx + ix` (a total order: the pops
-//! do not depend on the heap's shape), so a plan is deterministic; an improved cell's key is
-//! lowered in place. A cell's `g` improves only when strictly smaller, so among equal-cost
-//! predecessors the first one found is kept. Moves are tried in the order E, N, W, S, NE, NW,
-//! SW, SE (unrolled away from the grid's border).
-//!
-//! # Toward a target off the grid
-//!
-//! A robot-centred map holds only part of a long route. [`RiskAStar::plan_toward`] plans to
-//! a target beyond the grid's border: the path may leave the grid from any border cell `b`,
-//! and the leg from `b` on is priced `λ·|b - target|` (the least cost per metre times the
-//! straight line: what the heuristic assumes of ground nobody has mapped). One search does
-//! it: `h` becomes `λ·euclid(n, target)` (admissible and consistent: every route from `n` on
-//! is at least that long and costs at least `λ` a metre), and expanding a border cell `b`
-//! offers a virtual goal node the cost `g(b) + h(b)`; the search ends when that node is
-//! popped. The path is the one to the `b` that offered its final cost: the least over every
-//! border cell of the cost to reach it plus the straight leg on (a test checks this against
-//! a search to each border cell). A detour whose way out lies elsewhere on the border is
-//! found, where a single stand-in on the segment toward the target would not be.
-//!
-//! # Outcome
-//!
-//! In this order: the start cell untraversable -> [`PlanStatus::StartBlocked`]; the goal cell
-//! untraversable -> [`PlanStatus::GoalBlocked`]; the open list empties before the goal is
-//! popped -> [`PlanStatus::NoPath`]; otherwise the least-cost path `P` is found and its
-//! accumulated risk `R(P)` is compared with `r_total`: `R(P) > r_total` ->
-//! [`PlanStatus::BudgetExceeded`] (with `P`, so the caller sees what was rejected), else
-//! [`PlanStatus::Found`]. Only the least-cost path's risk is checked: a costlier path whose risk
-//! would fit the budget is not searched for (that is a constrained shortest-path problem).
-//!
-//! The planner holds its search buffers between calls: a node array indexed by cell, reused
-//! through a per-call stamp (no clearing), and the heap's storage with its slot per cell. A
-//! cell's cost is computed the first time the search touches it.
-//!
-//! [`RiskMap`]: crate::terrain::RiskMap
+//! Documented on [`RiskAStar`].
 
 mod config;
 mod entry;
@@ -113,7 +26,96 @@ use entry::Entry;
 use open_list::{open_key, OpenList};
 use search::{Node, Search, MOVES};
 
-/// The risk-aware A* planner (see the module docs for the exact algorithm).
+/// The risk-aware A* planner.
+///
+/// In: a [`RiskGrid`] ([`crate::plan::grid`]: row-major `(ny, nx)` risks, row `iy` along world y, column `ix` along
+/// world x, the layout of the terrain [`RiskMap`] layers), a start and a goal. Out: a
+/// [`PlanOutcome`]: the least-cost path, its cost, length and accumulated risk, the carrot point,
+/// or the reason there is no path.
+///
+/// # Cost model
+///
+/// A cell's risk `r` is the probability of failing per metre travelled in it.
+/// 1. NaN (unknown) is replaced by [`RiskAStarConfig::unknown_risk`].
+/// 2. A cell is **untraversable** iff `r >= min(r_inst, lethal_risk)`: a lethal cell (the
+///    terrain map's `risk.lethal_risk`) stays untraversable however far the recovery raises
+///    `r_inst`.
+/// 3. Traversable cells have the hazard `ρ = -ln(1 - r)` [1/m], computed in `f64` as
+///    `-ln_1p(-r)` with `r` clamped to at most [`MAX_RISK`] `= 1 - 2^-24` (the largest `f32`
+///    below 1, so the clamp changes no `f32` risk and `ρ <= 16.64`), and the cost
+///    `c = λ + ρ` [1/m].
+/// 4. A move between 8-neighbours `a`, `b` whose centres are `d` apart (`d = res` or
+///    `res·√2`) costs `d·(c(a) + c(b))/2`. This is scikit-image's `MCP_Geometric` on the costs
+///    `c` (unit sampling) times `res`, so optimal costs are comparable.
+/// 5. Diagonal moves. With `allow_corner_cutting = false` (the default) a diagonal move from
+///    `a` to `a + (dx, dy)` is allowed only if both cells sharing that corner, `a + (dx, 0)` and
+///    `a + (0, dy)`, are traversable (their risk does not enter the move's cost): the robot never
+///    squeezes between two untraversable cells or brushes an untraversable corner. With
+///    `allow_corner_cutting = true` every traversable 8-neighbour is reachable
+///    (`MCP_Geometric`'s rule).
+///
+/// 6. Perception-aware prices (optional, [`EntryPrices`]): a move that enters an unknown
+///    cell the sensor will not have seen on the way ([`crate::plan::coverage`]) adds
+///    `d·(c(unseen_risk) - c(unknown_risk))` to the cost and `d·(ρ(unseen_risk) -
+///    ρ(unknown_risk))` to `S`.
+/// 7. Clearance prices (optional, [`EntryPrices::clearance`]): cell `i`'s cost gains
+///    `k_i·c_min`, with `c_min` the least cell cost ([`RiskAStarConfig::min_cell_cost`]: `λ`,
+///    or 1 with the additive model) and `k_i >= 0` given per cell. The navigator can price
+///    the ground where the robot could not turn in place without touching an obstacle this
+///    way (`navigator.turn_room_price`); it adds to the cost only, never to `S`: it is about
+///    room, not risk.
+///
+/// Without clearance prices a path's cost is therefore `λ·L + S`, with `L = Σ d` its length [m] and
+/// `S = Σ d·(ρ(a) + ρ(b))/2` its risk integral; its **accumulated risk** is `1 - exp(-S)`
+/// (computed as `-expm1(-S)`), STEP's `1 - exp(-Σ d·(-ln(1 - r̄)))` with the same
+/// cell averaging as the cost.
+///
+/// # Search
+///
+/// A* from the start cell to the goal cell. `g` is the cost from the start; the heuristic is
+/// `h = λ·res·octile(n, goal)` with `octile = max(|Δx|, |Δy|) + (√2 - 1)·min(|Δx|, |Δy|)` cells,
+/// the length of the shortest 8-connected path, so `h` is admissible and consistent (every move
+/// costs at least `λ·d` because `ρ >= 0`): the first time the goal is popped its `g` is the
+/// optimal cost, and a closed cell is never reopened. It is never smaller than the paper's
+/// `λ·euclid` bound (a better-informed heuristic: up to ties, A* with it expands a subset of
+/// the cells it would expand with `λ·euclid`). An expanded cell's `g` is set to `-inf`, so one
+/// comparison `g_new < g` skips closed and untraversable neighbours. The open list is an
+/// indexed binary heap holding each open cell once, ordered by `f = g + h`, ties broken by the
+/// smaller `h` (as `f32`) and then the smaller flat index `iy·nx + ix` (a total order: the pops
+/// do not depend on the heap's shape), so a plan is deterministic; an improved cell's key is
+/// lowered in place. A cell's `g` improves only when strictly smaller, so among equal-cost
+/// predecessors the first one found is kept. Moves are tried in the order E, N, W, S, NE, NW,
+/// SW, SE (unrolled away from the grid's border).
+///
+/// # Toward a target off the grid
+///
+/// A robot-centred map holds only part of a long route. [`RiskAStar::plan_toward`] plans to
+/// a target beyond the grid's border: the path may leave the grid from any border cell `b`,
+/// and the leg from `b` on is priced `λ·|b - target|` (the least cost per metre times the
+/// straight line: what the heuristic assumes of ground nobody has mapped). One search does
+/// it: `h` becomes `λ·euclid(n, target)` (admissible and consistent: every route from `n` on
+/// is at least that long and costs at least `λ` a metre), and expanding a border cell `b`
+/// offers a virtual goal node the cost `g(b) + h(b)`; the search ends when that node is
+/// popped. The path is the one to the `b` that offered its final cost: the least over every
+/// border cell of the cost to reach it plus the straight leg on (a test checks this against
+/// a search to each border cell). A detour whose way out lies elsewhere on the border is
+/// found, where a single stand-in on the segment toward the target would not be.
+///
+/// # Outcome
+///
+/// In this order: the start cell untraversable -> [`PlanStatus::StartBlocked`]; the goal cell
+/// untraversable -> [`PlanStatus::GoalBlocked`]; the open list empties before the goal is
+/// popped -> [`PlanStatus::NoPath`]; otherwise the least-cost path `P` is found and its
+/// accumulated risk `R(P)` is compared with `r_total`: `R(P) > r_total` ->
+/// [`PlanStatus::BudgetExceeded`] (with `P`, so the caller sees what was rejected), else
+/// [`PlanStatus::Found`]. Only the least-cost path's risk is checked: a costlier path whose risk
+/// would fit the budget is not searched for (that is a constrained shortest-path problem).
+///
+/// The planner holds its search buffers between calls: a node array indexed by cell, reused
+/// through a per-call stamp (no clearing), and the heap's storage with its slot per cell. A
+/// cell's cost is computed the first time the search touches it.
+///
+/// [`RiskMap`]: crate::terrain::RiskMap
 #[derive(Debug, Clone)]
 pub struct RiskAStar {
     config: RiskAStarConfig,
@@ -161,7 +163,7 @@ impl RiskAStar {
     /// Plans from the cell holding `start_world` toward `target_world` [m], which may lie off
     /// the grid: to the border cell `b` whose path cost plus `λ·|b - target|` (the heuristic's
     /// price of the straight line on, [`RiskAStarConfig::min_cell_cost`] per metre) is least
-    /// (module docs, "Toward a target off the grid"). The path ends at `b`
+    /// (`RiskAStar`'s docs, "Toward a target off the grid"). The path ends at `b`
     /// ([`PlanOutcome::goal_cell`]); its cost, length and risk are those of the path on the
     /// grid. A target on the grid is planned to as by [`RiskAStar::plan_with`]. Errors (naming
     /// `start` or `target`) if a position is not finite or the start lies off the grid.

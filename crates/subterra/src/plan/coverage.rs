@@ -1,30 +1,7 @@
 //! Perception-aware planning: where the robot's sensor will see the ground from along a path,
 //! and which unknown cells a path would enter unseen.
 //!
-//! The draft of STEP (§VII) treats each map cell as a random variable and plans on the map
-//! *predicted* along a candidate path: cells the sensor will observe from the path's poses
-//! have their variance reduced as a measurement would, the rest keep theirs, and risk is
-//! priced with the predicted variance. This module makes that prediction for the one thing a
-//! grid A* can price edge by edge: whether an **unknown** cell is seen before the robot enters
-//! it. A cell seen on the way gets measured and, if it is a hazard, replanned around before
-//! the robot is on it; a cell entered unseen carries its prior risk for real.
-//!
-//! # The prediction, exactly
-//! The A* enters cell `c` by one of its 8 moves `d` (unit step `(dx, dy)`, length `|d|·res`).
-//! The robot is taken to approach `c` along `d` facing its motion (the planner plans forward
-//! driving). The sensor ([`SensorCoverage`]) sees a ground cell at distance `s` straight ahead
-//! when `min_range_m <= s <= max_range_m` (a forward camera's field of view holds the
-//! direction of motion; a spinning lidar's holds everything). With `n = ceil(min_range_m /
-//! (|d|·res))` moves, `c` is **seen before entry along `d`** when the `n` cells `c - j·d`,
-//! `j = 1..n`, hold no occluder (a cell at or above the occluding risk: walls, boxes, drops;
-//! cells off the grid do not occlude): the robot can stand at `c - n·d` and the ray from
-//! there to `c` is clear. An unknown cell nearer the robot than `min_range_m` is not priced:
-//! it is too near to be seen from any path, the same for all of them. So the entry mask marks,
-//! per unknown cell, the moves that would enter it unseen; [`crate::plan::RiskAStar`] prices
-//! those entries at `unseen_risk` instead of its `unknown_risk`.
-//!
-//! Each direction is one pass over the grid in an order where `c - d` comes before `c`,
-//! carrying the length of the clear run behind each cell: O(8·cells).
+//! Documented on [`SensorCoverage`].
 
 use glam::DVec2;
 use serde::{Deserialize, Serialize};
@@ -36,6 +13,31 @@ use crate::plan::grid::RiskGrid;
 pub(super) const MOVES: [(i32, i32); 8] = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1)];
 
 /// Where a sensor on the robot sees the ground from a pose.
+///
+/// The draft of STEP (§VII) treats each map cell as a random variable and plans on the map
+/// *predicted* along a candidate path: cells the sensor will observe from the path's poses
+/// have their variance reduced as a measurement would, the rest keep theirs, and risk is
+/// priced with the predicted variance. This module makes that prediction for the one thing a
+/// grid A* can price edge by edge: whether an **unknown** cell is seen before the robot enters
+/// it. A cell seen on the way gets measured and, if it is a hazard, replanned around before
+/// the robot is on it; a cell entered unseen carries its prior risk for real.
+///
+/// # The prediction, exactly
+/// The A* enters cell `c` by one of its 8 moves `d` (unit step `(dx, dy)`, length `|d|·res`).
+/// The robot is taken to approach `c` along `d` facing its motion (the planner plans forward
+/// driving). The sensor ([`SensorCoverage`]) sees a ground cell at distance `s` straight ahead
+/// when `min_range_m <= s <= max_range_m` (a forward camera's field of view holds the
+/// direction of motion; a spinning lidar's holds everything). With `n = ceil(min_range_m /
+/// (|d|·res))` moves, `c` is **seen before entry along `d`** when the `n` cells `c - j·d`,
+/// `j = 1..n`, hold no occluder (a cell at or above the occluding risk: walls, boxes, drops;
+/// cells off the grid do not occlude): the robot can stand at `c - n·d` and the ray from
+/// there to `c` is clear. An unknown cell nearer the robot than `min_range_m` is not priced:
+/// it is too near to be seen from any path, the same for all of them. So the entry mask marks,
+/// per unknown cell, the moves that would enter it unseen; [`crate::plan::RiskAStar`] prices
+/// those entries at `unseen_risk` instead of its `unknown_risk`.
+///
+/// Each direction is one pass over the grid in an order where `c - d` comes before `c`,
+/// carrying the length of the clear run behind each cell: O(8·cells).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SensorCoverage {
@@ -90,7 +92,7 @@ impl SensorCoverage {
 }
 
 /// Marks in `out` (one byte per cell, bit `k` for move `k` of [`MOVES`]) the moves that would
-/// enter an unknown cell unseen (module docs). `known[c]`: whether cell `c` is known (observed
+/// enter an unknown cell unseen (`SensorCoverage`'s docs). `known[c]`: whether cell `c` is known (observed
 /// or remembered); `occluding`: the risk at or above which a cell blocks the view; `robot`: the
 /// robot's position [m, world]. `run`: scratch.
 pub(super) fn unseen_entries(grid: &RiskGrid<'_>, known: &[bool], robot: DVec2, coverage: &SensorCoverage, occluding: f32, out: &mut Vec<u8>, run: &mut Vec<u16>) {

@@ -1,26 +1,6 @@
 //! The one risk grid every planner reads: per-cell risks over a world-axis-aligned geometry.
 //!
-//! The risk-aware A*, the MPC tracker and the navigator all take a [`RiskGrid`]: a borrowed
-//! row-major `(ny, nx)` array of risks (row `iy` along world y, column `ix` along world x, the
-//! layout of the terrain [`RiskMap`] layers), a cell side and the world position of cell
-//! `(0, 0)`'s lower-left corner. It is validated once, when it is made:
-//!
-//! - every value is a risk in `[0, 1]` or NaN (unknown); `+inf`, values above 1 and negative
-//!   values are errors naming the cell;
-//! - the shape matches the values and stays within [`MAX_GRID_CELLS`] / [`MAX_SIDE`];
-//! - the cell side is finite, positive and at most [`MAX_RESOLUTION_M`]; the origin is finite.
-//!
-//! A grid made from a terrain map ([`RiskGrid::from_map`], [`RiskGrid::on_geometry`]) finds and
-//! places cells exactly as the map does (world-aligned global cells), so a position falls in
-//! the same cell for the mapper, the planner and the tracker.
-//!
-//! **Lethal** is one definition for every output: a cell is lethal when its risk is at or
-//! above the terrain map's `risk.lethal_risk` ([`crate::terrain::RiskConfig::lethal_risk`]).
-//! The A* never enters one whatever its thresholds, the MPC turns them into obstacle
-//! polygons, the counts and pictures call them lethal and an exported occupancy grid marks
-//! them 100.
-//!
-//! [`RiskMap`]: crate::terrain::RiskMap
+//! Documented on [`RiskGrid`].
 
 use glam::DVec2;
 
@@ -38,6 +18,28 @@ pub(super) const MAX_RESOLUTION_M: f64 = 1.0e4;
 pub(super) const MIN_RESOLUTION_M: f64 = 1.0e-3;
 
 /// A risk grid: per-cell risks in `[0, 1]` (NaN: unknown) over a world-axis-aligned geometry.
+///
+/// The risk-aware A*, the MPC tracker and the navigator all take a [`RiskGrid`]: a borrowed
+/// row-major `(ny, nx)` array of risks (row `iy` along world y, column `ix` along world x, the
+/// layout of the terrain [`RiskMap`] layers), a cell side and the world position of cell
+/// `(0, 0)`'s lower-left corner. It is validated once, when it is made:
+///
+/// - every value is a risk in `[0, 1]` or NaN (unknown); `+inf`, values above 1 and negative
+///   values are errors naming the cell;
+/// - the shape matches the values and stays within [`MAX_GRID_CELLS`] / [`MAX_SIDE`];
+/// - the cell side is finite, positive and at most [`MAX_RESOLUTION_M`]; the origin is finite.
+///
+/// A grid made from a terrain map ([`RiskGrid::from_map`], [`RiskGrid::on_geometry`]) finds and
+/// places cells exactly as the map does (world-aligned global cells), so a position falls in
+/// the same cell for the mapper, the planner and the tracker.
+///
+/// **Lethal** is one definition for every output: a cell is lethal when its risk is at or
+/// above the terrain map's `risk.lethal_risk` ([`crate::terrain::RiskConfig::lethal_risk`]).
+/// The A* never enters one whatever its thresholds, the MPC turns them into obstacle
+/// polygons, the counts and pictures call them lethal and an exported occupancy grid marks
+/// them 100.
+///
+/// [`RiskMap`]: crate::terrain::RiskMap
 #[derive(Debug, Clone, Copy)]
 pub struct RiskGrid<'a> {
     pub(crate) risk: &'a [f32],

@@ -1,53 +1,7 @@
 //! Adaptive thresholds and recovery behaviours (STEP, Fan et al. 2021): what a ground robot does
 //! when the planner finds no path or the robot stops making progress.
 //!
-//! [`RecoveryMachine`] is a pure state machine: each control tick the navigator tells it
-//! the time, the robot's pose, its distance to the current target and how the last plan
-//! went ([`RecoveryInput`]); it answers with a [`Directive`]: which behaviour to run, the
-//! planner thresholds to use, which target to drive to, and whether to clear the map.
-//! It does no planning and sends no command itself.
-//!
-//! # The machine, exactly
-//! A **trigger** is either (a) the planner reporting no path (or none within the risk
-//! budget) on `stuck_plan_failures` consecutive ticks, or (b) *no progress*: over the
-//! last `progress_window_s` seconds the distance to the target shrank by less than
-//! `progress_min_m` (checked only once that much time has passed since the last
-//! transition, so each behaviour gets a fair window). When the navigator switches to a
-//! longer route ([`RecoveryInput::route_switched`]), the window's samples are shifted by the
-//! jump, so progress is measured along the new route; at most once a window, so a robot
-//! whose plans keep switching still triggers. While tracking, each trigger
-//! climbs one rung of the **ladder**; the rung reached decides the next behaviour:
-//!
-//! 1. `ClearMap`: drop the fused map (stale or smeared scans can close a passage); one
-//!    tick, then back to `Track`.
-//! 2. `Rotate`: turn in place to the heading of most clearance (given by the navigator
-//!    in [`RecoveryInput::clearance_heading_rad`]; without one, a half turn), until
-//!    within `rotate_tolerance_rad` of it or after `rotate_timeout_s`; then `Track`.
-//! 3. `RaiseThresholds`: `R_inst += r_inst_step`, `R_total += r_total_step`, each capped
-//!    at its ceiling; then `Track` with the new thresholds. Repeated while a raise is
-//!    still possible (each further trigger raises one more step).
-//! 4. `BackOut`: with both thresholds at their ceilings, reverse along the driven path
-//!    (the breadcrumb trail, one crumb every `crumb_spacing_m`) for `backout_distance_m`,
-//!    steering at a carrot `backout_carrot_m` back along the trail; ends when that far
-//!    from where it started and there is room to turn in place
-//!    ([`RecoveryInput::room_to_turn`]; without, at `backout_max_distance_m`), at the trail's
-//!    end, or after `backout_timeout_s`; then `Track`.
-//! 5. A trigger after `BackOut` abandons the goal and turns for home: the target becomes
-//!    [`Target::Home`] (the home position given at construction) and the thresholds and the
-//!    ladder start again from the bottom. The same ladder runs on the way home; a trigger after its `BackOut` ends in
-//!    `Failed` (the robot stops).
-//!
-//! **Progress relaxes the thresholds**: after `relax_after_s` seconds of tracking
-//! without a trigger, the thresholds go back to their nominal values (the adaptive part:
-//! raised thresholds are a temporary permission); the ladder itself goes back to rung 0
-//! only when the robot is `progress_min_m` closer to the target (straight line) than the
-//! least distance it had reached before the ladder's first trigger (it got past where it was stuck), so
-//! a robot that keeps failing at the same place does reach back-out and giving up. Reaching the
-//! target (distance `<= goal_tolerance_m`) ends in `GoalReached` (or `Home` on the way
-//! back). Every transition is recorded as a [`Transition`] with its time and reason
-//! (a relaxation too, as `track -> track`). The navigator may end a `Rotate` or a `BackOut`
-//! early ([`RecoveryMachine::abort`]) when its next motion is not safe; that is an end like
-//! any other, with its reason.
+//! Documented on [`RecoveryMachine`].
 
 mod config;
 mod ladder;
@@ -65,7 +19,55 @@ use crate::error::{Error, Result};
 pub use config::RecoveryConfig;
 pub use tick::{Behaviour, Directive, PlanFeedback, RecoveryInput, Target, Transition};
 
-/// The recovery state machine (see the module docs for its exact rules).
+/// The recovery state machine.
+///
+/// [`RecoveryMachine`] is a pure state machine: each control tick the navigator tells it
+/// the time, the robot's pose, its distance to the current target and how the last plan
+/// went ([`RecoveryInput`]); it answers with a [`Directive`]: which behaviour to run, the
+/// planner thresholds to use, which target to drive to, and whether to clear the map.
+/// It does no planning and sends no command itself.
+///
+/// # The machine, exactly
+/// A **trigger** is either (a) the planner reporting no path (or none within the risk
+/// budget) on `stuck_plan_failures` consecutive ticks, or (b) *no progress*: over the
+/// last `progress_window_s` seconds the distance to the target shrank by less than
+/// `progress_min_m` (checked only once that much time has passed since the last
+/// transition, so each behaviour gets a fair window). When the navigator switches to a
+/// longer route ([`RecoveryInput::route_switched`]), the window's samples are shifted by the
+/// jump, so progress is measured along the new route; at most once a window, so a robot
+/// whose plans keep switching still triggers. While tracking, each trigger
+/// climbs one rung of the **ladder**; the rung reached decides the next behaviour:
+///
+/// 1. `ClearMap`: drop the fused map (stale or smeared scans can close a passage); one
+///    tick, then back to `Track`.
+/// 2. `Rotate`: turn in place to the heading of most clearance (given by the navigator
+///    in [`RecoveryInput::clearance_heading_rad`]; without one, a half turn), until
+///    within `rotate_tolerance_rad` of it or after `rotate_timeout_s`; then `Track`.
+/// 3. `RaiseThresholds`: `R_inst += r_inst_step`, `R_total += r_total_step`, each capped
+///    at its ceiling; then `Track` with the new thresholds. Repeated while a raise is
+///    still possible (each further trigger raises one more step).
+/// 4. `BackOut`: with both thresholds at their ceilings, reverse along the driven path
+///    (the breadcrumb trail, one crumb every `crumb_spacing_m`) for `backout_distance_m`,
+///    steering at a carrot `backout_carrot_m` back along the trail; ends when that far
+///    from where it started and there is room to turn in place
+///    ([`RecoveryInput::room_to_turn`]; without, at `backout_max_distance_m`), at the trail's
+///    end, or after `backout_timeout_s`; then `Track`.
+/// 5. A trigger after `BackOut` abandons the goal and turns for home: the target becomes
+///    [`Target::Home`] (the home position given at construction) and the thresholds and the
+///    ladder start again from the bottom. The same ladder runs on the way home; a trigger after its `BackOut` ends in
+///    `Failed` (the robot stops).
+///
+/// **Progress relaxes the thresholds**: after `relax_after_s` seconds of tracking
+/// without a trigger, the thresholds go back to their nominal values (the adaptive part:
+/// raised thresholds are a temporary permission); the ladder itself goes back to rung 0
+/// only when the robot is `progress_min_m` closer to the target (straight line) than the
+/// least distance it had reached before the ladder's first trigger (it got past where it was stuck), so
+/// a robot that keeps failing at the same place does reach back-out and giving up. Reaching the
+/// target (distance `<= goal_tolerance_m`) ends in `GoalReached` (or `Home` on the way
+/// back). Every transition is recorded as a [`Transition`] with its time and reason
+/// (a relaxation too, as `track -> track`). The navigator may end a `Rotate` or a `BackOut`
+/// early ([`RecoveryMachine::abort`]) when its next motion is not safe; that is an end like
+/// any other, with its reason.
 #[derive(Debug, Clone)]
 pub struct RecoveryMachine {
     config: RecoveryConfig,

@@ -232,7 +232,7 @@ pub struct GroundConfig {
     /// Shadows of drops (the STEP `negative` layer): where rays passed below the expected
     /// ground beyond a return, the floor is missing somewhere between that return and them;
     /// the positions in between take the deepest such evidence as their `negative_depth`
-    /// (module doc of `terrain::ground`, *Shadow*). A pit's near edge hides its floor from the
+    /// (the docs of [`segment_ground`](crate::terrain::segment_ground), *Shadow*). A pit's near edge hides its floor from the
     /// sensor: without this the cells just past the edge read as ground, rated only by rays
     /// that graze them. On (the default) for every sensor: it needs rays that passed below
     /// the ground, which dropouts do not make. subterra.

@@ -88,6 +88,49 @@ impl GridGeometry {
 }
 
 /// The layers of a [`RiskMap`]. Heights are world z [m]; NaN marks "no value".
+///
+/// # The layers, exactly
+/// Heights below are relative to the current body origin, world axes (the *level frame*);
+/// the height layers add the body's world z. `thr = ground.max_dist_to_line_m`; a point's
+/// `h` is its height above its scan's ground line ([`segment_ground`](super::segment_ground)).
+/// - `count`, `min_height`, `max_height`, `age`: over all points in the cell.
+/// - `ground_count`: points with `|h| <= thr`; `ground_height` = their mean z, else (no
+///   ground point) the newest scan's ground line at the cell centre if a line covers the
+///   cell's polar bin, else NaN. `observed` = 1 if the cell has a point or is so covered.
+/// - `slope`, `plane_residual`: least-squares plane `z = a·x + b·y + c` through the ground
+///   heights of the cells with one in the `w x w` window centred on the cell (`w` = the odd
+///   cell count nearest `layers.plane_window_m / res`, clipped at the map's edge), needing
+///   `layers.plane_min_cells` of them; slope `atan(sqrt(a² + b²))`, residual
+///   `sqrt(SSE / n)`. NaN for cells without a ground height.
+/// - `step_height`: `max |H(n) - H(c)|` over the 8 neighbours n with a ground height.
+/// - `negative_depth`: at the cell centre, in the newest scan's polar bin: the bin's ground
+///   line height minus the floor bound (the lower of the bin's lowest point and the
+///   lowest ray that passed over the cell's radius), floored at 0; 0 without evidence. On
+///   a cell with ground points of its own it is instead how far its lowest point lies
+///   below their mean height, where that exceeds `thr`, else 0: seen ground is no hole
+///   (the bin's line, carried across a hole, overestimates a lower floor seen beyond it),
+///   but a rim cell holding part of the drop's wall or floor is as deep as they reach.
+///   A cell without ground points in a drop's shadow (`ground.drop_shadows`: beyond the
+///   bin's last return, in a run of bins that returned nothing, where rays passed below the
+///   expected ground farther on) is at least as deep as the deepest such ray or point.
+/// - `tilt_angle`: *settling*. Each wheel rests on the highest ground in a square patch
+///   (`layers.wheel_patch_m`) around its corner of the footprint (`robot.length_m x
+///   robot.width_m`, corners rounded to cell centres) at heading ψ; the rigid body rests on
+///   three of the four corners whose plane passes at or above the fourth (for four corners
+///   two such triangles exist: the robot can rock between them), and its tilt is the angle
+///   of that plane from horizontal, `atan |∇z|`. The layer is the worst over both rocking
+///   poses and the `layers.tilt_headings` headings `ψ = j·180°/J`. Where some corner patch
+///   has no ground at every heading, the plane-fit slope stands in; else NaN.
+/// - risks: `collision` = ramp(number of points with `clearance - clearance_margin < h <= height + head_margin`),
+///   `step` = ramp(`step_height`), `negative` = ramp(`negative_depth`), `tilt` =
+///   ramp(`tilt_angle`) with the robot's tilt ramp, `roughness` = ramp(`plane_residual`),
+///   `unknown` = `risk.unknown` where not observed, `mission` = 1 within an item's radius of
+///   its centre, falling linearly to 0 over `risk.mission_margin_m` (NaN inputs give 0).
+///   `risk = 1 - Π(1 - r_k)`. A cell whose `negative` risk is above 0 is `observed` (its
+///   rating comes from ray reasoning: beams passed below where its ground should have been),
+///   so that a hole's inside is a known hazard, not unknown ground.
+/// - `risk_variance` = σ², `σ = min(sqrt(σ_range²/max(n, 1) + (drift·age)²) / height_span,
+///   max_sigma)` for observed cells (n = `count`, age = `age` or 0), `max_sigma` otherwise.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[repr(usize)]
 pub enum Layer {

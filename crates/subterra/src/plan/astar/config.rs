@@ -50,7 +50,7 @@ pub struct RiskAStarConfig {
     /// cells untraversable. subterra: 0.15, the terrain mapper's `risk.unknown`.
     pub unknown_risk: f64,
     /// Whether a diagonal move may pass an untraversable cell at the corner it crosses (see the
-    /// module docs). subterra: false.
+    /// `RiskAStar`'s docs). subterra: false.
     pub allow_corner_cutting: bool,
     /// The cost model: `risk` (STEP, Fan et al. 2021) or `additive` (the baseline). subterra: risk.
     #[serde(default)]

@@ -17,7 +17,7 @@ pub struct EntryPrices<'a> {
     /// The risk of an unknown cell entered unseen, in [0, 1] [1/m].
     pub unseen_risk: f64,
     /// Per cell, row-major, the clearance price `k >= 0` (finite): the cell's cost grows by `k`
-    /// times the least cell cost (module docs, step 7). Empty: none.
+    /// times the least cell cost ([`RiskAStar`], step 7). Empty: none.
     pub clearance: &'a [f32],
 }
 

@@ -40,7 +40,7 @@ pub(super) struct Search<'a> {
     /// The goal cell `(x, y)`.
     pub(super) goal: (usize, usize),
     /// Toward a target off the grid: its position in cell coordinates (cell `(x, y)`'s centre
-    /// at `(x, y)`); the goal is then the virtual node past the last cell (module docs,
+    /// at `(x, y)`); the goal is then the virtual node past the last cell (`RiskAStar`'s docs,
     /// "Toward a target off the grid").
     pub(super) exit: Option<(f64, f64)>,
     /// The border cell the virtual node was last improved from, and that cell's `g`.

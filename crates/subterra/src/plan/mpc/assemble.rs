@@ -1,4 +1,4 @@
-//! Step 4 of the module notes: the QP around the nominal, its variables laid out stage by
+//! Step 4 of `MpcTracker`'s docs: the QP around the nominal, its variables laid out stage by
 //! stage, assembled into the solver's compressed-column matrices.
 
 use super::{MpcConfig, UnicycleInput, Workspace};
@@ -26,7 +26,7 @@ fn iso(k: usize) -> usize {
     STAGE_VARS * (k - 1) + 6
 }
 
-/// Step 4 of the module notes: the QP around the nominal, into `ws.qp`. Variables stage by
+/// Step 4 of `MpcTracker`'s docs: the QP around the nominal, into `ws.qp`. Variables stage by
 /// stage, `z = [δa_k, δω_k, δx_{k+1}, δy_{k+1}, δθ_{k+1}, δv_{k+1}, σv_{k+1}, σo_{k+1}]_{k<N}`,
 /// so `P` is block diagonal (plus the input-rate couplings) and the KKT system banded; only
 /// used obstacle rows enter `A`.

@@ -152,7 +152,7 @@ pub(crate) fn supporting_corners(robot: &Footprint, polygon: &ConvexPolygon, nor
     best
 }
 
-/// The signed distance between the footprint and the polygon (module notes).
+/// The signed distance between the footprint and the polygon (`MpcTracker`'s docs).
 pub(crate) fn separation(robot: &Footprint, polygon: &ConvexPolygon) -> Separation {
     let faces = (0..polygon.vertices.len()).map(Face::Polygon).chain((0..4).map(Face::Robot));
     let mut axis = Separation { distance_m: f64::NEG_INFINITY, normal: DVec2::X, witness: DVec2::ZERO };
@@ -240,7 +240,7 @@ pub(crate) struct PolygonScratch {
 }
 
 /// Convex polygons covering the cells with `risk >= lethal` within the square of half-side
-/// `radius_m` around `centre` (module notes): each 8-connected region is split at the middle
+/// `radius_m` around `centre` (`MpcTracker`'s docs): each 8-connected region is split at the middle
 /// of its bounding box's longer side until the convex hull of each piece covers at most
 /// `max_overhang_cells` free cells per cell of the piece's longer side.
 pub(crate) fn lethal_polygons(

@@ -1,4 +1,4 @@
-//! Step 5 of the module notes: the merit of a trajectory and the filtered line search along
+//! Step 5 of `MpcTracker`'s docs: the merit of a trajectory and the filtered line search along
 //! the QP's step, and the tightened speed bounds after a refused one.
 
 use super::assemble::iu;
@@ -14,7 +14,7 @@ const ARMIJO: f64 = 1e-4;
 /// A predicted decrease of the QP model smaller than this means the nominal is optimal.
 const MIN_PREDICTED_DECREASE: f64 = 1e-12;
 
-/// The merit of a trajectory (module notes, step 5).
+/// The merit of a trajectory (`MpcTracker`'s docs, step 5).
 #[derive(Debug, Clone, Copy)]
 struct Merit {
     /// `φ`: the cost with the current targets and the exact penalties.
@@ -33,7 +33,7 @@ impl Merit {
 }
 
 /// Cost of a trajectory with the current targets, slacks at their smallest for the
-/// trajectory's own speed bounds and clearances (module notes, step 5).
+/// trajectory's own speed bounds and clearances (`MpcTracker`'s docs, step 5).
 fn merit(
     c: &MpcConfig,
     targets: &[StageTarget],
@@ -82,7 +82,7 @@ pub(super) enum Step {
 }
 
 /// After a refused line search: each stage's speed bounds also hold along the full QP
-/// step's rollout (module notes, step 5), for a second QP from the same nominal.
+/// step's rollout (`MpcTracker`'s docs, step 5), for a second QP from the same nominal.
 pub(super) fn tighten_speed_bounds(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: Option<&RiskGrid<'_>>) {
     ws.trial_u.clear();
     for (k, u) in ws.u.iter().enumerate() {
@@ -100,7 +100,7 @@ pub(super) fn tighten_speed_bounds(c: &MpcConfig, ws: &mut Workspace, state: &Un
     }
 }
 
-/// Step 5 of the module notes. Updates `ws.u` (and `ws.x` to its rollout) when a step is
+/// Step 5 of `MpcTracker`'s docs. Updates `ws.u` (and `ws.x` to its rollout) when a step is
 /// accepted.
 pub(super) fn line_search(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, risk: Option<&RiskGrid<'_>>, previous_input: Option<UnicycleInput>) -> Step {
     let n = c.horizon;

@@ -1,4 +1,4 @@
-//! Steps 1-3 of the module notes: the nominal's rollout with its Jacobians, each stage's
+//! Steps 1-3 of `MpcTracker`'s docs: the nominal's rollout with its Jacobians, each stage's
 //! targets and risk-limited speed bounds, and the obstacle rows.
 
 use glam::DVec2;
@@ -19,7 +19,7 @@ pub(super) fn reachable_bounds(c: &MpcConfig, v0: f64, k: usize, (hi, lo): (f64,
     (hi.max(v0 - change + ENVELOPE_SLACK_M_S), lo.min(v0 + change - ENVELOPE_SLACK_M_S))
 }
 
-/// `(vhi_k, vlo_k)` from the risk along `x[k-1] -> x[k] -> x[k+1]` (module notes, step 2).
+/// `(vhi_k, vlo_k)` from the risk along `x[k-1] -> x[k] -> x[k+1]` (`MpcTracker`'s docs, step 2).
 pub(super) fn speed_bounds(c: &MpcConfig, x: &[UnicycleState], k: usize, risk: Option<&RiskGrid<'_>>) -> (f64, f64) {
     let r = match risk {
         None => 0.0,
@@ -48,7 +48,7 @@ pub(super) fn speed_bounds(c: &MpcConfig, x: &[UnicycleState], k: usize, risk: O
     (hi, c.limits.min_speed_m_s.max(-hi))
 }
 
-/// Steps 1-3 of the module notes: rollout with Jacobians, targets, speed bounds, obstacle rows.
+/// Steps 1-3 of `MpcTracker`'s docs: rollout with Jacobians, targets, speed bounds, obstacle rows.
 pub(super) fn linearise(c: &MpcConfig, ws: &mut Workspace, state: &UnicycleState, s0: f64, desired: f64, risk: Option<&RiskGrid<'_>>) {
     let n = c.horizon;
     let t = c.dt_s;

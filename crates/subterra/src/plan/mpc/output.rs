@@ -74,7 +74,7 @@ pub struct MpcOutput {
     /// Smallest signed distance from a predicted footprint (`k = 1..N`) to a lethal polygon
     /// [m]; infinite when there is none.
     pub min_clearance_m: f64,
-    /// Upper speed limit `vhi_k` at the predicted states `k = 1..N` [m/s] (module notes, step 2).
+    /// Upper speed limit `vhi_k` at the predicted states `k = 1..N` [m/s] (`MpcTracker`'s docs, step 2).
     pub speed_limits_m_s: Vec<f64>,
     /// Reference points `r_1..r_N` of the last iteration [m].
     pub reference_points: Vec<DVec2>,

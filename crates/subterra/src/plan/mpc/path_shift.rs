@@ -1,4 +1,4 @@
-//! Moving the reference path around obstacles (module notes, step 2): the free sideways
+//! Moving the reference path around obstacles (`MpcTracker`'s docs, step 2): the free sideways
 //! offsets of path samples, the side each blocked run goes round on, and the tent-shaped
 //! offset at any arc length.
 
@@ -17,7 +17,7 @@ pub(super) type SideOffsets = (Option<f64>, Option<f64>);
 
 /// The sideways offsets (along the path normal) of a reference point nearest to zero on
 /// either side, `(right <= 0, left >= 0)`, at which the footprint, with the path's heading,
-/// clears every polygon by `path_clearance_m` (module notes, step 2): each polygon forbids an
+/// clears every polygon by `path_clearance_m` (`MpcTracker`'s docs, step 2): each polygon forbids an
 /// interval of offsets ([`blocked_offsets`]), and the candidates are 0 and the points just
 /// past each interval's ends. `None` on a side with no free offset within `max_path_shift_m`.
 fn free_offsets(c: &MpcConfig, intervals: &mut Vec<(f64, f64)>, polygons: &[ConvexPolygon], point: DVec2, tangent: DVec2) -> SideOffsets {
@@ -55,7 +55,7 @@ fn free_offsets(c: &MpcConfig, intervals: &mut Vec<(f64, f64)>, polygons: &[Conv
     (right, left)
 }
 
-/// The sideways offsets of the path samples around the robot (module notes, step 2): each
+/// The sideways offsets of the path samples around the robot (`MpcTracker`'s docs, step 2): each
 /// run of consecutive samples where the path itself is blocked goes round on one side, the
 /// one whose largest offset over the run is smaller (right on a tie); a run blocked on both
 /// sides keeps offset 0 (the obstacle rows stop the robot).

@@ -75,7 +75,7 @@ pub(crate) struct StepJacobians {
     pub b: [[f64; 2]; 4],
 }
 
-/// `[C0, C1, C2, S0, S1, S2]` at `h` (see the module notes).
+/// `[C0, C1, C2, S0, S1, S2]` at `h` (see `MpcTracker`'s docs).
 fn moments(h: f64) -> [f64; 6] {
     if h.abs() <= SERIES_MAX_H {
         // Ck = Σ_j (-1)^j h^{2j} / ((2j)! (2j+k+1)),  Sk = Σ_j (-1)^j h^{2j+1} / ((2j+1)! (2j+k+2)).

@@ -1,4 +1,4 @@
-//! Step 2 of the module docs: the navigator's grid from a new map, through the near, hazard
+//! Step 2 of `Navigator`'s docs: the navigator's grid from a new map, through the near, hazard
 //! and driven memories, the growth into the unseen, the unseen-near rule and the void rims.
 
 use glam::DVec2;

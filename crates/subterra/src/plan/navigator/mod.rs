@@ -2,6 +2,8 @@
 //! for a robot's own control loop (STEP; the JPL CoSTAR draft "Risk-aware Traversability in
 //! Extreme Environments"). One [`Navigator::step`] per control tick.
 //!
+//! Documented on [`Navigator`]. The files:
+//!
 //! - `tick`: one control tick's input and output ([`NavigatorInput`], [`NavigatorOutput`]);
 //! - `grids`: step 2, the navigator's grid from a new map, through the memories;
 //! - `planning`: step 3, the A*'s grid, the stand-in, the entry prices and the plan;
@@ -11,87 +13,6 @@
 //! - [`morphology`]: lethal patches, their growth into their own shadow, the inflation;
 //! - [`target`]: stand-ins for targets off the map or on blocked cells;
 //! - [`reactive`]: `rotate` and `back_out`, and the swept-footprint check of every recovery.
-//!
-//! # One step, exactly
-//! 1. **Map.** With a scan, [`TerrainMapper::update`] at the odometry pose; the coarse map is
-//!    kept (the navigator plans and tracks on it: the mapper's fine map is not computed).
-//!    Without a scan, the last map stands; once a map exists, no scan for longer than
-//!    `scan_timeout_s`, or an odometry confidence of 0 (no usable odometry source), stops the
-//!    robot here, with the reason in `safety` (steps 2-5 wait for the sensor).
-//! 2. **Grids.** The navigator's grid is the coarse map's `risk` layer, or with
-//!    `navigator.cvar_alpha` its `CVaR_α`, where the map observed the cell (holes and
-//!    drop-offs rated by ray reasoning are observed and lethal: a cell whose ground is missing
-//!    where the sensor should have seen it); NaN where it did not. Then, in the world frame:
-//!    the **near memory** records the newest (or highest) rating of every cell observed within
-//!    `near_memory_m`; the **hazard memory** forgets remembered cells beyond
-//!    `hazard_memory_range_m` or seen again as ground (at least `hazard_memory_forget_points`
-//!    ground points and a rating below lethal), remembers every lethal cell within
-//!    `hazard_memory_record_m` in a patch (`lethal_min_neighbours`), and raises every
-//!    remembered cell on the grid to its rating. A copy for the A* only is grown into the
-//!    unseen: unobserved cells within `unseen_growth_m` of a lethal patch and at least
-//!    `unseen_growth_min_range_m` from the robot take its rating (a hazard's far side lies in
-//!    its own shadow). Last, on both, each cell still unobserved within `near_memory_m` takes
-//!    its near-memory rating if that is above the planner's `unknown_risk`. With
-//!    `unseen_near_lethal`, the **unseen-near rule** marks lethal on both each cell within the
-//!    sensor's blind ring (`coverage.min_range_m`) that is unobserved, never held by the near
-//!    memory below lethal as shown ground (a point of its own, or rated from outside the
-//!    blind ring), never stood on, not within the blind ring of the robot's first
-//!    pose, with its 8 neighbours the same: ground the all-round sensor had in view on its way
-//!    in and never got a return from (a hole's mouth; [`memory::mark_unseen_near`]). With
-//!    `void_rim_m` > 0, every cell within it of a void (a cell whose `negative` layer is
-//!    lethal, on this map in a patch or remembered by the hazard memory) is lethal on both
-//!    unless the robot stood on it: the map places a void's edge only to within one radial
-//!    ground bin ([`memory::mark_void_rims`]). The **driven
-//!    memory** adds the cells under the robot's footprint every step. **Lethal** is the map's
-//!    one definition ([`RiskMap::lethal_risk`]): the A* never enters a lethal cell whatever its
-//!    thresholds, the MPC keeps the footprint off them.
-//! 3. **Plan** (only while tracking, and at most every `replan_period_s` unless the last plan
-//!    failed, the thresholds or the target changed): with `inflate_lethal`, the lethal patch
-//!    cells of the navigator's grid inflated by half the robot's width (plus
-//!    `inflation_margin_m`) except around the robot, and the cells grown into the unseen laid
-//!    over them as they are (a guess: they block, they are not inflated); a target off the map
-//!    is planned toward with the A*'s exit search (`leave_by_any_border`: the path leaves by
-//!    the border cell that makes the whole way cheapest, the straight line on priced at λ a
-//!    metre, [`RiskAStar::plan_toward`]; when it finds no way out within the thresholds, and
-//!    without it, the target is replaced by the map cell on the segment robot→target nearest
-//!    it); a target on a cell the robot may not enter by the
-//!    nearest cell where the robot fits and that the A* reaches ([`target`]); with `perception_aware`, the moves that would enter an unknown cell (not
-//!    observed, not remembered, not driven) the sensor will not have seen on the way are priced
-//!    at the map's `risk.unknown` instead of the planner's `unknown_risk`
-//!    ([`crate::plan::coverage`]); then the A* with the recovery machine's `R_inst`/`R_total`.
-//!    With `footprint_replans` > 0 the path found is checked with the tracker's footprint test
-//!    (below, step 5) at poses every half cell along it, each with the heading of the path's
-//!    chord over the robot's length; where the rectangle fails, a disc of the circumscribed
-//!    less the inscribed radius around that pose is closed and the A* runs again, up to
-//!    `footprint_replans` times ([`reactive::footprint_checked`]): the disc the A* plans for
-//!    takes turns the rectangle cannot, and such a path only stops the tracker beside an
-//!    obstacle. With `plan_hysteresis` > 0, a plan that takes another route than the path
-//!    being followed (a vertex of the path's rest farther than the robot's width from it)
-//!    replaces it only if that rest crosses an unknown cell, or, priced alike ([`RiskAStar::price_polyline`], the
-//!    perception-aware entry prices included, plus λ per metre on to the target), is untraversable, over budget, footprint-blocked or more
-//!    than `1 + plan_hysteresis` times the plan's price; else the rest is kept. A plan that
-//!    lengthens the way to the target by more than the recovery's `progress_min_m` is
-//!    reported as a reroute ([`RecoveryInput::route_switched`]): the recovery machine then
-//!    measures progress along the new route (once a window).
-//!    The distance to the target the recovery machine measures progress by is the path's
-//!    length plus the straight remainder beyond the map when a path was found, else the
-//!    straight-line distance.
-//! 4. **Recovery.** [`RecoveryMachine::step`] with the plan's outcome and the heading of most
-//!    clearance ([`reactive::clearance_heading`]) gives the behaviour for this tick.
-//! 5. **Act.** `track`: the MPC on the last path, on the navigator's grid (ungrown,
-//!    uninflated: its speed limits and lethal obstacle polygons), its command checked
-//!    ([`reactive::filter_track`]): if the footprint it would sweep newly covers the centre of
-//!    a lethal cell or of an unknown one within `track_unknown_fringe_m` of a lethal cell (a
-//!    hazard's unseen rim), a turn in place, a straight drive or a stop instead
-//!    (`NavigatorOutput::safety` says why); no path yet: stop.
-//!    `clear_map`: drop the mapper's window and the remembered hazards and near cells farther
-//!    than `hazard_memory_keep_m`, stop. `rotate` and `back_out` ([`reactive`]) move only if
-//!    the footprint their next motion sweeps covers no cell at or above the nominal `R_inst`
-//!    (raised thresholds are for the planner) or lethal, and no unknown cell; when no motion is safe the behaviour ends
-//!    ([`RecoveryMachine::abort`], with the reason) and the robot stops.
-//!    `raise_thresholds` and the final behaviours: stop.
-//!
-//! Every stage's wall time is reported.
 
 mod config;
 mod grids;
@@ -140,7 +61,88 @@ struct PlanScratch {
     turn_room: Vec<f32>,
 }
 
-/// The ground robot's navigation stack (see the module docs).
+/// The ground robot's navigation stack.
+///
+/// # One step, exactly
+/// 1. **Map.** With a scan, [`TerrainMapper::update`] at the odometry pose; the coarse map is
+///    kept (the navigator plans and tracks on it: the mapper's fine map is not computed).
+///    Without a scan, the last map stands; once a map exists, no scan for longer than
+///    `scan_timeout_s`, or an odometry confidence of 0 (no usable odometry source), stops the
+///    robot here, with the reason in `safety` (steps 2-5 wait for the sensor).
+/// 2. **Grids.** The navigator's grid is the coarse map's `risk` layer, or with
+///    `navigator.cvar_alpha` its `CVaR_α`, where the map observed the cell (holes and
+///    drop-offs rated by ray reasoning are observed and lethal: a cell whose ground is missing
+///    where the sensor should have seen it); NaN where it did not. Then, in the world frame:
+///    the **near memory** records the newest (or highest) rating of every cell observed within
+///    `near_memory_m`; the **hazard memory** forgets remembered cells beyond
+///    `hazard_memory_range_m` or seen again as ground (at least `hazard_memory_forget_points`
+///    ground points and a rating below lethal), remembers every lethal cell within
+///    `hazard_memory_record_m` in a patch (`lethal_min_neighbours`), and raises every
+///    remembered cell on the grid to its rating. A copy for the A* only is grown into the
+///    unseen: unobserved cells within `unseen_growth_m` of a lethal patch and at least
+///    `unseen_growth_min_range_m` from the robot take its rating (a hazard's far side lies in
+///    its own shadow). Last, on both, each cell still unobserved within `near_memory_m` takes
+///    its near-memory rating if that is above the planner's `unknown_risk`. With
+///    `unseen_near_lethal`, the **unseen-near rule** marks lethal on both each cell within the
+///    sensor's blind ring (`coverage.min_range_m`) that is unobserved, never held by the near
+///    memory below lethal as shown ground (a point of its own, or rated from outside the
+///    blind ring), never stood on, not within the blind ring of the robot's first
+///    pose, with its 8 neighbours the same: ground the all-round sensor had in view on its way
+///    in and never got a return from (a hole's mouth; [`memory::mark_unseen_near`]). With
+///    `void_rim_m` > 0, every cell within it of a void (a cell whose `negative` layer is
+///    lethal, on this map in a patch or remembered by the hazard memory) is lethal on both
+///    unless the robot stood on it: the map places a void's edge only to within one radial
+///    ground bin ([`memory::mark_void_rims`]). The **driven
+///    memory** adds the cells under the robot's footprint every step. **Lethal** is the map's
+///    one definition ([`RiskMap::lethal_risk`]): the A* never enters a lethal cell whatever its
+///    thresholds, the MPC keeps the footprint off them.
+/// 3. **Plan** (only while tracking, and at most every `replan_period_s` unless the last plan
+///    failed, the thresholds or the target changed): with `inflate_lethal`, the lethal patch
+///    cells of the navigator's grid inflated by half the robot's width (plus
+///    `inflation_margin_m`) except around the robot, and the cells grown into the unseen laid
+///    over them as they are (a guess: they block, they are not inflated); a target off the map
+///    is planned toward with the A*'s exit search (`leave_by_any_border`: the path leaves by
+///    the border cell that makes the whole way cheapest, the straight line on priced at λ a
+///    metre, [`RiskAStar::plan_toward`]; when it finds no way out within the thresholds, and
+///    without it, the target is replaced by the map cell on the segment robot→target nearest
+///    it); a target on a cell the robot may not enter by the
+///    nearest cell where the robot fits and that the A* reaches ([`target`]); with `perception_aware`, the moves that would enter an unknown cell (not
+///    observed, not remembered, not driven) the sensor will not have seen on the way are priced
+///    at the map's `risk.unknown` instead of the planner's `unknown_risk`
+///    ([`crate::plan::coverage`]); then the A* with the recovery machine's `R_inst`/`R_total`.
+///    With `footprint_replans` > 0 the path found is checked with the tracker's footprint test
+///    (below, step 5) at poses every half cell along it, each with the heading of the path's
+///    chord over the robot's length; where the rectangle fails, a disc of the circumscribed
+///    less the inscribed radius around that pose is closed and the A* runs again, up to
+///    `footprint_replans` times ([`reactive::footprint_checked`]): the disc the A* plans for
+///    takes turns the rectangle cannot, and such a path only stops the tracker beside an
+///    obstacle. With `plan_hysteresis` > 0, a plan that takes another route than the path
+///    being followed (a vertex of the path's rest farther than the robot's width from it)
+///    replaces it only if that rest crosses an unknown cell, or, priced alike ([`RiskAStar::price_polyline`], the
+///    perception-aware entry prices included, plus λ per metre on to the target), is untraversable, over budget, footprint-blocked or more
+///    than `1 + plan_hysteresis` times the plan's price; else the rest is kept. A plan that
+///    lengthens the way to the target by more than the recovery's `progress_min_m` is
+///    reported as a reroute ([`RecoveryInput::route_switched`]): the recovery machine then
+///    measures progress along the new route (once a window).
+///    The distance to the target the recovery machine measures progress by is the path's
+///    length plus the straight remainder beyond the map when a path was found, else the
+///    straight-line distance.
+/// 4. **Recovery.** [`RecoveryMachine::step`] with the plan's outcome and the heading of most
+///    clearance ([`reactive::clearance_heading`]) gives the behaviour for this tick.
+/// 5. **Act.** `track`: the MPC on the last path, on the navigator's grid (ungrown,
+///    uninflated: its speed limits and lethal obstacle polygons), its command checked
+///    ([`reactive::filter_track`]): if the footprint it would sweep newly covers the centre of
+///    a lethal cell or of an unknown one within `track_unknown_fringe_m` of a lethal cell (a
+///    hazard's unseen rim), a turn in place, a straight drive or a stop instead
+///    (`NavigatorOutput::safety` says why); no path yet: stop.
+///    `clear_map`: drop the mapper's window and the remembered hazards and near cells farther
+///    than `hazard_memory_keep_m`, stop. `rotate` and `back_out` ([`reactive`]) move only if
+///    the footprint their next motion sweeps covers no cell at or above the nominal `R_inst`
+///    (raised thresholds are for the planner) or lethal, and no unknown cell; when no motion is safe the behaviour ends
+///    ([`RecoveryMachine::abort`], with the reason) and the robot stops.
+///    `raise_thresholds` and the final behaviours: stop.
+///
+/// Every stage's wall time is reported.
 #[derive(Debug)]
 pub struct Navigator {
     config: NavigatorConfig,
@@ -297,7 +299,7 @@ impl Navigator {
         Ok(())
     }
 
-    /// One control tick (module docs).
+    /// One control tick (see [`Navigator`]).
     pub fn step(&mut self, input: &NavigatorInput<'_>) -> Result<NavigatorOutput> {
         let started = Instant::now();
         if !(input.speed_m_s.is_finite()) {

@@ -1,4 +1,4 @@
-//! Step 3 of the module docs: the A*'s grid (inflated, grown into the unseen), the stand-in
+//! Step 3 of `Navigator`'s docs: the A*'s grid (inflated, grown into the unseen), the stand-in
 //! for a target off the map or on a blocked cell, the entry prices, the plan with its
 //! footprint replans, and whether it replaces the path being followed.
 

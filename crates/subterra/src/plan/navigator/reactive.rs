@@ -337,7 +337,7 @@ pub(crate) fn filter_track(view: &SafetyView<'_>, position: DVec2, heading: f64,
     Err(((0.0, 0.0), format!("tracker command ({v:.2} m/s, {w:.2} rad/s) not safe, stopped: {}", first.describe())))
 }
 
-/// The heading of the longest ray below `r_inst` from `from` (module docs, step 6): over
+/// The heading of the longest ray below `r_inst` from `from` (`Navigator`'s docs, step 6): over
 /// `clearance_headings` evenly spaced headings, the distance the grid stays below `r_inst`
 /// (cell steps, up to `clearance_range_m`); the longest wins, ties to the heading nearest
 /// `toward`.

@@ -1,4 +1,4 @@
-//! Plan hysteresis (step 3 of the module docs): whether a new plan replaces the path being
+//! Plan hysteresis (step 3 of `Navigator`'s docs): whether a new plan replaces the path being
 //! followed, keeps it, or is the same route refreshed.
 
 use glam::DVec2;

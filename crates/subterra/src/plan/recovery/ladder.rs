@@ -1,4 +1,4 @@
-//! The ladder itself (module docs): what makes a trigger, the rung each trigger climbs to, the
+//! The ladder itself (`RecoveryMachine`'s docs): what makes a trigger, the rung each trigger climbs to, the
 //! relaxation of raised thresholds and of the ladder, and the progress window.
 
 use std::f64::consts::PI;

@@ -95,7 +95,7 @@ pub struct RecoveryInput {
     pub room_to_turn: bool,
     /// Whether this tick's plan rerouted the robot (the navigator sets it when a new plan
     /// lengthens the way by more than `progress_min_m`): that jump in
-    /// `distance_to_target_m` is then not lost progress (module docs), at most once a
+    /// `distance_to_target_m` is then not lost progress (`RecoveryMachine`'s docs), at most once a
     /// progress window.
     pub route_switched: bool,
 }

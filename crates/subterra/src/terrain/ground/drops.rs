@@ -7,9 +7,9 @@ use std::cmp::Ordering;
 use super::{BinAccumulator, GroundSegmenter, NO_BIN};
 
 impl GroundSegmenter {
-    /// Each bin's ray span for the void detection (module doc, *Void*): the slopes `z/r` of
+    /// Each bin's ray span for the void detection (`segment_ground`'s docs, *Void*): the slopes `z/r` of
     /// its points that are not more than `max_dist_to_line_m` below its ground line, and its
-    /// `solid_r` (the largest `r` of the same points; module doc, *Shadow*). A return
+    /// `solid_r` (the largest `r` of the same points; `segment_ground`'s docs, *Shadow*). A return
     /// from deeper came through the floor: its ray crossed the expected ground where there
     /// was none (a hole's inside, or what lies under it), so it is evidence for a void, not a
     /// beam that came back from the ground.
@@ -32,7 +32,7 @@ impl GroundSegmenter {
         }
     }
 
-    /// The shadow depth of every bin (module doc, *Shadow*): per sector, from the sensor out,
+    /// The shadow depth of every bin (`segment_ground`'s docs, *Shadow*): per sector, from the sensor out,
     /// the return that starts each bin's run; from the farthest bin in, the deepest missing
     /// ground below that return's line over the rest of the run, kept where that return is
     /// seen steeply enough.
@@ -80,7 +80,7 @@ impl GroundSegmenter {
         }
     }
 
-    /// Marks the void runs of every sector (module doc, *Void*).
+    /// Marks the void runs of every sector (`segment_ground`'s docs, *Void*).
     pub(super) fn mark_voids(&mut self) {
         if self.config.void_min_gap_deg == 0.0 {
             return; // off: `bin_points` left every bin non-void

@@ -184,7 +184,7 @@ impl LineSums {
     }
 }
 
-/// The ground estimate of a sector while its lines are fitted (module doc, step 3): height
+/// The ground estimate of a sector while its lines are fitted (`segment_ground`'s docs, step 3): height
 /// `z` [m] last seen at radius `r` [m]; `after_line`: the sector has an accepted line (else
 /// the estimate is the ground under the robot).
 #[derive(Debug, Clone, Copy)]
@@ -194,7 +194,7 @@ struct GroundEstimate {
     after_line: bool,
 }
 
-/// Whether a segment may start at the prototype `q = (r, z)` (module doc, step 3): within
+/// Whether a segment may start at the prototype `q = (r, z)` (`segment_ground`'s docs, step 3): within
 /// `max_start_height_m` of the estimate, widened by `max_slope` per metre beyond it.
 #[inline]
 fn may_start(c: &GroundConfig, q: (f64, f64), g: GroundEstimate) -> bool {
@@ -202,7 +202,7 @@ fn may_start(c: &GroundConfig, q: (f64, f64), g: GroundEstimate) -> bool {
 }
 
 /// Whether the line `z = m·r + b` whose first prototype is `first = (r, z)` starts on the
-/// ground estimate `g` (module doc, step 3).
+/// ground estimate `g` (`segment_ground`'s docs, step 3).
 fn starts_on_ground(c: &GroundConfig, first: (f64, f64), m: f64, b: f64, g: GroundEstimate) -> bool {
     let t = c.max_start_height_m;
     if (first.1 - g.z).abs() <= t {
@@ -216,7 +216,7 @@ fn starts_on_ground(c: &GroundConfig, first: (f64, f64), m: f64, b: f64, g: Grou
 }
 
 /// Whether a segment whose first prototype is `first = (r, z)` starts over an unseen rise
-/// from `g` (module doc, step 3; off when `unseen_rise_min_length_m` is 0); `before` holds
+/// from `g` (`segment_ground`'s docs, step 3; off when `unseen_rise_min_length_m` is 0); `before` holds
 /// the heights of the sector's prototypes before `first`.
 #[inline]
 fn rises_unseen(c: &GroundConfig, first: (f64, f64), before: &[f64], g: GroundEstimate) -> bool {
@@ -228,7 +228,7 @@ fn rises_unseen(c: &GroundConfig, first: (f64, f64), before: &[f64], g: GroundEs
         && before.iter().all(|&z| z >= first.1 - c.max_start_height_m)
 }
 
-/// `close(seg)` of the module doc; `before` holds the heights of the sector's prototypes
+/// `close(seg)` of `segment_ground`'s docs; `before` holds the heights of the sector's prototypes
 /// before `seg[0]`.
 fn close(c: &GroundConfig, seg: &[(f64, f64, u32)], sums: &LineSums, g: &mut GroundEstimate, before: &[f64], lines: &mut Vec<GroundLine>) {
     if seg.len() < c.min_line_points as usize {

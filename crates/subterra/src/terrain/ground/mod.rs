@@ -1,121 +1,7 @@
 //! Ground segmentation by line fits in cylindrical coordinates (Himmelsbach, Hundelshausen,
 //! Wuensche, "Fast segmentation of 3D point clouds for ground vehicles", IEEE IV 2010).
 //!
-//! In: points in a gravity-aligned frame centred on the sensor. Out: each point's height
-//! above its sector's ground line, hence a ground / obstacle label, and per polar bin the
-//! ground line and the lowest evidence of where the floor can be (used by the `negative`
-//! risk layer and to fill the ground height between scan rings).
-//!
-//! # The algorithm, exactly
-//!
-//! Inputs: points `(x, y, z)` (f32, converted to f64 for every computation below) in a frame
-//! whose z axis points up and whose origin is the sensor; `H = sensor_height_m`, the origin's
-//! height above the ground near it; a [`GroundConfig`] (`S = sectors`, `Δ = bin_m`,
-//! `R = max_range_m`, `B = ceil(R / Δ)` bins).
-//!
-//! 1. **Polar bins.** `r = sqrt(x² + y²)`. A point with `r >= R` (or a non-finite coordinate)
-//!    gets no bin. Otherwise sector `s = min(floor((atan2(y, x) + π) / (2π / S)), S - 1)` and
-//!    bin `k = min(floor(r / Δ), B - 1)`.
-//! 2. **Prototypes.** Each non-empty bin's prototype is its lowest point `(r, z)` (smallest
-//!    z; on a tie, the first in input order).
-//! 3. **Line fits, per sector**, visiting its prototypes `p = (r, z)` in increasing bin order.
-//!    State: the ground estimate `g`, a height `z_g` seen at radius `r_g` (starts at
-//!    `(0, -H)`: the ground the robot stands on), the current segment `seg` (a list of
-//!    prototypes, starts empty), the sector's accepted lines. `fit(P)` is the least-squares
-//!    line `z = m·r + b` through the points `P`; `rmse(P)` is `sqrt(Σ (z - m·r - b)² / |P|)`
-//!    of that fit. A line *starts on the ground* when its first prototype `q` lies within
-//!    `max_start_height_m` (Himmelsbach's T_b) of `z_g`, or the line itself comes within
-//!    T_b of `z_g` somewhere between `r_g` and `q.r`: the ground rose or fell from where it
-//!    was last seen over a stretch the sensor did not see (the blind ring around the robot,
-//!    a hole), and the line leads back to it. For each prototype `p`:
-//!    - if `seg` is empty: `seg = [p]`;
-//!    - else if `p.r - last(seg).r > max_gap_m`: `close(seg)`, then `seg = [p]`;
-//!    - else if `|seg| = 1` (`q` its point): if `|q.z - z_g| <= max_start_height_m +
-//!      max_slope · max(q.r - r_g, 0)` (the ground can have changed at most that much over
-//!      the unseen stretch) and `|p.z - q.z| <= max_slope · (p.r - q.r)`, append `p`;
-//!      otherwise `seg = [p]`;
-//!    - else (`|seg| >= 2`): with `(m0, b0) = fit(seg)` and `(m1, b1) = fit(seg + [p])`,
-//!      append `p` if `|p.z - (m0·p.r + b0)| <= max_prediction_error_m` and
-//!      `|m1| <= max_slope` and `rmse(seg + [p]) <= max_rmse_m` and the line `(m1, b1)`
-//!      starts on the ground. Otherwise `close(seg)`, set
-//!      `seg = [last(seg)]` (the break point starts the next segment) and handle `p` again
-//!      by the rules above (it now meets the `|seg| = 1` rule).
-//!
-//!    With `unseen_rise_min_length_m` = `U` > 0 the sector's first line also *starts on
-//!    the ground over an unseen rise* when no line has been accepted before it (the
-//!    estimate is still the ground under the robot), `max_start_height_m < q.z - z_g <=
-//!    max_start_height_m + max_slope · q.r` for its first prototype `q` (a ramp no steeper
-//!    than `max_slope` hidden in the blind ring could lead up to it) and no prototype of the
-//!    sector before `q` lies more than `max_start_height_m` below `q` (nothing was seen in
-//!    the stretch: no floor, no face of a box). Beyond an accepted line (the far side of a
-//!    hole, a crest) the rule does not apply. While a segment grows this counts as starting
-//!    on the ground; `close` accepts such a line only if it is a plateau, not a box top or a
-//!    slope: its last prototype at least `U` beyond its first, and level (`|m|·U <=
-//!    max_start_height_m`).
-//!
-//!    After the last prototype, `close(seg)`. `close(seg)`: if `|seg| >= min_line_points`
-//!    and the line `(m, b) = fit(seg)` starts on the ground, accept it covering bins
-//!    `[bin(first(seg)), bin(last(seg))]` and set `g = (last(seg).r, m·last(seg).r + b)`;
-//!    otherwise discard it. The top of a box is a level line more than T_b above the ground
-//!    everywhere: never accepted, however far away.
-//! 4. **Line of each bin.** Bin `k` of a sector takes the first accepted line (in order of
-//!    acceptance) whose bin interval contains `k` (the bin is then *covered*); if none does,
-//!    the line whose interval is nearest in bins (distance `first - k` or `k - last`; on a tie
-//!    the earlier line), except before the sector's first line, where it takes the straight
-//!    line from the ground under the sensor `(0, -H)` to that line at its first prototype's
-//!    radius `r₁` (`m = (z₁ + H) / r₁, b = -H`; not covered). A sector without lines uses
-//!    the flat line `m = 0, b = -H`.
-//! 5. **Labels.** A point's height above ground is `h = z - (m·r + b)` with its bin's line;
-//!    it is ground iff `|h| <= max_dist_to_line_m`. Points without a bin are obstacles with
-//!    `h = NaN`.
-//!
-//! Byproducts per bin (not part of the labels): the *expected ground* at radius r is the
-//! bin's line there, except beyond the last prototype of a rising line (`m > 0`), where it
-//! stays at the line's height at that prototype (past a crest the ground may fall away out of
-//! sight); *coverage* of a position at radius r in a
-//! covered bin holds when r also lies between the radii of the line's first and last
-//! prototype; the lowest point's z (`floor_z`), and the steepest downward ray slope
-//! `min(z / r)` over the prototypes of all *farther* bins of the sector: a ray from the
-//! sensor to such a point passed over this bin at height `slope · r`, so the floor here is
-//! at most that high.
-//!
-//! *Void* (missing ground): per sector, visiting its non-empty bins in increasing order, a
-//! run of empty bins between bin `a` and the next non-empty bin `b` is void when the rays
-//! that would meet the run's expected ground (its bins' lines, capped as above) leave an angular stretch of
-//! more than `void_min_gap_deg` (depression) with no return: of the depressions between
-//! `hi` = min(`a`'s shallowest ray, the expected ground at the run's start) and `lo` =
-//! max(the steepest ray to a farther bin not steeper than `a`'s shallowest, the expected
-//! ground at the run's end), none lies in a bin's ray span `[shallowest, steepest]` (any bin
-//! of the sector) for more than that. A bin's ray span is over its points with `h >=
-//! -max_dist_to_line_m` (step 5): a return from deeper below its line came through the
-//! floor (the inside of a hole, or whatever lies under it: the beam crossed the expected
-//! ground where there was none) and is evidence of the void, not a beam that came back.
-//! Beams must have crossed the expected ground there and none came back from it: the floor
-//! is missing (a hole, or a drop beyond the sensor's range). Runs behind an occluder, past
-//! a crest, or beyond a partial occluder are not void: the rays over them came back from
-//! farther, or from the occluder.
-//!
-//! *Shadow* (`drop_shadows`): a drop with a floor (a pit, a ledge) hides the floor behind
-//! its near edge. Per sector, a bin's return *came back* when it lies not more than
-//! `max_dist_to_line_m` below its line; the bins after a bin's farthest such return, up to
-//! the next bin with one, form a *run*. Each bin of a run has a depth below the ground last
-//! seen going on (the expected ground of the bin that starts the run, its line continued):
-//! that at the bin's far edge minus the steepest downward ray to a farther bin's prototype
-//! there, or, if deeper, how far its lowest point lies below it where that is more than
-//! `max_dist_to_line_m`. The starting bin's line, not the bin's own: a line accepted from
-//! the near rim to the floor or far wall of a pit (a "slope" with nothing returned along
-//! it) would otherwise explain the drop away. The floor is missing wherever a ray passed
-//! below that ground, and from the return that starts the run to there nothing shows where
-//! the drop begins: every position of the run (including the part of the starting bin beyond its
-//! farthest return) takes the deepest depth of the run's bins from there on, at least 0
-//! (`shadow_depth`), if the ray to that return (at the expected ground there) descends at
-//! least `drop_shadow_min_grazing_deg`; otherwise, and before the sector's first return (the
-//! blind ring around the sensor), there is no shadow. Ground hidden behind a return is
-//! steeper than the ray that grazed it, or falls away: seen at a grazing angle above the
-//! robot's safe tilt, every reading of the run is a hazard; at a shallower one (far away,
-//! past a crest) it may be a slope the robot could drive, which it sees from closer. Behind
-//! a rock the rays over the run pass above the ground (depth 0); between two rings on flat
-//! ground they too pass above it.
+//! Documented on [`segment_ground`].
 
 mod drops;
 mod lines;
@@ -152,14 +38,14 @@ pub(super) struct GroundLine {
     pub last_r_m: f64,
 }
 
-/// What the segmentation knows about one polar bin (see the module doc).
+/// What the segmentation knows about one polar bin (see `segment_ground`'s docs).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) struct PolarBin {
     /// Whether an accepted line covers the bin and the queried radius lies between the
     /// line's first and last prototype.
     pub covered: bool,
     /// The expected ground at the queried radius: the bin's line, capped beyond a rising line's
-    /// last prototype (module doc) [m, sensor-centred].
+    /// last prototype (`segment_ground`'s docs) [m, sensor-centred].
     pub ground_z: f64,
     /// Upper bound of the floor at the queried radius: the lower of the bin's lowest point
     /// and the lowest ray that passed over it; `+inf` without evidence [m, sensor-centred].
@@ -167,7 +53,7 @@ pub(super) struct PolarBin {
     /// Whether the bin is void: beams crossed its expected ground and none returned.
     pub void: bool,
     /// How deep the drop may be that begins at the queried radius: the deepest evidence of
-    /// missing ground in the shadow run it lies in (module doc, *Shadow*), 0 outside one [m].
+    /// missing ground in the shadow run it lies in (`segment_ground`'s docs, *Shadow*), 0 outside one [m].
     pub shadow_depth: f64,
 }
 
@@ -183,12 +69,12 @@ struct BinAccumulator {
     top_slope: f32,
     /// The smallest `z/r` of the bin's points (its steepest ray); `+inf` when empty.
     low_slope: f32,
-    /// After the sweep: whether the bin is void (module doc).
+    /// After the sweep: whether the bin is void (`segment_ground`'s docs).
     void: bool,
     /// The radius of the bin's farthest return that came back (not more than
     /// `max_dist_to_line_m` below its line); `-inf` when none did.
     solid_r: f32,
-    /// After the sweep: the shadow depth beyond `solid_r` (module doc, *Shadow*) [m].
+    /// After the sweep: the shadow depth beyond `solid_r` (`segment_ground`'s docs, *Shadow*) [m].
     shadow_depth: f32,
 }
 
@@ -306,7 +192,7 @@ impl GroundSegmenter {
         })
     }
 
-    /// Segments `points` (sensor-centred, z up; see the module doc) and writes each point's
+    /// Segments `points` (sensor-centred, z up; see `segment_ground`'s docs) and writes each point's
     /// height above its ground line to `heights_out` (NaN for points without a bin).
     pub(super) fn segment(&mut self, points: &[[f32; 3]], sensor_height_m: f64, heights_out: &mut Vec<f32>) -> Result<()> {
         if !sensor_height_m.is_finite() {
@@ -320,7 +206,7 @@ impl GroundSegmenter {
         self.fit_lines();
         heights_out.clear();
         let (bin_line, lines) = (&self.bin_line[..], &self.bin_lines[..]);
-        // Each bin's `solid_r` (module doc, *Shadow*) in the same pass: the radius of its
+        // Each bin's `solid_r` (`segment_ground`'s docs, *Shadow*) in the same pass: the radius of its
         // farthest point not more than `max_dist_to_line_m` below its line (with voids on,
         // `gather_ray_spans` finds it among the same points). The test is the same for every
         // point: predicted, not a data-dependent branch.
@@ -436,8 +322,124 @@ impl GroundSegmenter {
 
 /// Labels each point of `points` (row-major `(N, 3)`, sensor-centred, z up) ground (`true`)
 /// or obstacle (`false`) by line fits in cylindrical coordinates (Himmelsbach et al., IEEE IV
-/// 2010; set out exactly in the notes of `terrain/ground/mod.rs`); `sensor_height_m` is the
+/// 2010; set out exactly below); `sensor_height_m` is the
 /// origin's height above the ground near it [m].
+///
+/// In: points in a gravity-aligned frame centred on the sensor. Out: each point's height
+/// above its sector's ground line, hence a ground / obstacle label, and per polar bin the
+/// ground line and the lowest evidence of where the floor can be (used by the `negative`
+/// risk layer and to fill the ground height between scan rings).
+///
+/// # The algorithm, exactly
+///
+/// Inputs: points `(x, y, z)` (f32, converted to f64 for every computation below) in a frame
+/// whose z axis points up and whose origin is the sensor; `H = sensor_height_m`, the origin's
+/// height above the ground near it; a [`GroundConfig`] (`S = sectors`, `Δ = bin_m`,
+/// `R = max_range_m`, `B = ceil(R / Δ)` bins).
+///
+/// 1. **Polar bins.** `r = sqrt(x² + y²)`. A point with `r >= R` (or a non-finite coordinate)
+///    gets no bin. Otherwise sector `s = min(floor((atan2(y, x) + π) / (2π / S)), S - 1)` and
+///    bin `k = min(floor(r / Δ), B - 1)`.
+/// 2. **Prototypes.** Each non-empty bin's prototype is its lowest point `(r, z)` (smallest
+///    z; on a tie, the first in input order).
+/// 3. **Line fits, per sector**, visiting its prototypes `p = (r, z)` in increasing bin order.
+///    State: the ground estimate `g`, a height `z_g` seen at radius `r_g` (starts at
+///    `(0, -H)`: the ground the robot stands on), the current segment `seg` (a list of
+///    prototypes, starts empty), the sector's accepted lines. `fit(P)` is the least-squares
+///    line `z = m·r + b` through the points `P`; `rmse(P)` is `sqrt(Σ (z - m·r - b)² / |P|)`
+///    of that fit. A line *starts on the ground* when its first prototype `q` lies within
+///    `max_start_height_m` (Himmelsbach's T_b) of `z_g`, or the line itself comes within
+///    T_b of `z_g` somewhere between `r_g` and `q.r`: the ground rose or fell from where it
+///    was last seen over a stretch the sensor did not see (the blind ring around the robot,
+///    a hole), and the line leads back to it. For each prototype `p`:
+///    - if `seg` is empty: `seg = [p]`;
+///    - else if `p.r - last(seg).r > max_gap_m`: `close(seg)`, then `seg = [p]`;
+///    - else if `|seg| = 1` (`q` its point): if `|q.z - z_g| <= max_start_height_m +
+///      max_slope · max(q.r - r_g, 0)` (the ground can have changed at most that much over
+///      the unseen stretch) and `|p.z - q.z| <= max_slope · (p.r - q.r)`, append `p`;
+///      otherwise `seg = [p]`;
+///    - else (`|seg| >= 2`): with `(m0, b0) = fit(seg)` and `(m1, b1) = fit(seg + [p])`,
+///      append `p` if `|p.z - (m0·p.r + b0)| <= max_prediction_error_m` and
+///      `|m1| <= max_slope` and `rmse(seg + [p]) <= max_rmse_m` and the line `(m1, b1)`
+///      starts on the ground. Otherwise `close(seg)`, set
+///      `seg = [last(seg)]` (the break point starts the next segment) and handle `p` again
+///      by the rules above (it now meets the `|seg| = 1` rule).
+///
+///    With `unseen_rise_min_length_m` = `U` > 0 the sector's first line also *starts on
+///    the ground over an unseen rise* when no line has been accepted before it (the
+///    estimate is still the ground under the robot), `max_start_height_m < q.z - z_g <=
+///    max_start_height_m + max_slope · q.r` for its first prototype `q` (a ramp no steeper
+///    than `max_slope` hidden in the blind ring could lead up to it) and no prototype of the
+///    sector before `q` lies more than `max_start_height_m` below `q` (nothing was seen in
+///    the stretch: no floor, no face of a box). Beyond an accepted line (the far side of a
+///    hole, a crest) the rule does not apply. While a segment grows this counts as starting
+///    on the ground; `close` accepts such a line only if it is a plateau, not a box top or a
+///    slope: its last prototype at least `U` beyond its first, and level (`|m|·U <=
+///    max_start_height_m`).
+///
+///    After the last prototype, `close(seg)`. `close(seg)`: if `|seg| >= min_line_points`
+///    and the line `(m, b) = fit(seg)` starts on the ground, accept it covering bins
+///    `[bin(first(seg)), bin(last(seg))]` and set `g = (last(seg).r, m·last(seg).r + b)`;
+///    otherwise discard it. The top of a box is a level line more than T_b above the ground
+///    everywhere: never accepted, however far away.
+/// 4. **Line of each bin.** Bin `k` of a sector takes the first accepted line (in order of
+///    acceptance) whose bin interval contains `k` (the bin is then *covered*); if none does,
+///    the line whose interval is nearest in bins (distance `first - k` or `k - last`; on a tie
+///    the earlier line), except before the sector's first line, where it takes the straight
+///    line from the ground under the sensor `(0, -H)` to that line at its first prototype's
+///    radius `r₁` (`m = (z₁ + H) / r₁, b = -H`; not covered). A sector without lines uses
+///    the flat line `m = 0, b = -H`.
+/// 5. **Labels.** A point's height above ground is `h = z - (m·r + b)` with its bin's line;
+///    it is ground iff `|h| <= max_dist_to_line_m`. Points without a bin are obstacles with
+///    `h = NaN`.
+///
+/// Byproducts per bin (not part of the labels): the *expected ground* at radius r is the
+/// bin's line there, except beyond the last prototype of a rising line (`m > 0`), where it
+/// stays at the line's height at that prototype (past a crest the ground may fall away out of
+/// sight); *coverage* of a position at radius r in a
+/// covered bin holds when r also lies between the radii of the line's first and last
+/// prototype; the lowest point's z (`floor_z`), and the steepest downward ray slope
+/// `min(z / r)` over the prototypes of all *farther* bins of the sector: a ray from the
+/// sensor to such a point passed over this bin at height `slope · r`, so the floor here is
+/// at most that high.
+///
+/// *Void* (missing ground): per sector, visiting its non-empty bins in increasing order, a
+/// run of empty bins between bin `a` and the next non-empty bin `b` is void when the rays
+/// that would meet the run's expected ground (its bins' lines, capped as above) leave an angular stretch of
+/// more than `void_min_gap_deg` (depression) with no return: of the depressions between
+/// `hi` = min(`a`'s shallowest ray, the expected ground at the run's start) and `lo` =
+/// max(the steepest ray to a farther bin not steeper than `a`'s shallowest, the expected
+/// ground at the run's end), none lies in a bin's ray span `[shallowest, steepest]` (any bin
+/// of the sector) for more than that. A bin's ray span is over its points with `h >=
+/// -max_dist_to_line_m` (step 5): a return from deeper below its line came through the
+/// floor (the inside of a hole, or whatever lies under it: the beam crossed the expected
+/// ground where there was none) and is evidence of the void, not a beam that came back.
+/// Beams must have crossed the expected ground there and none came back from it: the floor
+/// is missing (a hole, or a drop beyond the sensor's range). Runs behind an occluder, past
+/// a crest, or beyond a partial occluder are not void: the rays over them came back from
+/// farther, or from the occluder.
+///
+/// *Shadow* (`drop_shadows`): a drop with a floor (a pit, a ledge) hides the floor behind
+/// its near edge. Per sector, a bin's return *came back* when it lies not more than
+/// `max_dist_to_line_m` below its line; the bins after a bin's farthest such return, up to
+/// the next bin with one, form a *run*. Each bin of a run has a depth below the ground last
+/// seen going on (the expected ground of the bin that starts the run, its line continued):
+/// that at the bin's far edge minus the steepest downward ray to a farther bin's prototype
+/// there, or, if deeper, how far its lowest point lies below it where that is more than
+/// `max_dist_to_line_m`. The starting bin's line, not the bin's own: a line accepted from
+/// the near rim to the floor or far wall of a pit (a "slope" with nothing returned along
+/// it) would otherwise explain the drop away. The floor is missing wherever a ray passed
+/// below that ground, and from the return that starts the run to there nothing shows where
+/// the drop begins: every position of the run (including the part of the starting bin beyond its
+/// farthest return) takes the deepest depth of the run's bins from there on, at least 0
+/// (`shadow_depth`), if the ray to that return (at the expected ground there) descends at
+/// least `drop_shadow_min_grazing_deg`; otherwise, and before the sector's first return (the
+/// blind ring around the sensor), there is no shadow. Ground hidden behind a return is
+/// steeper than the ray that grazed it, or falls away: seen at a grazing angle above the
+/// robot's safe tilt, every reading of the run is a hazard; at a shallower one (far away,
+/// past a crest) it may be a slope the robot could drive, which it sees from closer. Behind
+/// a rock the rays over the run pass above the ground (depth 0); between two rings on flat
+/// ground they too pass above it.
 pub fn segment_ground(points: &[f32], config: &GroundConfig, sensor_height_m: f64) -> Result<Vec<bool>> {
     let points = as_points("points", points)?;
     let mut segmenter = GroundSegmenter::new(*config)?;

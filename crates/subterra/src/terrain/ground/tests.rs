@@ -339,7 +339,7 @@ fn query_row_is_query() {
     }
 }
 
-/// Step 4 bin by bin, as the module doc states it.
+/// Step 4 bin by bin, as `segment_ground`'s docs state it.
 fn assign_by_bin(lines: &[GroundLine], bins: usize, h: f64) -> Vec<BinLine> {
     (0..bins)
         .map(|k| {
