@@ -38,6 +38,9 @@ test-rust:
 		echo "clippy is not installed (rustup component add clippy): checking without lints"; \
 		cargo check --workspace --exclude subterra-py --benches --examples; \
 	fi
+	# Every intra-doc link resolves and no public doc links to a private item (units in doc
+	# comments are written \[m\] so that rustdoc does not read them as links).
+	RUSTDOCFLAGS="-D warnings" cargo doc --workspace --exclude subterra-py --no-deps --quiet
 
 # Two workers (pytest-xdist): the suite on the 2-core CI machine in about 6 minutes instead of 9.5.
 PYTEST_WORKERS ?= 2

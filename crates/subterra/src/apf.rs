@@ -34,7 +34,7 @@ use glam::DVec3;
 use crate::config::{ApfConfig, CommandMode};
 use crate::error::{Error, Result};
 
-/// Attractive force toward `goal_body` [m]: parabolic (`ξ·x`) within `ρ_r`, conic
+/// Attractive force toward `goal_body` \[m\]: parabolic (`ξ·x`) within `ρ_r`, conic
 /// (`ρ_r·ξ·x/|x|`, constant magnitude) beyond.
 pub fn attractive_force(config: &ApfConfig, goal_body: DVec3) -> DVec3 {
     let d = goal_body.length();
@@ -70,9 +70,9 @@ pub struct Command {
     pub yaw_rate_rad_s: f64,
     /// The goal is within the success radius: the command is zero.
     pub reached: bool,
-    /// The attractive force used [N].
+    /// The attractive force used \[N\].
     pub attractive_body: DVec3,
-    /// The summed repulsive force used [N].
+    /// The summed repulsive force used \[N\].
     pub repulsive_body: DVec3,
 }
 

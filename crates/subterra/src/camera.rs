@@ -5,11 +5,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{require_positive, Error, Result};
 
-/// Largest image side accepted [px]; beyond this a value is a mistake, not a camera.
+/// Largest image side accepted \[px\]; beyond this a value is a mistake, not a camera.
 const MAX_IMAGE_SIDE_PX: u32 = 16_384;
-/// Largest image accepted [px]: 16.7 MP, four times the largest depth camera sold.
+/// Largest image accepted \[px\]: 16.7 MP, four times the largest depth camera sold.
 pub const MAX_IMAGE_PIXELS: u64 = 1 << 24;
-/// Focal lengths accepted [px]: below 1 px a pixel spans more than 90 degrees, above
+/// Focal lengths accepted \[px\]: below 1 px a pixel spans more than 90 degrees, above
 /// 10^6 px the whole image is a pinhole's view of a few millidegrees.
 const FOCAL_RANGE_PX: (f64, f64) = (1.0, 1e6);
 
@@ -17,17 +17,17 @@ const FOCAL_RANGE_PX: (f64, f64) = (1.0, 1e6);
 /// Pixel `(u, v)` has its centre at integer coordinates (the OpenCV / ROS convention).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PinholeCamera {
-    /// Focal length along u [px].
+    /// Focal length along u \[px\].
     pub fx: f64,
-    /// Focal length along v [px].
+    /// Focal length along v \[px\].
     pub fy: f64,
-    /// Principal point u [px].
+    /// Principal point u \[px\].
     pub cx: f64,
-    /// Principal point v [px].
+    /// Principal point v \[px\].
     pub cy: f64,
-    /// Image width [px].
+    /// Image width \[px\].
     pub width: u32,
-    /// Image height [px].
+    /// Image height \[px\].
     pub height: u32,
 }
 

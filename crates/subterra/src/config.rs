@@ -21,11 +21,11 @@ const MAX_TRANSITION_BYTES: usize = 1 << 30;
 const TRANSITION_BYTES_PER_STATE_BIN: usize = 200;
 /// Largest particle count accepted.
 const MAX_PARTICLES: usize = 50_000_000;
-/// Largest block side [px].
+/// Largest block side \[px\].
 const MAX_BLOCK_PX: u32 = 4096;
 /// Largest number of depth bins accepted.
 const MAX_DEPTH_BINS: f64 = 10_000.0;
-/// Largest repulsive force magnitude a config may produce [N]; past this forces overflow
+/// Largest repulsive force magnitude a config may produce \[N\]; past this forces overflow
 /// to infinity once weighted and summed.
 const MAX_REPULSION: f64 = 1e12;
 /// How close `(d_max - d_min) / k_d` must be to a whole number of bins.
@@ -35,15 +35,15 @@ const BIN_COUNT_TOLERANCE: f64 = 1e-6;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GridConfig {
-    /// Block width k_w [px]. Paper §V: 50.
+    /// Block width k_w \[px\]. Paper §V: 50.
     pub block_width_px: u32,
-    /// Block height k_h [px]. Paper §V: 50.
+    /// Block height k_h \[px\]. Paper §V: 50.
     pub block_height_px: u32,
-    /// Depth bin k_d [m]. Paper §V: 0.1.
+    /// Depth bin k_d \[m\]. Paper §V: 0.1.
     pub depth_bin_m: f64,
-    /// Near end of the depth range d_min [m]. Paper §V: 0.1.
+    /// Near end of the depth range d_min \[m\]. Paper §V: 0.1.
     pub depth_min_m: f64,
-    /// Far end of the depth range d_max [m], the sensing horizon. Paper §V: 1.2.
+    /// Far end of the depth range d_max \[m\], the sensing horizon. Paper §V: 1.2.
     pub depth_max_m: f64,
 }
 
@@ -68,9 +68,9 @@ pub enum FreeStateDepth {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TransitionConfig {
-    /// σ_s [voxels]: spread of the Manhattan-distance kernel. Paper §V: 8.
+    /// σ_s \[voxels\]: spread of the Manhattan-distance kernel. Paper §V: 8.
     pub sigma_s_voxels: f64,
-    /// σ_z [m]: spread of the bias toward near target voxels. Paper §V: 0.4.
+    /// σ_z \[m\]: spread of the bias toward near target voxels. Paper §V: 0.4.
     pub sigma_z_m: f64,
     /// Depth of the free state in the depth bias (`zero`: the authors' code; `horizon`:
     /// subterra's earlier convention, the default when a file leaves it out).
@@ -82,9 +82,9 @@ pub struct TransitionConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObservationConfig {
-    /// σ_o [points]: spread of an occupied voxel's count. Paper §V-B: 170 (§V-A: 300).
+    /// σ_o \[points\]: spread of an occupied voxel's count. Paper §V-B: 170 (§V-A: 300).
     pub sigma_o_points: f64,
-    /// σ_n [points]: spread of the largest count under "free". Paper §V-B: 60 (§V-A: 1).
+    /// σ_n \[points\]: spread of the largest count under "free". Paper §V-B: 60 (§V-A: 1).
     pub sigma_n_points: f64,
 }
 
@@ -159,13 +159,13 @@ pub enum VoxelPosition {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ApfConfig {
-    /// ρ_0 [m]: voxels farther than this do not repel. Authors' apf_acc.yaml: 1.4.
+    /// ρ_0 \[m\]: voxels farther than this do not repel. Authors' apf_acc.yaml: 1.4.
     pub rho_0_m: f64,
     /// η [N·m]: repulsive gain. apf_acc.yaml: 1.1.
     pub eta: f64,
     /// ξ [1/s]: attractive gain. apf_acc.yaml: 0.4.
     pub xi: f64,
-    /// ρ_r [m]: beyond this goal distance the attraction is conic (constant magnitude). apf_acc.yaml: 0.5.
+    /// ρ_r \[m\]: beyond this goal distance the attraction is conic (constant magnitude). apf_acc.yaml: 0.5.
     pub rho_r_m: f64,
     /// Forward speed limit v_x,max [m/s]. Paper §V-B: 0.6.
     pub v_x_max_m_s: f64,
@@ -175,9 +175,9 @@ pub struct ApfConfig {
     pub yaw_rate_max_rad_s: f64,
     /// Command mapping.
     pub mode: CommandMode,
-    /// The robot stops within this distance of the goal [m] (subterra).
+    /// The robot stops within this distance of the goal \[m\] (subterra).
     pub success_radius_m: f64,
-    /// `|x|` is clamped below at this in the repulsion, so it stays finite [m] (subterra).
+    /// `|x|` is clamped below at this in the repulsion, so it stays finite \[m\] (subterra).
     pub min_distance_m: f64,
     /// The point of a voxel its repulsion comes from (`near-corner`: the authors' code;
     /// `centre`: subterra's earlier convention, the default when a file leaves it out).
@@ -193,18 +193,18 @@ pub struct ApfConfig {
 pub struct MemoryConfig {
     /// Whether a flight builds the memory. Off in the paper's presets.
     pub enabled: bool,
-    /// Side of the world-frame cells in which remembered obstacles merge [m] (the depth bin).
+    /// Side of the world-frame cells in which remembered obstacles merge \[m\] (the depth bin).
     pub cell_m: f64,
     /// Belief a voxel needs to be remembered (a thin pole's belief spreads over its column's
     /// voxels, ~0.1-0.2 each).
     pub min_belief: f64,
     /// A remembered cell in the camera's view that the belief has not put an obstacle in for
-    /// this long is forgotten [s]: the filter sees the place.
+    /// this long is forgotten \[s\]: the filter sees the place.
     pub in_view_timeout_s: f64,
     /// Any remembered cell is forgotten this long after the belief last put an obstacle in it
-    /// [s] (odometry drifts; a hovering robot must not forget what is beside it sooner).
+    /// \[s\] (odometry drifts; a hovering robot must not forget what is beside it sooner).
     pub timeout_s: f64,
-    /// Cut-off ρ_m of the memory's repulsion [m]: short, so that it acts near contact only.
+    /// Cut-off ρ_m of the memory's repulsion \[m\]: short, so that it acts near contact only.
     pub rho_0_m: f64,
     /// At most this many cells are kept; the oldest go first.
     pub max_cells: u32,
@@ -257,26 +257,26 @@ impl MemoryConfig {
 pub struct EscapeConfig {
     /// Whether a flight runs the escape. Off in the paper's presets.
     pub enabled: bool,
-    /// No progress for this long engages the escape [s] (well below the 10 s after which a
+    /// No progress for this long engages the escape \[s\] (well below the 10 s after which a
     /// flight counts as stuck).
     pub stall_s: f64,
-    /// Progress: the remaining distance falling by at least this much [m].
+    /// Progress: the remaining distance falling by at least this much \[m\].
     pub progress_m: f64,
-    /// Remembered points within this horizontal distance are the boundary followed [m].
+    /// Remembered points within this horizontal distance are the boundary followed \[m\].
     pub follow_range_m: f64,
-    /// ... and within this height of the robot [m].
+    /// ... and within this height of the robot \[m\].
     pub z_band_m: f64,
-    /// Smallest distance kept from the boundary while following [m].
+    /// Smallest distance kept from the boundary while following \[m\].
     pub min_standoff_m: f64,
-    /// Largest distance kept from the boundary while following [m].
+    /// Largest distance kept from the boundary while following \[m\].
     pub max_standoff_m: f64,
     /// How hard the following turns toward the standoff, per metre off it [1/m].
     pub gain_per_m: f64,
-    /// Released when the remaining distance is this much below that at the hit point [m].
+    /// Released when the remaining distance is this much below that at the hit point \[m\].
     pub release_m: f64,
-    /// Following one side this long without release flips the side [s].
+    /// Following one side this long without release flips the side \[s\].
     pub side_timeout_s: f64,
-    /// A side that takes the remaining distance this much above where it began is flipped [m].
+    /// A side that takes the remaining distance this much above where it began is flipped \[m\].
     pub max_detour_m: f64,
     /// Flips after which following stops and the stall must be detected afresh.
     pub max_flips: u32,
@@ -285,7 +285,7 @@ pub struct EscapeConfig {
     pub follow_repulsion_ratio: f64,
     /// A way round a wall ahead is turned toward the goal only when, over the next 0.5 m,
     /// it keeps the remembered points at least `min(d₀, lookahead_keep_m)` away, `d₀` being
-    /// the nearest one's distance now [m]: a collision margin (the quadrotor's 0.27 m
+    /// the nearest one's distance now \[m\]: a collision margin (the quadrotor's 0.27 m
     /// radius and 0.13 m), not the standoff, so that a way between obstacles 1 m apart is
     /// still clear (`escape.rs`, steps 4-5).
     pub lookahead_keep_m: f64,

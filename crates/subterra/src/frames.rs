@@ -12,7 +12,7 @@ use crate::error::{Error, Result};
 /// Tolerance on `RᵀR = I` and `det R = 1` when a rotation comes from user data.
 const ROTATION_TOLERANCE: f64 = 1e-6;
 
-/// Largest translation of a pose accepted [m]: 1000 km from the world origin. Beyond it a
+/// Largest translation of a pose accepted \[m\]: 1000 km from the world origin. Beyond it a
 /// value is a mistake (or geographic coordinates that must be re-centred): `f32` map points
 /// would be off by more than 6 cm.
 pub const MAX_TRANSLATION_M: f64 = 1e6;
@@ -22,7 +22,7 @@ pub const MAX_TRANSLATION_M: f64 = 1e6;
 pub struct Isometry3 {
     /// Rotation taking source-frame vectors to the target frame.
     pub rotation: DMat3,
-    /// Origin of the source frame expressed in the target frame [m].
+    /// Origin of the source frame expressed in the target frame \[m\].
     pub translation: DVec3,
 }
 

@@ -60,7 +60,7 @@ use crate::frames::{Isometry3, MAX_TRANSLATION_M};
 
 /// Most sources one mux takes.
 pub const MAX_SOURCES: usize = 64;
-/// Highest nominal rate of a source [Hz].
+/// Highest nominal rate of a source \[Hz\].
 pub const MAX_RATE_HZ: f64 = 10_000.0;
 /// Most samples kept per source for the consistency window.
 const MAX_HISTORY: usize = 8192;
@@ -76,23 +76,23 @@ pub struct HeroConfig {
     pub max_speed_m_s: f64,
     /// Yaw-rate bound of the jump check without a twist [rad/s].
     pub max_yaw_rate_rad_s: f64,
-    /// Translation one step may differ from the predicted one [m].
+    /// Translation one step may differ from the predicted one \[m\].
     pub jump_m: f64,
-    /// Yaw one step may differ from the predicted one [rad].
+    /// Yaw one step may differ from the predicted one \[rad\].
     pub jump_yaw_rad: f64,
-    /// Largest position standard deviation a usable source reports [m].
+    /// Largest position standard deviation a usable source reports \[m\].
     pub max_position_std_m: f64,
-    /// Largest yaw standard deviation a usable source reports [rad].
+    /// Largest yaw standard deviation a usable source reports \[rad\].
     pub max_yaw_std_rad: f64,
-    /// Window over which the sources' relative motions are compared [s].
+    /// Window over which the sources' relative motions are compared \[s\].
     pub consistency_window_s: f64,
-    /// Translation two sources' relative motions may differ by [m] ...
+    /// Translation two sources' relative motions may differ by \[m\] ...
     pub consistency_m: f64,
     /// ... plus this fraction of the distance moved.
     pub consistency_ratio: f64,
-    /// Yaw two sources' relative motions may differ by [rad].
+    /// Yaw two sources' relative motions may differ by \[rad\].
     pub consistency_yaw_rad: f64,
-    /// A source that failed a check is used again after passing them all this long [s].
+    /// A source that failed a check is used again after passing them all this long \[s\].
     pub recover_s: f64,
 }
 
@@ -147,7 +147,7 @@ impl HeroConfig {
 pub struct SourceSpec {
     /// Its name, unique in the mux (`"vio"`, `"lidar"`, `"wheels"`).
     pub name: String,
-    /// Its nominal rate [Hz]: the stale check counts its periods.
+    /// Its nominal rate \[Hz\]: the stale check counts its periods.
     pub rate_hz: f64,
 }
 
@@ -163,7 +163,7 @@ pub struct Twist {
 /// One odometry sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OdometrySample {
-    /// Its time [s].
+    /// Its time \[s\].
     pub stamp_s: f64,
     /// The body's pose in the source's world frame.
     pub world_from_body: Isometry3,
@@ -177,27 +177,27 @@ pub struct OdometrySample {
 /// Why a source is not used.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Fault {
-    /// No sample for this long [s].
+    /// No sample for this long \[s\].
     Stale {
         /// Seconds since its newest sample.
         age_s: f64,
     },
     /// A step off the predicted one.
     Jump {
-        /// Translation off the twist's prediction, or the step itself without a twist [m].
+        /// Translation off the twist's prediction, or the step itself without a twist \[m\].
         translation_m: f64,
-        /// Yaw off the twist's prediction, or the step's yaw without a twist [rad].
+        /// Yaw off the twist's prediction, or the step's yaw without a twist \[rad\].
         yaw_rad: f64,
-        /// The step's interval [s].
+        /// The step's interval \[s\].
         dt_s: f64,
         /// Whether a twist predicted the step.
         predicted: bool,
     },
     /// A covariance above the bounds.
     Covariance {
-        /// Position standard deviation [m].
+        /// Position standard deviation \[m\].
         position_std_m: f64,
-        /// Yaw standard deviation [rad].
+        /// Yaw standard deviation \[rad\].
         yaw_std_rad: f64,
     },
     /// Its relative motion disagrees with most of the others'.
@@ -206,7 +206,7 @@ pub enum Fault {
         compared: usize,
         /// Those it agreed with.
         agreed: usize,
-        /// Its largest translation disagreement [m].
+        /// Its largest translation disagreement \[m\].
         error_m: f64,
     },
 }
@@ -247,7 +247,7 @@ impl Fault {
 pub enum MuxEvent {
     /// A source failed a check.
     Unhealthy {
-        /// When [s].
+        /// When \[s\].
         stamp_s: f64,
         /// Its index.
         source: usize,
@@ -256,30 +256,30 @@ pub enum MuxEvent {
     },
     /// A source passed every check for `recover_s` and can be used again.
     Recovered {
-        /// When [s].
+        /// When \[s\].
         stamp_s: f64,
         /// Its index.
         source: usize,
     },
     /// The choice changed (`to` None: no usable source, the pose is held).
     Switch {
-        /// When [s].
+        /// When \[s\].
         stamp_s: f64,
         /// The source before, if any.
         from: Option<usize>,
         /// The source now, if any.
         to: Option<usize>,
-        /// How far the pose was moved back [m]: 0, except when leaving a source the vote
+        /// How far the pose was moved back \[m\]: 0, except when leaving a source the vote
         /// found inconsistent (module docs, "The choice and the pose").
         corrected_m: f64,
     },
     /// The only two comparable sources disagree (`disputed` true) or agree again.
     Dispute {
-        /// When [s].
+        /// When \[s\].
         stamp_s: f64,
         /// Whether they disagree now.
         disputed: bool,
-        /// The error of the disagreement [m].
+        /// The error of the disagreement \[m\].
         error_m: f64,
     },
 }
@@ -287,7 +287,7 @@ pub enum MuxEvent {
 /// What one [`OdometryMux::update`] gives.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MuxOutput {
-    /// The stamp of the pose: the chosen source's newest sample, or the held pose's [s].
+    /// The stamp of the pose: the chosen source's newest sample, or the held pose's \[s\].
     pub stamp_s: f64,
     /// The body's pose in the mux's world frame (the first chosen source's, carried on
     /// across switches); None before any source has been chosen.
@@ -312,7 +312,7 @@ struct Source {
     anchor: Isometry3,
     /// The fault found on the last update, or latched by a jump.
     fault: Option<Fault>,
-    /// When a check last failed [s].
+    /// When a check last failed \[s\].
     failed_at: Option<f64>,
     /// A jump found by `push`, reported on the next update.
     jump: Option<(f64, Fault)>,

@@ -7,22 +7,22 @@ use glam::DVec3;
 
 use crate::error::{Error, Result};
 
-/// How far back from the progress the projection looks [m].
+/// How far back from the progress the projection looks \[m\].
 pub(super) const BACK_WINDOW_M: f64 = 0.5;
-/// How far beyond the carrot the projection looks [m].
+/// How far beyond the carrot the projection looks \[m\].
 pub(super) const AHEAD_WINDOW_M: f64 = 1.0;
-/// Carrot distance used by `subterra fly` [m]: 1.5 m, a little beyond the 1.2 m horizon of
+/// Carrot distance used by `subterra fly` \[m\]: 1.5 m, a little beyond the 1.2 m horizon of
 /// the depth filter, so that the pull points along the path past what the camera sees.
 pub const DEFAULT_LOOKAHEAD_M: f64 = 1.5;
 
 /// What one [`PathFollower::update`] gives.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CarrotOutput {
-    /// The point to pull toward, world frame [m].
+    /// The point to pull toward, world frame \[m\].
     pub carrot_world: DVec3,
-    /// Arc length along the path reached so far [m].
+    /// Arc length along the path reached so far \[m\].
     pub progress_m: f64,
-    /// Distance still to go: along the path from the progress, plus the robot's distance to it [m].
+    /// Distance still to go: along the path from the progress, plus the robot's distance to it \[m\].
     pub remaining_m: f64,
 }
 
@@ -86,12 +86,12 @@ impl PathFollower {
         &self.points
     }
 
-    /// The path's length [m].
+    /// The path's length \[m\].
     pub fn length_m(&self) -> f64 {
         self.arc[self.arc.len() - 1]
     }
 
-    /// The carrot distance [m].
+    /// The carrot distance \[m\].
     pub fn lookahead_m(&self) -> f64 {
         self.lookahead_m
     }

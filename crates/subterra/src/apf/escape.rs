@@ -9,14 +9,14 @@ use crate::config::{ApfConfig, EscapeConfig};
 use crate::error::{Error, Result};
 use crate::frames::Isometry3;
 
-/// How far ahead of the robot the boundary target is put [m]: beyond the attraction's
+/// How far ahead of the robot the boundary target is put \[m\]: beyond the attraction's
 /// `ρ_r` = 0.5 m, so that the pull has its full (conic) strength.
 const TARGET_DISTANCE_M: f64 = 1.0;
 
-/// How far ahead a clear way keeps clear of the known points (step 5) [m]: a little under
+/// How far ahead a clear way keeps clear of the known points (step 5) \[m\]: a little under
 /// a second of flight at the 0.6 m/s speed limit.
 const LOOKAHEAD_M: f64 = 0.5;
-/// Longest gap between two steps that counts toward a stall [s]: a longer one (the pilot
+/// Longest gap between two steps that counts toward a stall \[s\]: a longer one (the pilot
 /// was not stepped, a hover without depth or odometry) moves the progress reference on.
 const MAX_STEP_GAP_S: f64 = 0.5;
 /// Points along it where the clearance is checked (every 0.1 m).
@@ -27,7 +27,7 @@ const LOOKAHEAD_SAMPLES: u32 = 5;
 /// whose tangent points toward the goal is taken if that way keeps clear.
 const REVERSAL_COS: f64 = -0.5;
 
-/// Horizontal lengths below this are treated as zero [m].
+/// Horizontal lengths below this are treated as zero \[m\].
 const TINY_M: f64 = 1e-9;
 /// A dot product of unit vectors this close to 0 is a tie.
 const TIE: f64 = 1e-9;
@@ -47,13 +47,13 @@ pub enum EscapeMode {
 /// What one [`Escape::step`] gives.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EscapeOutput {
-    /// The goal the attraction should pull toward, in the body frame [m].
+    /// The goal the attraction should pull toward, in the body frame \[m\].
     pub goal_body: DVec3,
     /// The mode after this step.
     pub mode: EscapeMode,
-    /// The boundary point followed, in the world frame [m] (while following).
+    /// The boundary point followed, in the world frame \[m\] (while following).
     pub boundary_world: Option<DVec3>,
-    /// The repulsion the command should use, body frame [N]: the one given, or while
+    /// The repulsion the command should use, body frame \[N\]: the one given, or while
     /// following, that one capped ([`Escape`], step 4).
     pub repulsive_body: DVec3,
     /// How many times following has engaged so far.
@@ -128,7 +128,7 @@ pub struct EscapeOutput {
 #[derive(Debug, Clone)]
 pub struct Escape {
     config: EscapeConfig,
-    /// Full strength of the attraction, `ρ_r·ξ` [N].
+    /// Full strength of the attraction, `ρ_r·ξ` \[N\].
     attraction_n: f64,
     /// Progress reference: remaining distance and its time.
     reference: Option<(f64, f64)>,
@@ -154,7 +154,7 @@ fn horizontal(v: DVec3) -> DVec3 {
 struct Lookahead {
     /// Horizontal offsets from the robot of the points within the z band and reach.
     near: Vec<DVec3>,
-    /// The clearance a direction must keep: `min(d₀, lookahead_keep_m)` [m].
+    /// The clearance a direction must keep: `min(d₀, lookahead_keep_m)` \[m\].
     keep_m: f64,
 }
 
@@ -452,7 +452,7 @@ mod tests {
         (0..24).map(|k| f64::from(k) * std::f64::consts::TAU / 24.0).map(|a| DVec3::new(x + r * a.cos(), y + r * a.sin(), 1.0)).collect()
     }
 
-    /// Collision radius of the simulated quadrotor [m].
+    /// Collision radius of the simulated quadrotor \[m\].
     const ROBOT_RADIUS_M: f64 = 0.27;
 
     struct Flight {

@@ -14,7 +14,7 @@ use crate::depth::{DepthPerception, StateId};
 /// Per-state repulsive forces of one perception, computed once.
 #[derive(Debug, Clone)]
 pub struct BeliefForces {
-    /// Force of an obstacle at each state's point, body frame [N]; the free state last (zero).
+    /// Force of an obstacle at each state's point, body frame \[N\]; the free state last (zero).
     forces_body: Vec<DVec3>,
     fingerprint: u64,
 }
@@ -36,7 +36,7 @@ impl BeliefForces {
         Self { forces_body, fingerprint: perception.fingerprint() }
     }
 
-    /// Per-state forces, body frame [N] (voxels, then the free state).
+    /// Per-state forces, body frame \[N\] (voxels, then the free state).
     pub fn forces_body(&self) -> &[DVec3] {
         &self.forces_body
     }

@@ -23,7 +23,7 @@ pub struct RememberedObstacle {
     pub point_world: DVec3,
     /// Its weight: the largest belief recorded in the cell on its newest frame.
     pub weight: f64,
-    /// When an obstacle was last recorded in the cell (by the belief or the guard) [s].
+    /// When an obstacle was last recorded in the cell (by the belief or the guard) \[s\].
     pub seen_s: f64,
     /// The frame that did (the update counter).
     frame: u64,
@@ -32,11 +32,11 @@ pub struct RememberedObstacle {
 /// What one [`ObstacleMemory::update`] gives.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MemoryOutput {
-    /// The memory's repulsive force in the body frame [N] (step 3).
+    /// The memory's repulsive force in the body frame \[N\] (step 3).
     pub repulsive_body: DVec3,
     /// Cells remembered after the update.
     pub cells: usize,
-    /// Distance from the body origin to the nearest remembered point [m], if any.
+    /// Distance from the body origin to the nearest remembered point \[m\], if any.
     pub nearest_m: Option<f64>,
 }
 
@@ -179,7 +179,7 @@ impl ObstacleMemory {
     }
 
     /// Steps 1-4 for one frame of `output` (from the perception this memory was built for)
-    /// taken at `stamp_s` [s] with the odometry pose `world_from_body`; `counts`, the same
+    /// taken at `stamp_s` \[s\] with the odometry pose `world_from_body`; `counts`, the same
     /// frame's voxel counts ([`DepthPerception::last_counts`]), feed the near-field guard
     /// (see [`ObstacleMemory`]; without them, or with `guard_sigmas = 0`, there is no guard).
     pub fn update(&mut self, output: &PerceptionOutput, counts: Option<&VoxelCounts>, stamp_s: f64, world_from_body: &Isometry3) -> Result<MemoryOutput> {

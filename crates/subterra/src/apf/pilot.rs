@@ -57,7 +57,7 @@ pub struct PilotCamera {
     pub body_from_camera: Isometry3,
 }
 
-/// Wall-clock time of one [`Pilot::step`] [s].
+/// Wall-clock time of one [`Pilot::step`] \[s\].
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct PilotTimings {
     /// The cameras' filters (step 2).
@@ -75,23 +75,23 @@ pub struct PilotOutput {
     pub command: Command,
     /// Each camera's perception output, in camera order.
     pub perceptions: Vec<PerceptionOutput>,
-    /// Each camera's belief-weighted repulsion, body frame [N] (computed with QMDP too).
+    /// Each camera's belief-weighted repulsion, body frame \[N\] (computed with QMDP too).
     pub belief_repulsive_body: Vec<DVec3>,
-    /// The point the attraction pulled toward before the escape (goal or carrot), world [m].
+    /// The point the attraction pulled toward before the escape (goal or carrot), world \[m\].
     pub target_world: DVec3,
-    /// Distance still to go (straight, or along the path) [m].
+    /// Distance still to go (straight, or along the path) \[m\].
     pub remaining_m: f64,
-    /// The belief's push, body frame: summed repulsion [N], or the QMDP velocity [m/s].
+    /// The belief's push, body frame: summed repulsion \[N\], or the QMDP velocity [m/s].
     pub belief_push_body: DVec3,
-    /// The memories' summed repulsion, body frame [N] (zero without a memory).
+    /// The memories' summed repulsion, body frame \[N\] (zero without a memory).
     pub memory_repulsive_body: DVec3,
     /// Cells the memories hold after the step (0 without a memory).
     pub memory_cells: usize,
     /// The escape's output (None when the config leaves the escape off).
     pub escape: Option<EscapeOutput>,
-    /// The goal the command pulled toward, body frame [m].
+    /// The goal the command pulled toward, body frame \[m\].
     pub goal_body: DVec3,
-    /// The repulsion the command used, body frame [N].
+    /// The repulsion the command used, body frame \[N\].
     pub repulsive_body: DVec3,
     /// Step timings.
     pub timings: PilotTimings,
@@ -187,7 +187,7 @@ impl Pilot {
         self.cameras.get(n).map(|c| &c.forces)
     }
 
-    /// Every remembered obstacle point, world frame [m], camera by camera.
+    /// Every remembered obstacle point, world frame \[m\], camera by camera.
     pub fn memory_points_world(&self) -> Vec<DVec3> {
         self.cameras.iter().filter_map(|c| c.memory.as_ref()).flat_map(|m| m.obstacles().map(|o| o.point_world)).collect()
     }
@@ -202,7 +202,7 @@ impl Pilot {
         self.steps
     }
 
-    /// Flies to `goal_world` [m] (drops a path).
+    /// Flies to `goal_world` \[m\] (drops a path).
     pub fn set_goal(&mut self, goal_world: DVec3) -> Result<()> {
         if !goal_world.is_finite() {
             return Err(Error::input("goal_world", format!("must be finite, got {goal_world}")));
@@ -254,7 +254,7 @@ impl Pilot {
     }
 
     /// One control step (see [`Pilot`]): `frames[n]` is camera `n`'s image of its size,
-    /// taken at `stamp_s` [s] with the odometry pose `world_from_body`.
+    /// taken at `stamp_s` \[s\] with the odometry pose `world_from_body`.
     pub fn step(&mut self, frames: &[DepthImage<'_>], stamp_s: f64, world_from_body: &Isometry3) -> Result<PilotOutput> {
         let started = Instant::now();
         if frames.len() != self.cameras.len() {

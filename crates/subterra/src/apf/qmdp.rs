@@ -34,13 +34,13 @@ pub struct QmdpConfig {
     pub action_cost: [f64; 3],
     /// `g`: the potential's gain. Authors' `repulsive_potential_gain`: 2.
     pub potential_gain: f64,
-    /// `ρ`: the potential's range [m]. Authors' `repulsive_potential_max_distance`: 1.4.
+    /// `ρ`: the potential's range \[m\]. Authors' `repulsive_potential_max_distance`: 1.4.
     pub potential_range_m: f64,
-    /// `|x|` is clamped below at this in the potential [m]. Authors' `min_distance`: 0.1.
+    /// `|x|` is clamped below at this in the potential \[m\]. Authors' `min_distance`: 0.1.
     pub min_distance_m: f64,
-    /// Look-ahead over which an action's reward is summed [s]. Authors: 0.5.
+    /// Look-ahead over which an action's reward is summed \[s\]. Authors: 0.5.
     pub lookahead_s: f64,
-    /// `Δt` between the look-ahead's samples [s]. Authors' `sampling_time`: 0.1.
+    /// `Δt` between the look-ahead's samples \[s\]. Authors' `sampling_time`: 0.1.
     pub step_s: f64,
 }
 

@@ -67,7 +67,7 @@ pub struct VoxelCounts {
     pub in_range: u64,
     /// Pixels with any valid depth (finite, > 0).
     pub valid: u64,
-    /// Smallest valid depth of the frame, in or out of range [m].
+    /// Smallest valid depth of the frame, in or out of range \[m\].
     pub closest_depth_m: Option<f64>,
 }
 
@@ -170,7 +170,7 @@ impl DepthVoxelGrid {
         self.block_pixels[v.j as usize * self.n_w + v.i as usize]
     }
 
-    /// Depth of the centre of bin `k` [m].
+    /// Depth of the centre of bin `k` \[m\].
     pub fn bin_centre_m(&self, k: u32) -> f64 {
         self.config.depth_min_m + (k as f64 + 0.5) * self.config.depth_bin_m
     }
@@ -184,7 +184,7 @@ impl DepthVoxelGrid {
         (k >= 0.0 && k < self.n_d as f64).then_some(k as u32)
     }
 
-    /// Centre of voxel `v` in the camera optical frame [m]: the block's centre pixel
+    /// Centre of voxel `v` in the camera optical frame \[m\]: the block's centre pixel
     /// back-projected at the bin's centre depth.
     pub fn voxel_centre_camera(&self, v: VoxelIndex) -> DVec3 {
         let (kw, kh) = (self.config.block_width_px, self.config.block_height_px);
@@ -198,7 +198,7 @@ impl DepthVoxelGrid {
     }
 
     /// The block's top-left corner pixel `(i·k_w, j·k_h)` back-projected at the bin's near
-    /// edge `d_min + k·k_d`, in the camera optical frame [m]: where the authors' code places
+    /// edge `d_min + k·k_d`, in the camera optical frame \[m\]: where the authors' code places
     /// a voxel (the conservative distance).
     pub fn voxel_near_corner_camera(&self, v: VoxelIndex) -> DVec3 {
         let (kw, kh) = (self.config.block_width_px, self.config.block_height_px);
@@ -206,7 +206,7 @@ impl DepthVoxelGrid {
         self.camera.back_project((v.i * kw) as f64, (v.j * kh) as f64, near)
     }
 
-    /// The point of voxel `v` that a repulsive force comes from, in the camera optical frame [m].
+    /// The point of voxel `v` that a repulsive force comes from, in the camera optical frame \[m\].
     pub fn voxel_point_camera(&self, v: VoxelIndex, position: VoxelPosition) -> DVec3 {
         match position {
             VoxelPosition::NearCorner => self.voxel_near_corner_camera(v),

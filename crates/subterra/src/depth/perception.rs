@@ -26,13 +26,13 @@ pub struct MostProbableVoxel {
     pub state: StateId,
     /// Its belief.
     pub probability: f64,
-    /// Its centre in the camera optical frame [m].
+    /// Its centre in the camera optical frame \[m\].
     pub centre_camera: DVec3,
-    /// Its centre in the body frame [m].
+    /// Its centre in the body frame \[m\].
     pub centre_body: DVec3,
 }
 
-/// Wall-clock time of each stage of one update [s].
+/// Wall-clock time of each stage of one update \[s\].
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct StageTimings {
     /// Counting the image into voxels.
@@ -59,7 +59,7 @@ pub struct PerceptionOutput {
     pub p_free: f64,
     /// The most probable voxel, if any voxel has belief.
     pub most_probable: Option<MostProbableVoxel>,
-    /// Smallest valid raw depth of the frame, any range [m] (for comparison).
+    /// Smallest valid raw depth of the frame, any range \[m\] (for comparison).
     pub closest_depth_m: Option<f64>,
     /// Pixels with valid depth, and those inside the horizon.
     pub valid_pixels: u64,

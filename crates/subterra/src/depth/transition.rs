@@ -38,7 +38,7 @@ struct OffsetSlot {
     alias: u32,
 }
 
-/// Contiguous classes of `0..n`: at most [`MAX_CLASSES`] runs of near-equal length.
+/// Contiguous classes of `0..n`: at most `MAX_CLASSES` (4) runs of near-equal length.
 #[derive(Debug, Clone)]
 struct Classes {
     /// Class of each index.
@@ -156,7 +156,7 @@ impl VoxelSampler<'_> {
 ///
 /// Memory is O(S·N_d), never O(S²): the in-grid kernel depends only on the offset and
 /// the target depth, so alias tables over offsets serve every source voxel of a class.
-/// Source columns are cut into at most [`MAX_CLASSES`] runs, rows likewise, and each
+/// Source columns are cut into at most `MAX_CLASSES` (4) runs, rows likewise, and each
 /// (source depth bin, column class, row class) has one table over the signed offsets
 /// `(di, dj, k')` that keep *some* member of the class inside the grid (O(S) entries each,
 /// at most `MAX_CLASSES²·N_d` tables). A draw from voxel `v` first picks "free or grid"

@@ -28,7 +28,7 @@ use search::{Node, Search, MOVES};
 
 /// The risk-aware A* planner.
 ///
-/// In: a [`RiskGrid`] ([`crate::plan::grid`]: row-major `(ny, nx)` risks, row `iy` along world y, column `ix` along
+/// In: a [`RiskGrid`] ([`RiskGrid`]: row-major `(ny, nx)` risks, row `iy` along world y, column `ix` along
 /// world x, the layout of the terrain [`RiskMap`] layers), a start and a goal. Out: a
 /// [`PlanOutcome`]: the least-cost path, its cost, length and accumulated risk, the carrot point,
 /// or the reason there is no path.
@@ -41,7 +41,7 @@ use search::{Node, Search, MOVES};
 ///    terrain map's `risk.lethal_risk`) stays untraversable however far the recovery raises
 ///    `r_inst`.
 /// 3. Traversable cells have the hazard `ρ = -ln(1 - r)` [1/m], computed in `f64` as
-///    `-ln_1p(-r)` with `r` clamped to at most [`MAX_RISK`] `= 1 - 2^-24` (the largest `f32`
+///    `-ln_1p(-r)` with `r` clamped to at most `MAX_RISK` `= 1 - 2^-24` (the largest `f32`
 ///    below 1, so the clamp changes no `f32` risk and `ρ <= 16.64`), and the cost
 ///    `c = λ + ρ` [1/m].
 /// 4. A move between 8-neighbours `a`, `b` whose centres are `d` apart (`d = res` or
@@ -55,7 +55,7 @@ use search::{Node, Search, MOVES};
 ///    (`MCP_Geometric`'s rule).
 ///
 /// 6. Perception-aware prices (optional, [`EntryPrices`]): a move that enters an unknown
-///    cell the sensor will not have seen on the way ([`crate::plan::coverage`]) adds
+///    cell the sensor will not have seen on the way ([`SensorCoverage`](crate::plan::SensorCoverage)) adds
 ///    `d·(c(unseen_risk) - c(unknown_risk))` to the cost and `d·(ρ(unseen_risk) -
 ///    ρ(unknown_risk))` to `S`.
 /// 7. Clearance prices (optional, [`EntryPrices::clearance`]): cell `i`'s cost gains
@@ -65,7 +65,7 @@ use search::{Node, Search, MOVES};
 ///    way (`navigator.turn_room_price`); it adds to the cost only, never to `S`: it is about
 ///    room, not risk.
 ///
-/// Without clearance prices a path's cost is therefore `λ·L + S`, with `L = Σ d` its length [m] and
+/// Without clearance prices a path's cost is therefore `λ·L + S`, with `L = Σ d` its length \[m\] and
 /// `S = Σ d·(ρ(a) + ρ(b))/2` its risk integral; its **accumulated risk** is `1 - exp(-S)`
 /// (computed as `-expm1(-S)`), STEP's `1 - exp(-Σ d·(-ln(1 - r̄)))` with the same
 /// cell averaging as the cost.
@@ -147,7 +147,7 @@ impl RiskAStar {
     }
 
     /// Plans from the cell holding the world position `start_world` to the one holding
-    /// `goal_world` [m]. Errors (naming `start` or `goal`) if a position is not finite or lies
+    /// `goal_world` \[m\]. Errors (naming `start` or `goal`) if a position is not finite or lies
     /// outside the grid; "no path" is an outcome.
     pub fn plan(&mut self, grid: &RiskGrid<'_>, start_world: DVec2, goal_world: DVec2) -> Result<PlanOutcome> {
         self.plan_with(grid, start_world, goal_world, None)
@@ -160,7 +160,7 @@ impl RiskAStar {
         self.plan_cells_with(grid, start, goal, entry)
     }
 
-    /// Plans from the cell holding `start_world` toward `target_world` [m], which may lie off
+    /// Plans from the cell holding `start_world` toward `target_world` \[m\], which may lie off
     /// the grid: to the border cell `b` whose path cost plus `λ·|b - target|` (the heuristic's
     /// price of the straight line on, [`RiskAStarConfig::min_cell_cost`] per metre) is least
     /// (`RiskAStar`'s docs, "Toward a target off the grid"). The path ends at `b`

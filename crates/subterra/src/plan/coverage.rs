@@ -41,12 +41,12 @@ pub(super) const MOVES: [(i32, i32); 8] = [(1, 0), (0, 1), (-1, 0), (0, -1), (1,
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SensorCoverage {
-    /// Horizontal field of view centred on the robot's heading [deg]; 360 for a spinning lidar.
+    /// Horizontal field of view centred on the robot's heading \[deg\]; 360 for a spinning lidar.
     pub fov_deg: f64,
-    /// Nearest ground the sensor sees [m]: the blind ring of a lidar (its height over the
+    /// Nearest ground the sensor sees \[m\]: the blind ring of a lidar (its height over the
     /// tangent of its lowest beam's depression), a camera's nearest visible ground.
     pub min_range_m: f64,
-    /// Farthest ground it rates reliably [m].
+    /// Farthest ground it rates reliably \[m\].
     pub max_range_m: f64,
 }
 

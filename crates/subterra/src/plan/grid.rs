@@ -11,9 +11,9 @@ use crate::terrain::{CellIndex, GridGeometry, Layer, RiskMap};
 pub(super) const MAX_GRID_CELLS: usize = 1 << 24;
 /// Most cells along one side of a grid (2^16).
 pub(super) const MAX_SIDE: usize = 1 << 16;
-/// Largest cell side accepted [m]; beyond it the geometry is a mistake.
+/// Largest cell side accepted \[m\]; beyond it the geometry is a mistake.
 pub(super) const MAX_RESOLUTION_M: f64 = 1.0e4;
-/// Smallest cell side accepted [m] (1 mm): no range sensor resolves less, and a denormal
+/// Smallest cell side accepted \[m\] (1 mm): no range sensor resolves less, and a denormal
 /// side makes every distance a count of cells beyond any search or sampling budget.
 pub(super) const MIN_RESOLUTION_M: f64 = 1.0e-3;
 
@@ -26,8 +26,8 @@ pub(super) const MIN_RESOLUTION_M: f64 = 1.0e-3;
 ///
 /// - every value is a risk in `[0, 1]` or NaN (unknown); `+inf`, values above 1 and negative
 ///   values are errors naming the cell;
-/// - the shape matches the values and stays within [`MAX_GRID_CELLS`] / [`MAX_SIDE`];
-/// - the cell side is finite, positive and at most [`MAX_RESOLUTION_M`]; the origin is finite.
+/// - the shape matches the values and stays within `MAX_GRID_CELLS` (2^24) / `MAX_SIDE` (2^16);
+/// - the cell side is finite, positive and at most `MAX_RESOLUTION_M` (10 km); the origin is finite.
 ///
 /// A grid made from a terrain map ([`RiskGrid::from_map`], [`RiskGrid::on_geometry`]) finds and
 /// places cells exactly as the map does (world-aligned global cells), so a position falls in
@@ -111,7 +111,7 @@ impl<'a> RiskGrid<'a> {
     pub fn resolution_m(&self) -> f64 {
         self.resolution_m
     }
-    /// World position of cell `(0, 0)`'s lower-left corner [m].
+    /// World position of cell `(0, 0)`'s lower-left corner \[m\].
     pub fn origin_m(&self) -> DVec2 {
         self.origin_m
     }
@@ -138,7 +138,7 @@ impl<'a> RiskGrid<'a> {
         }
     }
 
-    /// World position of a cell's centre [m].
+    /// World position of a cell's centre \[m\].
     pub fn centre_of(&self, cell: CellIndex) -> DVec2 {
         if let Some(g) = &self.map_geometry {
             return g.centre_of(cell);

@@ -57,7 +57,7 @@ struct StageTarget {
 struct ObstacleRow {
     /// Whether the row constrains anything (else it is a placeholder of the fixed sparsity).
     used: bool,
-    /// The corner's distance beyond the polygon's supporting line at the nominal [m].
+    /// The corner's distance beyond the polygon's supporting line at the nominal \[m\].
     distance_m: f64,
     /// Unit normal from the obstacle to the robot.
     normal: DVec2,
@@ -106,7 +106,7 @@ struct Workspace {
 /// # Model
 /// Unicycle, state `[x, y, θ, v]`, input `u = [a, ω]` constant over steps of `T = dt_s`,
 /// horizon `N` steps; the exact discrete dynamics `x_{k+1} = f(x_k, u_k)` are in
-/// [`unicycle`] (closed-form integral, no Euler error). The command sent is
+/// `unicycle` (closed-form integral, no Euler error). The command sent is
 /// `(v0 + a_0·T, ω_0)`: the speed at the end of the first step, and its yaw rate. The robot
 /// is a `length x width` rectangle centred on `(x, y)` (not a cover of discs: a disc cover
 /// of the Husky overhangs its ends by 0.2 m).
@@ -114,7 +114,7 @@ struct Workspace {
 /// # One solve (sequential QP)
 /// 0. **Obstacles.** The lethal cells (`risk >= lethal_risk`) within `N·T·max(v_max, |v0|)`
 ///    plus the footprint's half-diagonal, the margin and the activation distance of `x0`
-///    become convex polygons ([`geometry`]: 8-connected regions, cut until each convex hull
+///    become convex polygons (`geometry`: 8-connected regions, cut until each convex hull
 ///    hardly overhangs its cells).
 /// 1. **Nominal.** `ū` = the previous solve's inputs shifted by one step (the last one
 ///    repeated), or zeros on the first solve or after [`MpcTracker::reset`]; clamped to the

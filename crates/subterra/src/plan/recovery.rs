@@ -88,9 +88,9 @@ pub struct RecoveryMachine {
     /// Breadcrumbs, oldest first.
     trail: VecDeque<DVec2>,
     rotate_to: Option<f64>,
-    /// Least distance to the target while tracking since the ladder was last reset [m].
+    /// Least distance to the target while tracking since the ladder was last reset \[m\].
     best_distance: f64,
-    /// `best_distance` when the ladder's first rung was climbed [m].
+    /// `best_distance` when the ladder's first rung was climbed \[m\].
     stuck_distance: f64,
     backout_start: Option<DVec2>,
     backout_index: usize,
@@ -100,7 +100,7 @@ pub struct RecoveryMachine {
 
 impl RecoveryMachine {
     /// A machine that starts tracking toward the goal; `home` is where the robot drives once
-    /// it gives the goal up ([`Target::Home`], world frame [m]).
+    /// it gives the goal up ([`Target::Home`], world frame \[m\]).
     pub fn new(config: RecoveryConfig, home: DVec2) -> Result<Self> {
         config.validate()?;
         if !home.is_finite() {
@@ -150,7 +150,7 @@ impl RecoveryMachine {
         self.home
     }
 
-    /// Moves home (world frame [m]).
+    /// Moves home (world frame \[m\]).
     pub fn set_home(&mut self, home: DVec2) -> Result<()> {
         if !home.is_finite() {
             return Err(Error::input("home", format!("must be finite, got ({}, {})", home.x, home.y)));
@@ -169,7 +169,7 @@ impl RecoveryMachine {
         &self.transitions
     }
 
-    /// The breadcrumb trail, oldest first (world frame [m]).
+    /// The breadcrumb trail, oldest first (world frame \[m\]).
     pub fn trail(&self) -> impl Iterator<Item = DVec2> + '_ {
         self.trail.iter().copied()
     }

@@ -44,9 +44,9 @@ pub(super) fn as_points<'a>(argument: &str, flat: &'a [f32]) -> Result<&'a [[f32
 #[derive(Debug, Clone)]
 pub(super) struct Prefilter {
     config: PrefilterConfig,
-    /// Self box in the body frame, lower corner [m].
+    /// Self box in the body frame, lower corner \[m\].
     box_min: Vec3,
-    /// Self box in the body frame, upper corner [m].
+    /// Self box in the body frame, upper corner \[m\].
     box_max: Vec3,
 }
 

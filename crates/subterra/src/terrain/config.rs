@@ -14,15 +14,15 @@ use crate::error::{require_non_negative, require_positive, Error, Result};
 const MAX_MAP_CELLS: f64 = 16_000_000.0;
 /// Largest number of polar bins (sectors x radial bins) of the ground segmentation.
 const MAX_POLAR_BINS: f64 = 4_000_000.0;
-/// Largest sensor range accepted [m].
+/// Largest sensor range accepted \[m\].
 const MAX_RANGE_M: f64 = 1_000.0;
-/// Largest fusion window accepted [s].
+/// Largest fusion window accepted \[s\].
 const MAX_WINDOW_S: f64 = 60.0;
 /// Largest number of scans kept in the fusion window.
 const MAX_SCANS: usize = 1_000;
 /// Largest number of headings the tilt layer settles the footprint at.
 const MAX_TILT_HEADINGS: u32 = 64;
-/// Largest robot side (length, width, height) accepted [m]: a mining haul truck is 15 m long.
+/// Largest robot side (length, width, height) accepted \[m\]: a mining haul truck is 15 m long.
 const MAX_ROBOT_SIDE_M: f64 = 30.0;
 /// Fastest robot accepted [m/s] (108 km/h).
 const MAX_ROBOT_SPEED_M_S: f64 = 30.0;
@@ -35,20 +35,20 @@ const MAX_ROBOT_SPEED_M_S: f64 = 30.0;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RobotConfig {
-    /// Footprint length along body x [m]. Husky: 0.99.
+    /// Footprint length along body x \[m\]. Husky: 0.99.
     pub length_m: f64,
-    /// Footprint width along body y [m]. Husky: 0.67.
+    /// Footprint width along body y \[m\]. Husky: 0.67.
     pub width_m: f64,
-    /// Height of the body's top above the ground [m]. Husky: 0.4.
+    /// Height of the body's top above the ground \[m\]. Husky: 0.4.
     pub height_m: f64,
-    /// Ground clearance: the belly's height above flat ground [m]. Husky: 0.13.
+    /// Ground clearance: the belly's height above flat ground \[m\]. Husky: 0.13.
     pub ground_clearance_m: f64,
     /// Top speed [m/s]. Husky: 1.0.
     pub max_speed_m_s: f64,
     /// Tilt (angle of the settled body's z axis from vertical) below which the `tilt`
-    /// risk is 0 [deg]. STEP: 10.
+    /// risk is 0 \[deg\]. STEP: 10.
     pub tilt_safe_deg: f64,
-    /// Tilt at and beyond which the `tilt` risk is 1 (lethal) [deg]. STEP: 25.
+    /// Tilt at and beyond which the `tilt` risk is 1 (lethal) \[deg\]. STEP: 25.
     pub tilt_lethal_deg: f64,
 }
 
@@ -150,18 +150,18 @@ impl Ramp {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PrefilterConfig {
-    /// Points nearer the sensor than this are dropped [m]. subterra (lidar blind zone).
+    /// Points nearer the sensor than this are dropped \[m\]. subterra (lidar blind zone).
     pub min_range_m: f64,
-    /// Points farther from the sensor than this are dropped [m]. subterra (VLP-16/OS1 ~100 m, but
+    /// Points farther from the sensor than this are dropped \[m\]. subterra (VLP-16/OS1 ~100 m, but
     /// returns beyond 40 m are too sparse to map a 20 m grid).
     pub max_range_m: f64,
-    /// Margin around the robot's box (body frame) inside which points are the robot's own [m].
+    /// Margin around the robot's box (body frame) inside which points are the robot's own \[m\].
     /// subterra.
     pub self_margin_m: f64,
-    /// Voxel side for downsampling (first point of each voxel kept, in input order) [m];
+    /// Voxel side for downsampling (first point of each voxel kept, in input order) \[m\];
     /// 0 disables it. subterra default: off (the grid already aggregates).
     pub voxel_m: f64,
-    /// Side of the cubes used to count neighbours for sparse-outlier removal [m]. subterra.
+    /// Side of the cubes used to count neighbours for sparse-outlier removal \[m\]. subterra.
     pub outlier_cell_m: f64,
     /// A point with fewer than this many other points in its cube and the 26 around it is
     /// an outlier; 0 disables the removal. subterra default: off (costs ~2 ms per 100k points).
@@ -172,10 +172,10 @@ pub struct PrefilterConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FusionConfig {
-    /// Window at full odometry confidence [s]; at confidence c only scans at most
+    /// Window at full odometry confidence \[s\]; at confidence c only scans at most
     /// `c·window_s` older than the newest are fused (c = 0: the newest alone). STEP: 2 (1-5).
     pub window_s: f64,
-    /// Most scans kept, newest first [scans]. subterra: 20 (2 s of a 10 Hz lidar).
+    /// Most scans kept, newest first \[scans\]. subterra: 20 (2 s of a 10 Hz lidar).
     pub max_scans: usize,
 }
 
@@ -184,33 +184,33 @@ pub struct FusionConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GroundConfig {
-    /// Number of angular sectors over 360° [sectors]. subterra: 360 (1°; Himmelsbach: 0.5-2°).
+    /// Number of angular sectors over 360° \[sectors\]. subterra: 360 (1°; Himmelsbach: 0.5-2°).
     pub sectors: u32,
-    /// Radial bin width [m]. subterra: 0.2.
+    /// Radial bin width \[m\]. subterra: 0.2.
     pub bin_m: f64,
     /// Points at or beyond this horizontal range from the origin get no bin and are
-    /// labelled obstacle [m]. subterra: 40.
+    /// labelled obstacle \[m\]. subterra: 40.
     pub max_range_m: f64,
-    /// Largest |slope| (rise over run) of a ground line [1]. subterra: 0.7 (35°, above the
+    /// Largest |slope| (rise over run) of a ground line \[1\]. subterra: 0.7 (35°, above the
     /// robot's lethal tilt so steep ground is still ground and the tilt layer rates it).
     pub max_slope: f64,
-    /// Largest root-mean-square residual of a ground line's fit [m]. Himmelsbach T_RMSE; subterra: 0.05.
+    /// Largest root-mean-square residual of a ground line's fit \[m\]. Himmelsbach T_RMSE; subterra: 0.05.
     pub max_rmse_m: f64,
-    /// Largest distance of a new prototype from the line fitted so far (prediction) [m]. subterra: 0.1.
+    /// Largest distance of a new prototype from the line fitted so far (prediction) \[m\]. subterra: 0.1.
     pub max_prediction_error_m: f64,
     /// A line may only start at a prototype within this height of the current ground
-    /// estimate [m]. Himmelsbach T_b; subterra: 0.2.
+    /// estimate \[m\]. Himmelsbach T_b; subterra: 0.2.
     pub max_start_height_m: f64,
-    /// A radial gap between consecutive prototypes longer than this ends a line [m]. subterra: 3.
+    /// A radial gap between consecutive prototypes longer than this ends a line \[m\]. subterra: 3.
     pub max_gap_m: f64,
-    /// Fewest prototypes of an accepted ground line [points]. subterra: 3.
+    /// Fewest prototypes of an accepted ground line \[points\]. subterra: 3.
     pub min_line_points: u32,
-    /// A point is ground if its height above its sector's ground line is within ±this [m].
+    /// A point is ground if its height above its sector's ground line is within ±this \[m\].
     /// Himmelsbach T_dground; subterra: 0.1.
     pub max_dist_to_line_m: f64,
     /// Void (missing ground, the STEP `negative` layer): the empty bins between two returns of a
     /// sector are *void* when the rays between them span more than this depression angle
-    /// [deg]: beams must have crossed the expected ground there and none came back (a hole
+    /// \[deg\]: beams must have crossed the expected ground there and none came back (a hole
     /// with no floor in range). 0 (the default) turns void detection off. It reads the
     /// absence of returns as evidence, so it suits a spinning lidar, whose beams are evenly
     /// spaced in elevation: set it above the sensor's vertical beam spacing (2.5 for the
@@ -239,7 +239,7 @@ pub struct GroundConfig {
     #[serde(default = "enabled")]
     pub drop_shadows: bool,
     /// A run is a drop's shadow only behind a return whose ray descends at least this steeply
-    /// [deg]: the robot's safe tilt. The ground hidden behind a return falls away at least as
+    /// \[deg\]: the robot's safe tilt. The ground hidden behind a return falls away at least as
     /// steeply as the ray that grazed it; seen more steeply than the robot's safe tilt, no
     /// reading of it is safe, seen shallower (far off, past a gentle crest) it may be a slope
     /// the robot could drive, and the sensor sees it again from closer. The Husky's 10° puts
@@ -248,7 +248,7 @@ pub struct GroundConfig {
     pub drop_shadow_min_grazing_deg: f64,
 }
 
-/// `ground.drop_shadow_min_grazing_deg` by default: the Husky's safe tilt [deg].
+/// `ground.drop_shadow_min_grazing_deg` by default: the Husky's safe tilt \[deg\].
 fn default_min_grazing_deg() -> f64 {
     10.0
 }
@@ -259,7 +259,7 @@ fn enabled() -> bool {
 }
 
 /// `ground.void_min_gap_deg` for the simulated spinning lidars (VLP-16, OS1-64): above the
-/// VLP-16's 2.0° ring spacing [deg].
+/// VLP-16's 2.0° ring spacing \[deg\].
 #[cfg(test)]
 pub(super) const SPINNING_LIDAR_VOID_MIN_GAP_DEG: f64 = 2.5;
 
@@ -269,9 +269,9 @@ pub(super) const SPINNING_LIDAR_VOID_MIN_GAP_DEG: f64 = 2.5;
 pub struct MapConfig {
     /// Cell side [m/cell]. STEP: 0.1 (coarse), subterra: 0.05 (fine).
     pub resolution_m: f64,
-    /// Extent along world x [m]; rounded to whole cells. STEP: 20 (coarse), subterra: 8 (fine).
+    /// Extent along world x \[m\]; rounded to whole cells. STEP: 20 (coarse), subterra: 8 (fine).
     pub size_x_m: f64,
-    /// Extent along world y [m]; rounded to whole cells. STEP: 20 (coarse), subterra: 8 (fine).
+    /// Extent along world y \[m\]; rounded to whole cells. STEP: 20 (coarse), subterra: 8 (fine).
     pub size_y_m: f64,
 }
 
@@ -279,21 +279,21 @@ pub struct MapConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LayerConfig {
-    /// Side of the square window of the ground-plane fit (slope, roughness) [m]; rounded to
+    /// Side of the square window of the ground-plane fit (slope, roughness) \[m\]; rounded to
     /// an odd number of cells. subterra: 0.7 (the Husky's width).
     pub plane_window_m: f64,
-    /// Fewest cells with a ground height in the window for a plane fit [cells]. subterra: 4.
+    /// Fewest cells with a ground height in the window for a plane fit \[cells\]. subterra: 4.
     pub plane_min_cells: u32,
     /// Side of the square patch under each wheel whose highest ground the wheel rests on
-    /// (settling) [m]. subterra: 0.3 (about a Husky wheel's contact length).
+    /// (settling) \[m\]. subterra: 0.3 (about a Husky wheel's contact length).
     pub wheel_patch_m: f64,
     /// Headings the footprint is settled at, evenly spaced over [0°, 180°) from world x;
-    /// the tilt layer is the worst of them [headings]. subterra: 4.
+    /// the tilt layer is the worst of them \[headings\]. subterra: 4.
     pub tilt_headings: u32,
-    /// Obstacle points up to this much above the robot's top still count for `collision` [m].
+    /// Obstacle points up to this much above the robot's top still count for `collision` \[m\].
     /// subterra: 0.1.
     pub head_margin_m: f64,
-    /// Obstacle points from this much *below* the ground clearance count for `collision` [m]:
+    /// Obstacle points from this much *below* the ground clearance count for `collision` \[m\]:
     /// the clearance is the belly's height over flat ground, and over ground that curves
     /// under the footprint (a rock on a hump, a dip's rim) the belly rides lower than that
     /// above the ground next to the rock; a point's height above the ground also carries the
@@ -307,22 +307,22 @@ pub struct LayerConfig {
 #[serde(deny_unknown_fields)]
 pub struct RiskConfig {
     /// `collision`: obstacle points in the cell between the clearance and the robot's top
-    /// [points]. subterra: 0 -> 2.
+    /// \[points\]. subterra: 0 -> 2.
     pub collision_points: Ramp,
-    /// `step`: largest ground-height difference to an 8-neighbour [m]. subterra: 0.05 -> 0.15
+    /// `step`: largest ground-height difference to an 8-neighbour \[m\]. subterra: 0.05 -> 0.15
     /// (about the Husky's wheel radius, 0.165).
     pub step_m: Ramp,
-    /// `negative`: depth of missing ground below where it should have been seen [m].
+    /// `negative`: depth of missing ground below where it should have been seen \[m\].
     /// subterra: 0.07 -> 0.13 (lethal beyond the Husky's clearance).
     pub negative_m: Ramp,
-    /// `roughness`: RMS residual of the ground-plane fit [m]. subterra: 0.02 -> 0.1.
+    /// `roughness`: RMS residual of the ground-plane fit \[m\]. subterra: 0.02 -> 0.1.
     pub roughness_m: Ramp,
-    /// `unknown`: risk of an unobserved cell, in [0, 1) [1]. subterra: 0.15 (small, non-lethal).
+    /// `unknown`: risk of an unobserved cell, in [0, 1) \[1\]. subterra: 0.15 (small, non-lethal).
     pub unknown: f64,
-    /// `mission`: the risk falls from 1 at an item's radius to 0 this much farther out [m];
+    /// `mission`: the risk falls from 1 at an item's radius to 0 this much farther out \[m\];
     /// 0 gives a hard circle. subterra: 0.
     pub mission_margin_m: f64,
-    /// Combined risk at or above which a cell is lethal, in (0, 1] [1]: the one definition of
+    /// Combined risk at or above which a cell is lethal, in (0, 1] \[1\]: the one definition of
     /// a lethal cell for every output (the planners never enter one, the MPC keeps off it,
     /// counts, pictures and exported grids mark it). subterra: 0.9.
     #[serde(default = "default_lethal_risk")]
@@ -337,14 +337,14 @@ fn default_lethal_risk() -> f64 {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct UncertaintyConfig {
-    /// Range noise of the sensor, 1σ [m]. VLP-16 / OS1 data sheets: 0.03.
+    /// Range noise of the sensor, 1σ \[m\]. VLP-16 / OS1 data sheets: 0.03.
     pub range_sigma_m: f64,
     /// Growth of the height error with a cell's age in the fusion window (odometry drift) [m/s].
     /// subterra: 0.05.
     pub drift_m_per_s: f64,
-    /// Height error that makes a 1σ risk error of 1 (the span of the step ramp) [m]. subterra: 0.1.
+    /// Height error that makes a 1σ risk error of 1 (the span of the step ramp) \[m\]. subterra: 0.1.
     pub height_span_m: f64,
-    /// Risk spread (1σ) of an unobserved cell, and the cap of every cell's [1]. subterra: 0.3.
+    /// Risk spread (1σ) of an unobserved cell, and the cap of every cell's \[1\]. subterra: 0.3.
     pub max_sigma: f64,
 }
 

@@ -43,15 +43,15 @@ pub(super) fn check_rigid(argument: &str, pose: &Isometry3) -> Result<()> {
 /// One labelled scan of the window.
 #[derive(Debug, Clone, Default)]
 pub(super) struct StoredScan {
-    /// Time of the scan [s].
+    /// Time of the scan \[s\].
     pub stamp_s: f64,
-    /// Body position in the world at the scan [m].
+    /// Body position in the world at the scan \[m\].
     pub body_world: DVec3,
-    /// Sensor position relative to the body origin, world axes [m].
+    /// Sensor position relative to the body origin, world axes \[m\].
     pub sensor_level: DVec3,
-    /// Points relative to the sensor, world axes [m].
+    /// Points relative to the sensor, world axes \[m\].
     pub points: Vec<[f32; 3]>,
-    /// Each point's height above its ground line [m] (NaN: no line).
+    /// Each point's height above its ground line \[m\] (NaN: no line).
     pub heights: Vec<f32>,
     /// The points binned once into the coarse map's global cells.
     pub binned: Vec<BinnedCell>,

@@ -22,7 +22,7 @@ pub struct CellIndex {
     pub iy: u32,
 }
 
-/// The default of `risk.lethal_risk`: a cell at or above this risk is lethal [1]. subterra:
+/// The default of `risk.lethal_risk`: a cell at or above this risk is lethal \[1\]. subterra:
 /// 0.9, where the ramps of the risk layers are all but at their lethal end.
 pub const DEFAULT_LETHAL_RISK: f64 = 0.9;
 
@@ -54,7 +54,7 @@ impl GridGeometry {
         self.nx * self.ny
     }
 
-    /// World position of the map's lower corner (cell `(0, 0)`'s lower corner) [m].
+    /// World position of the map's lower corner (cell `(0, 0)`'s lower corner) \[m\].
     pub fn origin_m(&self) -> DVec2 {
         DVec2::new(self.origin_cell.0 as f64, self.origin_cell.1 as f64) * self.resolution_m
     }
@@ -70,7 +70,7 @@ impl GridGeometry {
         }
     }
 
-    /// World position of a cell's centre [m].
+    /// World position of a cell's centre \[m\].
     pub fn centre_of(&self, cell: CellIndex) -> DVec2 {
         let g = DVec2::new((self.origin_cell.0 + cell.ix as i64) as f64, (self.origin_cell.1 + cell.iy as i64) as f64);
         (g + 0.5) * self.resolution_m
@@ -87,7 +87,7 @@ impl GridGeometry {
     }
 }
 
-/// The layers of a [`RiskMap`]. Heights are world z [m]; NaN marks "no value".
+/// The layers of a [`RiskMap`]. Heights are world z \[m\]; NaN marks "no value".
 ///
 /// # The layers, exactly
 /// Heights below are relative to the current body origin, world axes (the *level frame*);
@@ -134,30 +134,30 @@ impl GridGeometry {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[repr(usize)]
 pub enum Layer {
-    /// Points in the cell (all scans fused into this map) [points].
+    /// Points in the cell (all scans fused into this map) \[points\].
     Count,
-    /// Ground-labelled points in the cell [points].
+    /// Ground-labelled points in the cell \[points\].
     GroundCount,
     /// Ground height: mean z of the cell's ground points, else the newest scan's ground line
-    /// where a line covers the cell, else NaN [m].
+    /// where a line covers the cell, else NaN \[m\].
     GroundHeight,
-    /// Lowest point's z [m].
+    /// Lowest point's z \[m\].
     MinHeight,
-    /// Highest point's z [m].
+    /// Highest point's z \[m\].
     MaxHeight,
-    /// Slope of the ground plane fitted under the footprint-sized window [rad].
+    /// Slope of the ground plane fitted under the footprint-sized window \[rad\].
     Slope,
-    /// Roughness: RMS residual of that plane fit [m].
+    /// Roughness: RMS residual of that plane fit \[m\].
     PlaneResidual,
-    /// Largest ground-height difference to an 8-neighbour [m].
+    /// Largest ground-height difference to an 8-neighbour \[m\].
     StepHeight,
-    /// Depth of the floor below where ground was expected (negative obstacles) [m].
+    /// Depth of the floor below where ground was expected (negative obstacles) \[m\].
     NegativeDepth,
-    /// Worst tilt of the footprint settled on the ground, over the headings [rad].
+    /// Worst tilt of the footprint settled on the ground, over the headings \[rad\].
     TiltAngle,
     /// 1 if the cell was observed (has points, or the newest scan's ground line covers it), else 0.
     Observed,
-    /// Age of the newest scan that put a point in the cell [s]; NaN if none.
+    /// Age of the newest scan that put a point in the cell \[s\]; NaN if none.
     Age,
     /// Risk: obstacle points between the clearance and the robot's top.
     Collision,
@@ -251,13 +251,13 @@ pub struct RiskMap {
     /// builder writes its next map into the same storage (no allocation and zero fill of
     /// megabytes per update). Nothing outside this crate mutates a map.
     data: Arc<Vec<f32>>,
-    /// Time of the newest scan in the map [s].
+    /// Time of the newest scan in the map \[s\].
     pub stamp_s: f64,
     /// Scans fused into the map.
     pub scans: usize,
     /// Points binned into the map (inside its extent).
     pub points: usize,
-    /// Risk at or above which a cell is lethal (the mapper's `risk.lethal_risk`) [1]: the one
+    /// Risk at or above which a cell is lethal (the mapper's `risk.lethal_risk`) \[1\]: the one
     /// definition of a lethal cell for the planners, the counts, the pictures and the
     /// exported grids ([`RiskMap::is_lethal`]).
     pub lethal_risk: f32,

@@ -17,7 +17,7 @@ use crate::frames::Isometry3;
 /// Most cells of the scratch map a fusion window's scans are binned into (about 40 bytes each).
 const MAX_SCRATCH_CELLS: f64 = 25_000_000.0;
 
-/// Wall-clock time of each stage of one update [s].
+/// Wall-clock time of each stage of one update \[s\].
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct TerrainTimings {
     /// Prefilter and transform into world-aligned axes.
@@ -144,8 +144,8 @@ impl TerrainMapper {
         self.window.len()
     }
 
-    /// The newest scan's kept points relative to the body origin, world-aligned axes [m],
-    /// and each one's height above its ground line [m] (ground iff within
+    /// The newest scan's kept points relative to the body origin, world-aligned axes \[m\],
+    /// and each one's height above its ground line \[m\] (ground iff within
     /// `ground.max_dist_to_line_m`; NaN: no line).
     pub fn newest_points_level(&self) -> Option<(Vec<[f32; 3]>, &[f32])> {
         let scan = self.window.newest()?;
@@ -155,9 +155,9 @@ impl TerrainMapper {
 
     /// Adds one scan and returns the maps.
     ///
-    /// `points_sensor`: row-major `(N, 3)` in the sensor frame [m], N >= 1; NaN and infinite
+    /// `points_sensor`: row-major `(N, 3)` in the sensor frame \[m\], N >= 1; NaN and infinite
     /// points are dropped and counted. `stamp_s`: the scan's time, not earlier than the
-    /// previous scan's [s]. `world_from_body`: odometry pose (rigid). `body_from_sensor`: the
+    /// previous scan's \[s\]. `world_from_body`: odometry pose (rigid). `body_from_sensor`: the
     /// sensor's mounting (rigid). `confidence`: odometry confidence in [0, 1] (0: fuse the
     /// newest scan alone).
     pub fn update(

@@ -40,11 +40,11 @@ pub struct RiskAStarConfig {
     /// metres is worth avoiding a risk integral of `λ·x`. Small, so that risk dominates and
     /// among riskless paths the shortest wins (STEP, Fan et al. 2021). subterra: 0.1.
     pub lam: f64,
-    /// `R_inst`: cells with risk `>= r_inst` are untraversable, in (0, 1] [1]. subterra: 0.8.
+    /// `R_inst`: cells with risk `>= r_inst` are untraversable, in (0, 1] \[1\]. subterra: 0.8.
     pub r_inst: f64,
-    /// `R_total`: the largest accumulated risk of an accepted path, in (0, 1] [1]. subterra: 0.5.
+    /// `R_total`: the largest accumulated risk of an accepted path, in (0, 1] \[1\]. subterra: 0.5.
     pub r_total: f64,
-    /// Path length from the start to the carrot point [m]. STEP: 1.
+    /// Path length from the start to the carrot point \[m\]. STEP: 1.
     pub carrot_m: f64,
     /// Risk of a cell whose risk is NaN (unknown), in [0, 1] [1/m]; `>= r_inst` makes unknown
     /// cells untraversable. subterra: 0.15, the terrain mapper's `risk.unknown`.
@@ -55,11 +55,11 @@ pub struct RiskAStarConfig {
     /// The cost model: `risk` (STEP, Fan et al. 2021) or `additive` (the baseline). subterra: risk.
     #[serde(default)]
     pub cost_model: CostModel,
-    /// `k` of the additive model `1 + k·r` [1]. Nav2 Smac planner's `cost_penalty`: 2.0.
+    /// `k` of the additive model `1 + k·r` \[1\]. Nav2 Smac planner's `cost_penalty`: 2.0.
     #[serde(default = "default_additive_weight")]
     pub additive_weight: f64,
     /// Cells at or above this risk are lethal and untraversable whatever `r_inst` is, in
-    /// (0, 1] [1]. The navigator sets it to the terrain map's `risk.lethal_risk`, so that
+    /// (0, 1] \[1\]. The navigator sets it to the terrain map's `risk.lethal_risk`, so that
     /// raised thresholds never open a hole or a wall. subterra: 1.0 (only certain failure).
     #[serde(default = "default_lethal_risk")]
     pub lethal_risk: f64,

@@ -41,15 +41,15 @@ impl PlanStatus {
 pub struct PlannedPath {
     /// The cells, start first, goal last; consecutive cells are 8-neighbours.
     pub cells: Vec<CellIndex>,
-    /// The cells' centres in the world frame [m].
+    /// The cells' centres in the world frame \[m\].
     pub points_world: Vec<DVec2>,
-    /// `λ·L + S`, the sum of the move costs (the A* `g` of the goal) [1].
+    /// `λ·L + S`, the sum of the move costs (the A* `g` of the goal) \[1\].
     pub cost: f64,
-    /// `L`, the length of the polyline through the cell centres [m].
+    /// `L`, the length of the polyline through the cell centres \[m\].
     pub length_m: f64,
-    /// `S = Σ d·(ρ(a) + ρ(b))/2`, the risk integral [1].
+    /// `S = Σ d·(ρ(a) + ρ(b))/2`, the risk integral \[1\].
     pub risk_integral: f64,
-    /// `1 - exp(-S)`, the accumulated risk [1].
+    /// `1 - exp(-S)`, the accumulated risk \[1\].
     pub accumulated_risk: f64,
 }
 
@@ -69,7 +69,7 @@ pub struct PlanOutcome {
     pub goal_cell: CellIndex,
     /// Cells popped from the open list and expanded (the goal included).
     pub expanded: usize,
-    /// Wall time of the plan [s].
+    /// Wall time of the plan \[s\].
     pub time_s: f64,
 }
 

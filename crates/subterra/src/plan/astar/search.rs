@@ -35,7 +35,7 @@ pub(super) struct Search<'a> {
     pub(super) risk: &'a [f32],
     pub(super) config: &'a RiskAStarConfig,
     pub(super) stamp: u32,
-    /// Move lengths [m]: orthogonal, diagonal.
+    /// Move lengths \[m\]: orthogonal, diagonal.
     pub(super) step: [f64; 2],
     /// The goal cell `(x, y)`.
     pub(super) goal: (usize, usize),

@@ -5,7 +5,7 @@ use super::{MpcConfig, UnicycleInput, Workspace};
 
 /// QP variables per stage: `[a_k, ω_k, x, y, θ, v (of state k+1), σo_{k+1}]`.
 const STAGE_VARS: usize = 7;
-/// Right-hand side of an unused obstacle row, `-σo <= this` [m]: never binding.
+/// Right-hand side of an unused obstacle row, `-σo <= this` \[m\]: never binding.
 const UNUSED_ROW_RHS_M: f64 = 1e3;
 
 /// Index of input `ch` (0: a, 1: ω) of step `k` in `z`.

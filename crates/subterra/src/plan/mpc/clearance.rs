@@ -9,7 +9,7 @@ pub(super) fn footprint(c: &MpcConfig, s: &UnicycleState) -> Footprint {
     Footprint::at(s.position(), s.heading_rad, c.footprint.length_m, c.footprint.width_m)
 }
 
-/// The smallest signed distance from the footprint at `s` to any polygon [m]; infinite if none.
+/// The smallest signed distance from the footprint at `s` to any polygon \[m\]; infinite if none.
 pub(super) fn clearance(c: &MpcConfig, polygons: &[ConvexPolygon], s: &UnicycleState) -> f64 {
     let half_diagonal = 0.5 * c.footprint.length_m.hypot(c.footprint.width_m);
     let fp = footprint(c, s);
@@ -23,7 +23,7 @@ pub(super) fn clearance(c: &MpcConfig, polygons: &[ConvexPolygon], s: &UnicycleS
     best
 }
 
-/// Smallest obstacle slack of the footprint at `s` (>= 0) [m]: its largest intrusion into
+/// Smallest obstacle slack of the footprint at `s` (>= 0) \[m\]: its largest intrusion into
 /// the margin of any polygon.
 pub(super) fn obstacle_slack(c: &MpcConfig, polygons: &[ConvexPolygon], s: &UnicycleState) -> f64 {
     let half_diagonal = 0.5 * c.footprint.length_m.hypot(c.footprint.width_m);

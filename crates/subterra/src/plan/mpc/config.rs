@@ -9,9 +9,9 @@ use serde::{Deserialize, Serialize};
 use crate::error::{require_non_negative, require_positive, Error, Result};
 use crate::terrain::RobotConfig;
 
-/// Longest step accepted [s].
+/// Longest step accepted \[s\].
 const MAX_DT_S: f64 = 1.0;
-/// Longest horizon accepted [steps]: the QP grows linearly, and 200 steps of 0.1 s is 20 s.
+/// Longest horizon accepted \[steps\]: the QP grows linearly, and 200 steps of 0.1 s is 20 s.
 const MAX_HORIZON: usize = 200;
 /// Largest speed accepted [m/s]: a ground robot in a mine does not go faster.
 const MAX_SPEED_M_S: f64 = 30.0;
@@ -19,7 +19,7 @@ const MAX_SPEED_M_S: f64 = 30.0;
 const MAX_ACCEL_M_S2: f64 = 50.0;
 /// Largest yaw rate accepted [rad/s].
 const MAX_YAW_RATE_RAD_S: f64 = 50.0;
-/// Largest footprint side, margin, block or activation distance accepted [m].
+/// Largest footprint side, margin, block or activation distance accepted \[m\].
 const MAX_LENGTH_M: f64 = 20.0;
 /// Largest weight accepted (anything larger wrecks the QP's conditioning).
 const MAX_WEIGHT: f64 = 1e7;
@@ -54,7 +54,7 @@ pub struct MpcTracking {
     pub end_decel_m_s2: f64,
     /// The path's direction at a reference point is that of the chord from this far behind
     /// it to this far ahead, so headings turn smoothly through the corners of a grid path
-    /// [m]. subterra: 0.3 (three cells of the coarse map).
+    /// \[m\]. subterra: 0.3 (three cells of the coarse map).
     pub tangent_half_window_m: f64,
 }
 
@@ -78,9 +78,9 @@ pub struct MpcWeights {
     pub accel_rate: f64,
     /// Change of yaw rate between steps [s²/rad²]. subterra: 0.5.
     pub yaw_rate_rate: f64,
-    /// The last state's tracking terms are multiplied by this [1]. subterra: 5.
+    /// The last state's tracking terms are multiplied by this \[1\]. subterra: 5.
     pub terminal_factor: f64,
-    /// Linear penalty of a slack (speed [m/s] or obstacle margin [m]) [1/unit]; above the
+    /// Linear penalty of a slack (speed [m/s] or obstacle margin \[m\]) [1/unit]; above the
     /// constraints' multipliers, so a soft constraint holds whenever it can (an exact
     /// penalty; the tracking terms above give multipliers of a few tens). subterra: 300.
     pub slack_linear: f64,
@@ -92,9 +92,9 @@ pub struct MpcWeights {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MpcFootprint {
-    /// Along body x [m]. Husky: 0.99.
+    /// Along body x \[m\]. Husky: 0.99.
     pub length_m: f64,
-    /// Along body y [m]. Husky: 0.67.
+    /// Along body y \[m\]. Husky: 0.67.
     pub width_m: f64,
 }
 
@@ -102,10 +102,10 @@ pub struct MpcFootprint {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MpcRisk {
-    /// Risk taken outside the grid and where it is NaN, in [0, 1] [1]. subterra: 0.15 (the
+    /// Risk taken outside the grid and where it is NaN, in [0, 1] \[1\]. subterra: 0.15 (the
     /// terrain map's `unknown` risk).
     pub unknown_risk: f64,
-    /// Cells with `risk >= lethal_risk` are obstacles, in (0, 1] [1]. subterra: 0.9.
+    /// Cells with `risk >= lethal_risk` are obstacles, in (0, 1] \[1\]. subterra: 0.9.
     pub lethal_risk: f64,
 }
 
@@ -113,25 +113,25 @@ pub struct MpcRisk {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MpcObstacles {
-    /// The footprint keeps this signed distance from every lethal polygon [m]. subterra: 0.1.
+    /// The footprint keeps this signed distance from every lethal polygon \[m\]. subterra: 0.1.
     pub margin_m: f64,
     /// A lethal region is cut into pieces until each piece's convex hull overhangs its cells
-    /// by at most this much on average (free area over the longer side) [m]. subterra: 0.1
+    /// by at most this much on average (free area over the longer side) \[m\]. subterra: 0.1
     /// (a cell of the coarse map).
     pub max_overhang_m: f64,
     /// A polygon constrains a predicted state when their distance at the linearisation point
-    /// is below `margin_m + activation_m` [m]. subterra: 0.5.
+    /// is below `margin_m + activation_m` \[m\]. subterra: 0.5.
     pub activation_m: f64,
     /// Reference points are moved sideways until the footprint at them clears every
     /// polygon beside the path by this much, so the robot steers around an obstacle that
-    /// reaches into its path instead of stopping in front of it [m], >= `margin_m`.
+    /// reaches into its path instead of stopping in front of it \[m\], >= `margin_m`.
     /// subterra: 0.15.
     pub path_clearance_m: f64,
-    /// Largest such sideways move; a point that needs more stays where it is [m].
+    /// Largest such sideways move; a point that needs more stays where it is \[m\].
     /// subterra: 1.0.
     pub max_path_shift_m: f64,
     /// The move fades in over this much path before the obstacle and out after it, so the
-    /// robot starts to steer early [m]. subterra: 1.0.
+    /// robot starts to steer early \[m\]. subterra: 1.0.
     pub path_shift_ramp_m: f64,
     /// Most polygons constraining one predicted state (the nearest); 0 disables obstacles.
     /// subterra: 6.
@@ -155,7 +155,7 @@ pub struct MpcSolver {
     /// Interior-point iterations per QP. subterra: 50 (typical QPs take 10-20).
     pub qp_max_iterations: u32,
     /// A plan is unsafe (backup stop) when a predicted footprint comes closer to a lethal
-    /// polygon than `min(margin, clearance now) - this` [m]. subterra: 0.02.
+    /// polygon than `min(margin, clearance now) - this` \[m\]. subterra: 0.02.
     pub clearance_tolerance_m: f64,
 }
 
@@ -163,9 +163,9 @@ pub struct MpcSolver {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MpcConfig {
-    /// Step of the discrete dynamics [s]. STEP: 0.1.
+    /// Step of the discrete dynamics \[s\]. STEP: 0.1.
     pub dt_s: f64,
-    /// Number of steps N of the horizon [steps]. STEP: 20.
+    /// Number of steps N of the horizon \[steps\]. STEP: 20.
     pub horizon: usize,
     /// Actuator and speed limits.
     pub limits: MpcLimits,

@@ -26,11 +26,11 @@ use crate::plan::grid::RiskGrid;
 /// A convex polygon in the world frame, vertices counter-clockwise.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ConvexPolygon {
-    /// Vertices [m], counter-clockwise, no three collinear.
+    /// Vertices \[m\], counter-clockwise, no three collinear.
     pub vertices: Vec<DVec2>,
-    /// Mean of the vertices [m].
+    /// Mean of the vertices \[m\].
     pub centre: DVec2,
-    /// Largest distance from `centre` to a vertex [m].
+    /// Largest distance from `centre` to a vertex \[m\].
     pub radius_m: f64,
 }
 
@@ -64,11 +64,11 @@ impl Footprint {
 /// Signed distance between a footprint and a polygon with its witness.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Separation {
-    /// Signed distance [m]: > 0 apart, < 0 overlapping (minus the penetration depth).
+    /// Signed distance \[m\]: > 0 apart, < 0 overlapping (minus the penetration depth).
     pub distance_m: f64,
     /// Unit normal from the obstacle toward the robot.
     pub normal: DVec2,
-    /// The robot's witness point, world frame [m].
+    /// The robot's witness point, world frame \[m\].
     pub witness: DVec2,
 }
 

@@ -7,7 +7,7 @@ use super::linearise::{reachable_bounds, speed_bounds};
 use super::{rollout, ConvexPolygon, MpcConfig, RiskGrid, StageTarget, UnicycleInput, UnicycleState, Workspace};
 
 /// A line-search step may not raise `max(largest speed-limit excess [m/s], largest intrusion
-/// into an obstacle margin [m])` by more than this.
+/// into an obstacle margin \[m\])` by more than this.
 const FILTER_M: f64 = 1e-4;
 /// Sufficient-decrease fraction of the line search (Armijo).
 const ARMIJO: f64 = 1e-4;
@@ -21,7 +21,7 @@ struct Merit {
     cost: f64,
     /// Largest excess of a speed over its widened bounds [m/s].
     speed_excess_m_s: f64,
-    /// Largest intrusion of a footprint into an obstacle's margin [m].
+    /// Largest intrusion of a footprint into an obstacle's margin \[m\].
     obstacle_intrusion_m: f64,
 }
 

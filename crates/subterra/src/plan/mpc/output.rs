@@ -63,20 +63,20 @@ pub struct MpcOutput {
     pub sqp_iterations: u32,
     /// Interior-point iterations over all QPs.
     pub qp_iterations: u32,
-    /// Wall time of the solve [s].
+    /// Wall time of the solve \[s\].
     pub solve_time_s: f64,
     /// `max(max_speed_slack_m_s, max_obstacle_slack_m)` [m/s or m].
     pub max_slack: f64,
     /// Largest excess of `|v_k|` over its risk and speed limits, `k = 1..N` [m/s].
     pub max_speed_slack_m_s: f64,
-    /// Largest intrusion of a predicted footprint into a polygon's margin, `k = 1..N` [m].
+    /// Largest intrusion of a predicted footprint into a polygon's margin, `k = 1..N` \[m\].
     pub max_obstacle_slack_m: f64,
     /// Smallest signed distance from a predicted footprint (`k = 1..N`) to a lethal polygon
-    /// [m]; infinite when there is none.
+    /// \[m\]; infinite when there is none.
     pub min_clearance_m: f64,
     /// Upper speed limit `vhi_k` at the predicted states `k = 1..N` [m/s] (`MpcTracker`'s docs, step 2).
     pub speed_limits_m_s: Vec<f64>,
-    /// Reference points `r_1..r_N` of the last iteration [m].
+    /// Reference points `r_1..r_N` of the last iteration \[m\].
     pub reference_points: Vec<DVec2>,
     /// The lethal polygons considered.
     pub polygons: Vec<ConvexPolygon>,

@@ -7,12 +7,12 @@ use glam::DVec2;
 use super::geometry::{blocked_offsets, Footprint};
 use super::{ConvexPolygon, MpcConfig, Workspace};
 
-/// Spacing of the path samples whose sideways offsets are worked out [m].
+/// Spacing of the path samples whose sideways offsets are worked out \[m\].
 pub(super) const PATH_SAMPLE_M: f64 = 0.1;
-/// [`free_offsets`] steps this far past the end of a blocked interval [m] (rounding).
+/// [`free_offsets`] steps this far past the end of a blocked interval \[m\] (rounding).
 const PUSH_TOLERANCE_M: f64 = 1e-6;
 
-/// The nearest free sideways offsets of a path sample, `(right <= 0, left >= 0)` [m].
+/// The nearest free sideways offsets of a path sample, `(right <= 0, left >= 0)` \[m\].
 pub(super) type SideOffsets = (Option<f64>, Option<f64>);
 
 /// The sideways offsets (along the path normal) of a reference point nearest to zero on

@@ -8,14 +8,14 @@ use crate::error::{Error, Result};
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Reference {
     points: Vec<DVec2>,
-    /// `s[i]`: arc length from the first point to `points[i]` [m].
+    /// `s[i]`: arc length from the first point to `points[i]` \[m\].
     s: Vec<f64>,
 }
 
 /// Where a point of the path is.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct PathPoint {
-    /// The point [m].
+    /// The point \[m\].
     pub position: DVec2,
     /// Unit tangent of its segment (the later segment at a vertex).
     pub tangent: DVec2,
@@ -53,7 +53,7 @@ impl Reference {
         Ok(())
     }
 
-    /// Total length [m].
+    /// Total length \[m\].
     pub(super) fn length(&self) -> f64 {
         self.s[self.s.len() - 1]
     }

@@ -1,6 +1,6 @@
 //! The unicycle: exact discrete dynamics and their Jacobians.
 //!
-//! State `[x, y, θ, v]` (world position [m], heading from world x [rad], forward speed
+//! State `[x, y, θ, v]` (world position \[m\], heading from world x \[rad\], forward speed
 //! [m/s]); input `[a, ω]` (acceleration [m/s²], yaw rate [rad/s]) held constant over a step
 //! of `T` seconds. Over the step `v(t) = v + a·t`, `θ(t) = θ + ω·t`, and the position moves
 //! by `∫₀ᵀ v(t)·(cos θ(t), sin θ(t)) dt`. With `h = ω·T` that integral is exactly
@@ -24,11 +24,11 @@ const SERIES_TERMS: usize = 10;
 /// The state of a unicycle in the world frame.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct UnicycleState {
-    /// World x [m].
+    /// World x \[m\].
     pub x_m: f64,
-    /// World y [m].
+    /// World y \[m\].
     pub y_m: f64,
-    /// Heading, counter-clockwise from world x [rad] (not wrapped).
+    /// Heading, counter-clockwise from world x \[rad\] (not wrapped).
     pub heading_rad: f64,
     /// Forward speed [m/s]; negative when backing up.
     pub speed_m_s: f64,
@@ -45,7 +45,7 @@ impl UnicycleState {
         [self.x_m, self.y_m, self.heading_rad, self.speed_m_s]
     }
 
-    /// World position [m].
+    /// World position \[m\].
     pub fn position(&self) -> DVec2 {
         DVec2::new(self.x_m, self.y_m)
     }

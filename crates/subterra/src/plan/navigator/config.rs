@@ -23,7 +23,7 @@ pub const UNSEEN_RISK_PER_M: f64 = 0.03;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct NavigatorSettings {
-    /// Least time between two plans while tracking [s].
+    /// Least time between two plans while tracking \[s\].
     pub replan_period_s: f64,
     /// `None`: plan on the mean risk; `Some(α)`: on its `CVaR_α`, α in (0, 1).
     pub cvar_alpha: Option<f64>,
@@ -33,23 +33,23 @@ pub struct NavigatorSettings {
     pub max_turn_rate_rad_s: f64,
     /// Reversing speed of `back_out` [m/s].
     pub backout_speed_m_s: f64,
-    /// `back_out` checks the footprint swept over this much reversing ahead of each step [m].
+    /// `back_out` checks the footprint swept over this much reversing ahead of each step \[m\].
     pub backout_clearance_m: f64,
     /// Added on every side of the footprint when a recovery checks the cells its motion
-    /// sweeps [m] (a cell counts when any part of it is within it): a corner that swings 5 cm
+    /// sweeps \[m\] (a cell counts when any part of it is within it): a corner that swings 5 cm
     /// over a hole's rim drops a wheel. A corridor too narrow to turn in is then backed out of
     /// until there is room (`recovery.backout_max_distance_m`).
     pub sweep_margin_m: f64,
     /// The tracker's command is also checked against the footprint it sweeps: an unknown
-    /// cell this near a lethal one blocks it like the lethal cell [m]. About one cell, its
+    /// cell this near a lethal one blocks it like the lethal cell \[m\]. About one cell, its
     /// diagonal included: the unseen rim of a hole whose inside was seen.
     pub track_unknown_fringe_m: f64,
     /// Headings tried for the clearance heading.
     pub clearance_headings: u32,
-    /// Longest clearance ray [m].
+    /// Longest clearance ray \[m\].
     pub clearance_range_m: f64,
     /// How far from a target off the map its stand-in on the map edge may move to reach a
-    /// traversable cell [m].
+    /// traversable cell \[m\].
     pub standin_search_m: f64,
     /// Remember hazards in the world frame beyond the mapper's fusion window (step 2).
     pub hazard_memory: bool,
@@ -60,12 +60,12 @@ pub struct NavigatorSettings {
     /// Inflate lethal cells by half the robot's width plus `inflation_margin_m` for the
     /// planner (step 3): the A* plans the robot's centre.
     pub inflate_lethal: bool,
-    /// Added to half the robot's width for the inflation and for where the robot fits [m].
+    /// Added to half the robot's width for the inflation and for where the robot fits \[m\].
     /// 0: the inscribed radius exactly; a margin narrows every passage by twice as much.
     pub inflation_margin_m: f64,
     /// Price of planning the robot's centre where it could not turn in place without its
     /// footprint touching a lethal cell (step 3), as a multiple of the least cost of a metre
-    /// (λ, or 1 with the additive model) [1]; 0: off. A cell nearer a lethal patch than the
+    /// (λ, or 1 with the additive model) \[1\]; 0: off. A cell nearer a lethal patch than the
     /// footprint's circumscribed radius (plus `inflation_margin_m`) costs up to this much more
     /// per metre, falling linearly from the inscribed radius, where the cell becomes
     /// untraversable, to the circumscribed one. The price is about room, not risk: it never
@@ -77,29 +77,29 @@ pub struct NavigatorSettings {
     /// (docs/drive.md measures both).
     pub turn_room_price: f64,
     /// Unobserved cells within this distance of a lethal patch are taken as part of it on
-    /// the A*'s grid (step 2) [m]; 0: off. A hazard's far side and corners lie in its own
+    /// the A*'s grid (step 2) \[m\]; 0: off. A hazard's far side and corners lie in its own
     /// shadow (a pit's tip beyond its near rim gets no return): what the lidar could not see
     /// next to a drop is more likely the drop than ground.
     pub unseen_growth_m: f64,
-    /// No growth into unobserved cells nearer than this to the robot [m] (about the
+    /// No growth into unobserved cells nearer than this to the robot \[m\] (about the
     /// footprint's half-length): the cells under and beside the robot are unobserved because
     /// the lidar cannot look down so steeply, not because a hazard shadows them; grown there,
     /// a corridor's walls would close it around the robot.
     pub unseen_growth_min_range_m: f64,
-    /// `clear_map` keeps the remembered cells this near the robot [m]: the lidar cannot see
+    /// `clear_map` keeps the remembered cells this near the robot \[m\]: the lidar cannot see
     /// them again from where it stands (its blind ring), the rest it sees again at once.
     pub hazard_memory_keep_m: f64,
     /// A remembered cell is forgotten once the map holds at least this many ground points in
     /// it and rates it below the lethal level: seen ground, not a grazing ray.
     pub hazard_memory_forget_points: u32,
-    /// Only cells this near the robot are remembered [m]: the memory must bridge the blind
+    /// Only cells this near the robot are remembered \[m\]: the memory must bridge the blind
     /// ring, and far cells, on few points and grazing rays, are rated least reliably.
     pub hazard_memory_record_m: f64,
-    /// Remembered cells farther than this from the robot are forgotten [m].
+    /// Remembered cells farther than this from the robot are forgotten \[m\].
     pub hazard_memory_range_m: f64,
     /// **Near memory** (step 2): an unobserved cell within this distance of the robot takes
     /// the rating it had when last observed within it (with `near_memory_highest` its highest
-    /// there), if that is above the planner's `unknown_risk` [m]; 0: off. The lidar's blind
+    /// there), if that is above the planner's `unknown_risk` \[m\]; 0: off. The lidar's blind
     /// ring (~2.3 m for one 0.7 m up) hides the ground the robot is about to drive on:
     /// without it a slope seen from afar turns into cheap unseen ground once the robot
     /// stands at its foot. The recoveries' sweep check also counts a cell it holds as known.
@@ -109,7 +109,7 @@ pub struct NavigatorSettings {
     /// highest keeps the rating from afar. Off by default: the newest rating follows a map
     /// that corrects an early false alarm.
     pub near_memory_highest: bool,
-    /// The cells the robot's footprint stood on are remembered this far [m] (the **driven
+    /// The cells the robot's footprint stood on are remembered this far \[m\] (the **driven
     /// memory**): ground that carried the robot is known, for the recoveries' sweep check,
     /// however little of it the sensor sees from there.
     pub driven_memory_m: f64,
@@ -127,14 +127,14 @@ pub struct NavigatorSettings {
     pub unseen_near_lethal: bool,
     /// **Void rim** (step 2): cells within this distance of a void (a cell the map rated as
     /// missing ground, held by the map or the hazard memory) are lethal on the navigator's
-    /// grid, unless the robot stood on them [m]; 0: off. The map places a void's edge where
+    /// grid, unless the robot stood on them \[m\]; 0: off. The map places a void's edge where
     /// a ray's ground returns stop, to within the ground segmentation's radial bin
     /// (`ground.bin_m`, 0.2 m): the cells holding the last returns are rated ground although
     /// part of them overhangs the drop. Without the rim the A*'s inflation and the tracker's
     /// footprint check keep the robot clear of the rated void, not of the real edge.
     pub void_rim_m: f64,
     /// **Stale sensor** (step 1): once a map exists, with no scan for longer than this the
-    /// robot stops, whatever the plan, until scans come again [s] (`safety` says why). A
+    /// robot stops, whatever the plan, until scans come again \[s\] (`safety` says why). A
     /// tracker with no new scans drives on a map that no longer shows what is ahead: a lidar
     /// that stopped publishing, or a driver that hangs. Odometry confidence 0 (no usable
     /// odometry source: `subterra.OdometryMux`) stops the robot the same way.
@@ -211,14 +211,14 @@ impl Default for NavigatorSettings {
     }
 }
 
-/// Largest search or memory range accepted [m]: the navigator works on a local map (20 m by
+/// Largest search or memory range accepted \[m\]: the navigator works on a local map (20 m by
 /// default); searches and memories kilometres wide are a mistake and would take seconds a step.
 pub(crate) const MAX_RANGE_SETTING_M: f64 = 100.0;
-/// Largest inflation, growth or sweep margin accepted [m]: each lethal cell stamps a disc of
+/// Largest inflation, growth or sweep margin accepted \[m\]: each lethal cell stamps a disc of
 /// this radius; metres of margin close every passage of a mine anyway.
 pub(crate) const MAX_MORPHOLOGY_M: f64 = 2.0;
 
-/// Largest `turn_room_price` accepted [1]: at 100 a metre hugging a wall costs as much as
+/// Largest `turn_room_price` accepted \[1\]: at 100 a metre hugging a wall costs as much as
 /// 100 m in the open; anything above that is a wall of its own.
 pub(super) const MAX_TURN_ROOM_PRICE: f64 = 100.0;
 

@@ -81,9 +81,9 @@ pub(crate) struct HazardRules {
     /// A cell is forgotten once the map holds this many ground points in it and rates it
     /// below lethal.
     pub forget_points: f32,
-    /// Only cells this near the robot are remembered [m].
+    /// Only cells this near the robot are remembered \[m\].
     pub record_m: f64,
-    /// Remembered cells farther than this are forgotten [m].
+    /// Remembered cells farther than this are forgotten \[m\].
     pub range_m: f64,
 }
 
@@ -265,9 +265,9 @@ pub(crate) struct UnseenNear {
     pub robot: DVec2,
     /// Where it stood at its first map [m, world]: its blind ring there was never in view.
     pub start: DVec2,
-    /// The sensor's blind ring: the nearest ground it sees [m].
+    /// The sensor's blind ring: the nearest ground it sees \[m\].
     pub blind_m: f64,
-    /// The lethal level written [1].
+    /// The lethal level written \[1\].
     pub lethal: f32,
 }
 

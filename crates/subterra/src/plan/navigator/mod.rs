@@ -88,11 +88,11 @@ struct PlanScratch {
 ///    memory below lethal as shown ground (a point of its own, or rated from outside the
 ///    blind ring), never stood on, not within the blind ring of the robot's first
 ///    pose, with its 8 neighbours the same: ground the all-round sensor had in view on its way
-///    in and never got a return from (a hole's mouth; [`memory::mark_unseen_near`]). With
+///    in and never got a return from (a hole's mouth; `memory::mark_unseen_near`). With
 ///    `void_rim_m` > 0, every cell within it of a void (a cell whose `negative` layer is
 ///    lethal, on this map in a patch or remembered by the hazard memory) is lethal on both
 ///    unless the robot stood on it: the map places a void's edge only to within one radial
-///    ground bin ([`memory::mark_void_rims`]). The **driven
+///    ground bin (`memory::mark_void_rims`). The **driven
 ///    memory** adds the cells under the robot's footprint every step. **Lethal** is the map's
 ///    one definition ([`RiskMap::lethal_risk`]): the A* never enters a lethal cell whatever its
 ///    thresholds, the MPC keeps the footprint off them.
@@ -106,15 +106,15 @@ struct PlanScratch {
 ///    metre, [`RiskAStar::plan_toward`]; when it finds no way out within the thresholds, and
 ///    without it, the target is replaced by the map cell on the segment robot→target nearest
 ///    it); a target on a cell the robot may not enter by the
-///    nearest cell where the robot fits and that the A* reaches ([`target`]); with `perception_aware`, the moves that would enter an unknown cell (not
+///    nearest cell where the robot fits and that the A* reaches (`target`); with `perception_aware`, the moves that would enter an unknown cell (not
 ///    observed, not remembered, not driven) the sensor will not have seen on the way are priced
 ///    at the map's `risk.unknown` instead of the planner's `unknown_risk`
-///    ([`crate::plan::coverage`]); then the A* with the recovery machine's `R_inst`/`R_total`.
+///    ([`SensorCoverage`](crate::plan::SensorCoverage)); then the A* with the recovery machine's `R_inst`/`R_total`.
 ///    With `footprint_replans` > 0 the path found is checked with the tracker's footprint test
 ///    (below, step 5) at poses every half cell along it, each with the heading of the path's
 ///    chord over the robot's length; where the rectangle fails, a disc of the circumscribed
 ///    less the inscribed radius around that pose is closed and the A* runs again, up to
-///    `footprint_replans` times ([`reactive::footprint_checked`]): the disc the A* plans for
+///    `footprint_replans` times (`reactive::footprint_checked`): the disc the A* plans for
 ///    takes turns the rectangle cannot, and such a path only stops the tracker beside an
 ///    obstacle. With `plan_hysteresis` > 0, a plan that takes another route than the path
 ///    being followed (a vertex of the path's rest farther than the robot's width from it)
@@ -128,15 +128,15 @@ struct PlanScratch {
 ///    length plus the straight remainder beyond the map when a path was found, else the
 ///    straight-line distance.
 /// 4. **Recovery.** [`RecoveryMachine::step`] with the plan's outcome and the heading of most
-///    clearance ([`reactive::clearance_heading`]) gives the behaviour for this tick.
+///    clearance (`reactive::clearance_heading`) gives the behaviour for this tick.
 /// 5. **Act.** `track`: the MPC on the last path, on the navigator's grid (ungrown,
 ///    uninflated: its speed limits and lethal obstacle polygons), its command checked
-///    ([`reactive::filter_track`]): if the footprint it would sweep newly covers the centre of
+///    (`reactive::filter_track`): if the footprint it would sweep newly covers the centre of
 ///    a lethal cell or of an unknown one within `track_unknown_fringe_m` of a lethal cell (a
 ///    hazard's unseen rim), a turn in place, a straight drive or a stop instead
 ///    (`NavigatorOutput::safety` says why); no path yet: stop.
 ///    `clear_map`: drop the mapper's window and the remembered hazards and near cells farther
-///    than `hazard_memory_keep_m`, stop. `rotate` and `back_out` ([`reactive`]) move only if
+///    than `hazard_memory_keep_m`, stop. `rotate` and `back_out` (`reactive`) move only if
 ///    the footprint their next motion sweeps covers no cell at or above the nominal `R_inst`
 ///    (raised thresholds are for the planner) or lethal, and no unknown cell; when no motion is safe the behaviour ends
 ///    ([`RecoveryMachine::abort`], with the reason) and the robot stops.
@@ -165,25 +165,25 @@ pub struct Navigator {
     scratch: PlanScratch,
     path: Vec<DVec2>,
     remainder_m: f64,
-    /// The distance to the target the recovery machine was last told [m].
+    /// The distance to the target the recovery machine was last told \[m\].
     last_distance_m: Option<f64>,
     last_plan_s: Option<f64>,
     last_plan_ok: bool,
     planned_for: Option<(f64, f64, Target)>,
     last_stamp_s: Option<f64>,
-    /// The stamp of the last scan mapped [s].
+    /// The stamp of the last scan mapped \[s\].
     last_scan_s: Option<f64>,
     transitions_seen: usize,
     home_pending: bool,
     terrain_stats: (TerrainStats, TerrainTimings),
 }
 
-/// The control period assumed before two steps have been seen [s].
+/// The control period assumed before two steps have been seen \[s\].
 const DEFAULT_PERIOD_S: f64 = 0.1;
 
 impl Navigator {
     /// A navigator for `robot` on `terrain` settings, driving to `goal` and back to `home`
-    /// when it gives up (world frame [m]; `None`: where the robot is at its first step). The
+    /// when it gives up (world frame \[m\]; `None`: where the robot is at its first step). The
     /// planner's `lethal_risk` and the tracker's `risk.lethal_risk` are set to the terrain's
     /// `risk.lethal_risk`: one definition of lethal.
     pub fn new(robot: RobotConfig, terrain: TerrainConfig, config: NavigatorConfig, goal: DVec2, home: Option<DVec2>) -> Result<Self> {
@@ -277,7 +277,7 @@ impl Navigator {
         self.goal
     }
 
-    /// Drives to a new `goal` (world frame [m]) from the next step: the map, the remembered
+    /// Drives to a new `goal` (world frame \[m\]) from the next step: the map, the remembered
     /// hazards, the driven cells and home stay; the plan, the tracker's warm start and the
     /// recovery ladder (behaviour, thresholds, transitions, trail) start again, as for a
     /// navigator that has just been made. A goal that is not finite is an `InputError`
@@ -568,7 +568,7 @@ fn safety_view<'a>(
     }
 }
 
-/// Heading of the body's x axis in the world's x-y plane [rad].
+/// Heading of the body's x axis in the world's x-y plane \[rad\].
 fn yaw_of(pose: &Isometry3) -> f64 {
     let x = pose.rotation * glam::DVec3::X;
     wrap_angle(x.y.atan2(x.x))

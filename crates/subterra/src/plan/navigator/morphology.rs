@@ -16,11 +16,11 @@ pub(crate) struct Growth {
     pub lethal: f32,
     /// Lethal neighbours a lethal cell needs to spread (a patch, not a speckle).
     pub min_neighbours: u32,
-    /// How far a patch spreads [m].
+    /// How far a patch spreads \[m\].
     pub radius_m: f64,
     /// The robot [m, world].
     pub robot: DVec2,
-    /// No cell whose centre is nearer the robot than this takes a rating [m].
+    /// No cell whose centre is nearer the robot than this takes a rating \[m\].
     pub min_range_m: f64,
 }
 

@@ -59,19 +59,19 @@ pub(crate) struct SafetyView<'a> {
     pub near: &'a NearMemory,
     /// The cells the robot stood on: known to carry it.
     pub driven: &'a DrivenMemory,
-    /// Cells at or above this risk block [1].
+    /// Cells at or above this risk block \[1\].
     pub blocking: f32,
-    /// The lethal level [1].
+    /// The lethal level \[1\].
     pub lethal: f32,
     /// Whether an unknown cell (unobserved, not remembered, never stood on) blocks. If not,
     /// it still blocks within `unknown_near_lethal_m` of a lethal cell (a hazard's unseen
     /// part: its shadow, its far rim).
     pub unknown_blocks: bool,
-    /// See `unknown_blocks` [m].
+    /// See `unknown_blocks` \[m\].
     pub unknown_near_lethal_m: f64,
     /// The robot.
     pub robot: RobotConfig,
-    /// Added to the footprint on every side [m].
+    /// Added to the footprint on every side \[m\].
     pub margin_m: f64,
     /// Whether a cell counts when any part of it is under the footprint (its centre within
     /// half a cell of it), or only when its centre is: the recoveries take the first, the
@@ -222,7 +222,7 @@ pub(crate) struct FootprintReplan<'a> {
     pub goal: DVec2,
     /// At most this many new searches.
     pub replans: u32,
-    /// Half the window of the path's tangent [m].
+    /// Half the window of the path's tangent \[m\].
     pub half_window_m: f64,
 }
 

@@ -53,7 +53,7 @@ pub(super) fn rest_of_path(path: &[DVec2], position: DVec2, within_m: f64) -> Op
     Some(rest)
 }
 
-/// The largest distance from a vertex of `a` to the nearest vertex of `b` [m].
+/// The largest distance from a vertex of `a` to the nearest vertex of `b` \[m\].
 fn max_deviation(a: &[DVec2], b: &[DVec2]) -> f64 {
     a.iter().map(|p| b.iter().map(|q| p.distance_squared(*q)).fold(f64::INFINITY, f64::min)).fold(0.0, f64::max).sqrt()
 }

@@ -143,7 +143,7 @@ pub(crate) fn reachable_from(grid: &RiskGrid<'_>, start: DVec2, r_inst: f64, unk
     }
 }
 
-/// Length of `path` from its point nearest `p` to its end, plus the gap to that point [m].
+/// Length of `path` from its point nearest `p` to its end, plus the gap to that point \[m\].
 pub(crate) fn path_length_from(path: &[DVec2], p: DVec2) -> f64 {
     let nearest = path
         .iter()

@@ -12,9 +12,9 @@ use crate::plan::recovery::{Behaviour, Target, Transition};
 /// One control tick's inputs.
 #[derive(Debug, Clone, Copy)]
 pub struct NavigatorInput<'a> {
-    /// Time [s]; must not go backwards.
+    /// Time \[s\]; must not go backwards.
     pub stamp_s: f64,
-    /// A new scan, `(N, 3)` flat, sensor frame [m], or `None`.
+    /// A new scan, `(N, 3)` flat, sensor frame \[m\], or `None`.
     pub points_sensor: Option<&'a [f32]>,
     /// Odometry pose.
     pub world_from_body: Isometry3,
@@ -26,7 +26,7 @@ pub struct NavigatorInput<'a> {
     pub speed_m_s: f64,
 }
 
-/// Wall time of each stage of one step [s].
+/// Wall time of each stage of one step \[s\].
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct NavigatorTimings {
     /// Map update.
@@ -52,7 +52,7 @@ pub struct NavigatorOutput {
     pub target: Target,
     /// The plan made this tick, if one was made.
     pub plan: Option<PlanOutcome>,
-    /// The path being tracked (the last found), world [m].
+    /// The path being tracked (the last found), world \[m\].
     pub path_world: Vec<DVec2>,
     /// The MPC's output, when it ran.
     pub mpc: Option<MpcOutput>,

@@ -10,12 +10,12 @@ use crate::error::{require_positive, Error, Result};
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RecoveryConfig {
-    /// Window over which progress toward the target is measured [s].
+    /// Window over which progress toward the target is measured \[s\].
     pub progress_window_s: f64,
     /// Least decrease of the distance to the target over the window that counts as
-    /// progress [m].
+    /// progress \[m\].
     pub progress_min_m: f64,
-    /// Consecutive ticks without a plan that make a trigger [ticks].
+    /// Consecutive ticks without a plan that make a trigger \[ticks\].
     pub stuck_plan_failures: u32,
     /// Nominal untraversable-cell threshold `R_inst` of the planner [0-1].
     pub r_inst: f64,
@@ -29,27 +29,27 @@ pub struct RecoveryConfig {
     pub r_total_step: f64,
     /// Ceiling of `R_total` [0-1].
     pub r_total_ceiling: f64,
-    /// Heading error at which `Rotate` is done [rad].
+    /// Heading error at which `Rotate` is done \[rad\].
     pub rotate_tolerance_rad: f64,
-    /// Longest `Rotate` [s].
+    /// Longest `Rotate` \[s\].
     pub rotate_timeout_s: f64,
-    /// Distance `BackOut` reverses along the trail [m].
+    /// Distance `BackOut` reverses along the trail \[m\].
     pub backout_distance_m: f64,
-    /// How far back along the trail the `BackOut` carrot is [m].
+    /// How far back along the trail the `BackOut` carrot is \[m\].
     pub backout_carrot_m: f64,
-    /// Longest `BackOut` [s].
+    /// Longest `BackOut` \[s\].
     pub backout_timeout_s: f64,
     /// `BackOut` goes on past `backout_distance_m` while the robot has no room to turn in
-    /// place (a corridor it drove into), up to this distance [m].
+    /// place (a corridor it drove into), up to this distance \[m\].
     #[serde(default = "default_backout_max_distance_m")]
     pub backout_max_distance_m: f64,
-    /// Spacing of the breadcrumb trail [m].
+    /// Spacing of the breadcrumb trail \[m\].
     pub crumb_spacing_m: f64,
-    /// Longest trail kept [m] (older crumbs are dropped).
+    /// Longest trail kept \[m\] (older crumbs are dropped).
     pub trail_length_m: f64,
-    /// Tracking time without a trigger after which the ladder and thresholds reset [s].
+    /// Tracking time without a trigger after which the ladder and thresholds reset \[s\].
     pub relax_after_s: f64,
-    /// Distance to the target that counts as reached [m].
+    /// Distance to the target that counts as reached \[m\].
     pub goal_tolerance_m: f64,
 }
 

@@ -72,22 +72,22 @@ pub enum PlanFeedback {
 /// One tick's facts.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RecoveryInput {
-    /// Time [s]; must not go backwards.
+    /// Time \[s\]; must not go backwards.
     pub time_s: f64,
-    /// Robot position, world frame [m].
+    /// Robot position, world frame \[m\].
     pub position: DVec2,
-    /// Robot heading, world frame [rad].
+    /// Robot heading, world frame \[rad\].
     pub yaw_rad: f64,
-    /// Distance from the robot to the current target [m] (path length if known, else
+    /// Distance from the robot to the current target \[m\] (path length if known, else
     /// straight line).
     pub distance_to_target_m: f64,
-    /// Straight-line distance from the robot to the target [m] (decides when the robot got
+    /// Straight-line distance from the robot to the target \[m\] (decides when the robot got
     /// past where it was stuck; the path-based distance above jumps when a replan finds
     /// another way).
     pub straight_distance_m: f64,
     /// How the planner's last call went.
     pub plan: PlanFeedback,
-    /// Heading of most clearance around the robot, world frame [rad], if the navigator
+    /// Heading of most clearance around the robot, world frame \[rad\], if the navigator
     /// computed one (used when entering `Rotate`).
     pub clearance_heading_rad: Option<f64>,
     /// Whether the robot could turn in place here (the navigator checked the footprint a full
@@ -123,16 +123,16 @@ pub struct Directive {
     pub target: Target,
     /// Drop the fused map before the next update.
     pub clear_map: bool,
-    /// `Rotate`: the heading to turn to, world frame [rad].
+    /// `Rotate`: the heading to turn to, world frame \[rad\].
     pub rotate_to_rad: Option<f64>,
-    /// `BackOut`: the point on the trail to reverse toward, world frame [m].
+    /// `BackOut`: the point on the trail to reverse toward, world frame \[m\].
     pub backout_carrot: Option<DVec2>,
 }
 
 /// One recorded change of behaviour.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Transition {
-    /// When [s].
+    /// When \[s\].
     pub time_s: f64,
     /// Behaviour before.
     pub from: Behaviour,

@@ -185,7 +185,7 @@ impl LineSums {
 }
 
 /// The ground estimate of a sector while its lines are fitted (`segment_ground`'s docs, step 3): height
-/// `z` [m] last seen at radius `r` [m]; `after_line`: the sector has an accepted line (else
+/// `z` \[m\] last seen at radius `r` \[m\]; `after_line`: the sector has an accepted line (else
 /// the estimate is the ground under the robot).
 #[derive(Debug, Clone, Copy)]
 struct GroundEstimate {

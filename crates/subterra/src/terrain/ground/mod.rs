@@ -24,17 +24,17 @@ const NO_BIN: u32 = u32::MAX;
 /// One accepted ground line of a sector.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) struct GroundLine {
-    /// Slope dz/dr [1].
+    /// Slope dz/dr \[1\].
     pub m: f64,
-    /// Height at r = 0 [m].
+    /// Height at r = 0 \[m\].
     pub b: f64,
     /// First bin covered.
     pub first_bin: u32,
     /// Last bin covered.
     pub last_bin: u32,
-    /// Radius of the first prototype [m].
+    /// Radius of the first prototype \[m\].
     pub first_r_m: f64,
-    /// Radius of the last prototype [m].
+    /// Radius of the last prototype \[m\].
     pub last_r_m: f64,
 }
 
@@ -53,7 +53,7 @@ pub(super) struct PolarBin {
     /// Whether the bin is void: beams crossed its expected ground and none returned.
     pub void: bool,
     /// How deep the drop may be that begins at the queried radius: the deepest evidence of
-    /// missing ground in the shadow run it lies in (`segment_ground`'s docs, *Shadow*), 0 outside one [m].
+    /// missing ground in the shadow run it lies in (`segment_ground`'s docs, *Shadow*), 0 outside one \[m\].
     pub shadow_depth: f64,
 }
 
@@ -74,7 +74,7 @@ struct BinAccumulator {
     /// The radius of the bin's farthest return that came back (not more than
     /// `max_dist_to_line_m` below its line); `-inf` when none did.
     solid_r: f32,
-    /// After the sweep: the shadow depth beyond `solid_r` (`segment_ground`'s docs, *Shadow*) [m].
+    /// After the sweep: the shadow depth beyond `solid_r` (`segment_ground`'s docs, *Shadow*) \[m\].
     shadow_depth: f32,
 }
 
@@ -268,7 +268,7 @@ impl GroundSegmenter {
     }
 
     /// What the last segmentation knows at the sensor-centred horizontal position
-    /// `(x, y)` [m]; `None` outside the polar range. Uses a fast `atan2` (error < 2e-5 rad),
+    /// `(x, y)` \[m\]; `None` outside the polar range. Uses a fast `atan2` (error < 2e-5 rad),
     /// so a position within that of a sector boundary may be given the neighbouring sector.
     #[cfg(test)]
     #[inline]
@@ -323,7 +323,7 @@ impl GroundSegmenter {
 /// Labels each point of `points` (row-major `(N, 3)`, sensor-centred, z up) ground (`true`)
 /// or obstacle (`false`) by line fits in cylindrical coordinates (Himmelsbach et al., IEEE IV
 /// 2010; set out exactly below); `sensor_height_m` is the
-/// origin's height above the ground near it [m].
+/// origin's height above the ground near it \[m\].
 ///
 /// In: points in a gravity-aligned frame centred on the sensor. Out: each point's height
 /// above its sector's ground line, hence a ground / obstacle label, and per polar bin the

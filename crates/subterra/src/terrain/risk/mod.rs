@@ -26,21 +26,21 @@ use tilt::{heading_stencil, HeadingStencil};
 /// A keep-out circle around a mission item (a dropped comm node, another robot).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MissionItem {
-    /// Centre, world frame [m].
+    /// Centre, world frame \[m\].
     pub position_world: DVec2,
-    /// Radius of the lethal circle [m].
+    /// Radius of the lethal circle \[m\].
     pub radius_m: f64,
 }
 
 /// One scan's points as the map sees them.
 pub(crate) struct ScanSource<'a> {
-    /// Points relative to the scan's own body position, world axes [m].
+    /// Points relative to the scan's own body position, world axes \[m\].
     pub points_level: &'a [[f32; 3]],
-    /// Each point's height above its ground line [m] (NaN: no ground line).
+    /// Each point's height above its ground line \[m\] (NaN: no ground line).
     pub heights: &'a [f32],
-    /// The scan's body position minus the current body position, world axes [m].
+    /// The scan's body position minus the current body position, world axes \[m\].
     pub offset: Vec3,
-    /// Age of the scan [s].
+    /// Age of the scan \[s\].
     pub age_s: f32,
 }
 
@@ -58,16 +58,16 @@ pub(super) struct BinnedCell {
 /// A pre-binned scan as the coarse map sees it.
 pub(crate) struct BinnedSource<'a> {
     pub cells: &'a [BinnedCell],
-    /// The scan's body z minus the current body z [m].
+    /// The scan's body z minus the current body z \[m\].
     pub dz: f32,
-    /// Age of the scan [s].
+    /// Age of the scan \[s\].
     pub age_s: f32,
 }
 
 /// The newest scan's polar ground knowledge and where its sensor was.
 pub(crate) struct NewestPolar<'a> {
     pub segmenter: &'a GroundSegmenter,
-    /// Sensor position relative to the current body origin, world axes [m].
+    /// Sensor position relative to the current body origin, world axes \[m\].
     pub sensor_level: DVec3,
 }
 
@@ -86,7 +86,7 @@ struct CellAccumulator {
 }
 
 impl CellAccumulator {
-    /// Adds a point at height `z` [m] whose height above its ground line is `h` [m].
+    /// Adds a point at height `z` \[m\] whose height above its ground line is `h` \[m\].
     #[inline]
     fn add(&mut self, z: f32, h: f32, ground_threshold: f32, collision_lo: f32, collision_hi: f32) {
         // Every field is written with a select instead of behind a branch: whether a point is
@@ -139,7 +139,7 @@ pub(crate) struct MapBuilder {
     /// The runs of cells with ground in the inner span of a row, in [`tilt`](Self::tilt).
     tilt_runs: Vec<(usize, usize)>,
     integral: Vec<[f64; 10]>,
-    /// Cell-centre x relative to the newest sensor, by column [m].
+    /// Cell-centre x relative to the newest sensor, by column \[m\].
     xs: Vec<f64>,
     /// Scratch cells [`bin_scan`](Self::bin_scan) has hit, in order of the first hit (its
     /// first entries; the rest is room to write one more without a test).
