@@ -8,6 +8,7 @@ not hear each other.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -34,8 +35,16 @@ NS = 1_000_000_000
 
 
 def _domain(offset: int) -> int:
-    """A domain id of this test process (pytest-xdist workers and other runs differ by pid)."""
-    return 1 + (os.getpid() * 13 + offset) % 200
+    """The DDS domain of one test: a block of 25 domains per pytest-xdist worker, so that no two
+    tests of one run ever share a domain (a node on a shared domain would hear the other
+    test's goals and frames). The block is shifted per run (its uid), which keeps two runs
+    side by side apart too, most of the time."""
+    assert 0 <= offset < 25, offset
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    index = int(worker[2:]) if worker[2:].isdigit() else 0
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID") or str(os.getppid())
+    shift = int(hashlib.sha256(run.encode()).hexdigest(), 16) % 8
+    return 1 + ((index + shift) % 8) * 25 + offset
 
 
 def _flat_ground(height_m: float = 0.7) -> np.ndarray:
@@ -344,6 +353,33 @@ def test_watchdog_stops_the_robot_when_frames_stop_and_bad_goals_are_refused():
     assert node.stats.goals == 1 and node.stats.rejected.get("/goal_pose") == 2, node.stats.summary()
     twists = [dds.typestore().deserialize_cdr(c, "geometry_msgs/msg/Twist") for c in driver.raw["/cmd_vel"]]
     assert twists and all(t.linear.x == 0.0 and t.angular.z == 0.0 for t in twists)
+
+
+def test_with_simulated_time_the_watchdog_counts_on_the_clock():
+    """With use_sim_time the watchdog's period is on /clock: while the simulation's clock
+    stands still (a slow or paused simulator) no stop comes however long the wall clock runs;
+    once the clock moves past the period without a frame, the stop comes."""
+    domain = _domain(12)
+    node = GroundNode(_config(domain).replace(safety={"watchdog_s": 0.2}), loopback=True)
+    driver = Driver(domain, "ground")
+    ts = dds.typestore()
+    try:
+        thread = _start(node)
+        driver.wait_for([driver.goal, driver.clock, driver.outputs["/cmd_vel"]])
+        driver.clock.publish(ros.clock_message(5 * NS, ts))
+        driver.send_goal((1.0, 0.0, 0.0))
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and (node._goal is None or node._clock_ns is None):
+            time.sleep(0.02)
+        assert node._goal is not None and node._clock_ns == 5 * NS, "the goal and the clock reached the node"
+        time.sleep(1.0)  # five wall-clock periods, the simulation's clock still
+        assert node.stats.stops.get("no frame (watchdog)", 0) == 0, node.stats.summary()
+        driver.clock.publish(ros.clock_message(5 * NS + NS // 2, ts))  # 0.5 s of simulated time later
+        while time.monotonic() < deadline and not node.stats.stops.get("no frame (watchdog)"):
+            time.sleep(0.02)
+    finally:
+        _shutdown(node, thread, driver)
+    assert node.stats.stops.get("no frame (watchdog)", 0) >= 1, node.stats.summary()
 
 
 # ---------------------------------------------------------------------- drone node

@@ -12,8 +12,8 @@ One process, three parts:
   below), runs the same Rust pipeline as ``subterra drive`` (a :class:`subterra.Navigator`)
   or ``subterra fly`` (a :class:`subterra.Pilot`), which releases the GIL while it works,
   and publishes the command and the outputs.
-* a **watchdog** in the compute thread: with no frame for ``safety.watchdog_s``, it
-  publishes a stop.
+* a **watchdog** in the compute thread: with no frame for ``safety.watchdog_s`` on the
+  node's clock (the wall clock, or ``/clock`` with ``use_sim_time``), it publishes a stop.
 
 A command is replaced by a stop (a zero ``Twist``) when it cannot be trusted: no goal
 yet, a frame older than ``safety.max_input_age_s`` or stamped more than
@@ -175,6 +175,7 @@ class LiveNode(abc.ABC):
         self._frame: Any = None
         self._frame_wall = 0.0
         self._last_frame_wall = time.monotonic()
+        self._last_frame_clock_ns: int | None = None
         self._last_publish: dict[str, float] = {}
         self._state: dict[str, Any] = {"behaviour": "waiting for a goal"}
         self._last_stop_reason = ""
@@ -418,12 +419,31 @@ class LiveNode(abc.ABC):
                 received = self._frame_wall
             if frame is not None:
                 self._last_frame_wall = time.monotonic()
+                self._last_frame_clock_ns = self._clock_ns
                 self._process(frame, received)
-            elif time.monotonic() - self._last_frame_wall > watchdog and self._goal is not None:
+            elif self._goal is not None and self._watchdog_due(watchdog):
                 # No frame for a watchdog period: stop, once per period.
-                self._last_frame_wall = time.monotonic()
                 now = self._now_ns() or 0
                 self._publish_command(np.zeros(3), np.zeros(3), now, "no frame (watchdog)")
+
+    def _watchdog_due(self, watchdog_s: float) -> bool:
+        """Whether no frame came for ``watchdog_s`` on the node's clock; if so the period starts
+        again. With ``use_sim_time`` that is ``/clock``: a simulator that is slow or paused has
+        lost no sensor (its time stands still too), and before the first clock nothing is due."""
+        if not self.config.node.use_sim_time:
+            if time.monotonic() - self._last_frame_wall <= watchdog_s:
+                return False
+            self._last_frame_wall = time.monotonic()
+            return True
+        now = self._clock_ns
+        if now is None:
+            return False
+        if self._last_frame_clock_ns is None:
+            self._last_frame_clock_ns = now
+        if now - self._last_frame_clock_ns <= watchdog_s * _NS:
+            return False
+        self._last_frame_clock_ns = now
+        return True
 
     # ------------------------------------------------------------------ running
 
