@@ -81,9 +81,21 @@ def test_target_survives_seeds_and_mutants(name: str) -> None:
     "path", sorted(REGRESSIONS.glob("*/*")), ids=lambda p: f"{p.parent.name}/{p.name}"
 )
 def test_past_findings_stay_fixed(path: Path) -> None:
-    """Every input a fuzz campaign found a bug with runs clean through its target."""
+    """Every input a fuzz campaign found a bug with runs clean through its target. An
+    out-of-memory finding (``oom-*``) runs in a process of its own whose peak resident memory
+    must stay under half the campaign's limit (``fuzz/run.py``: 2048 MB)."""
     assert path.parent.name in targets.TARGETS, f"{path}: no target {path.parent.name!r}"
-    targets.load(path.parent.name)(path.read_bytes())
+    if not path.name.startswith("oom-"):
+        targets.load(path.parent.name)(path.read_bytes())
+        return
+    code = ("import resource, sys; sys.path.insert(0, sys.argv[1]); import targets; "
+            "targets.load(sys.argv[2])(open(sys.argv[3], 'rb').read()); "
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
+    proc = subprocess.run([sys.executable, "-c", code, str(FUZZ), path.parent.name, str(path)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    peak_mb = int(proc.stdout.split()[-1]) / 1024
+    assert peak_mb < 1024, f"{path.name}: peak resident memory {peak_mb:.0f} MB"
 
 
 def test_libfuzzer_run_writes_its_report(tmp_path: Path) -> None:

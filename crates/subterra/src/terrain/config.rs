@@ -10,8 +10,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{require_non_negative, require_positive, Error, Result};
 
-/// Largest number of cells a map may have; past this the geometry is a mistake.
-const MAX_MAP_CELLS: f64 = 16_000_000.0;
+/// Largest number of cells of the coarse and the fine map together (a 200 m square at 0.1 m).
+/// A cell takes about 300 bytes while a map is built and handed over (its 21 layers, the
+/// builder's per-cell state, a copy for the caller): 4 M cells is about 1.2 GB.
+const MAX_MAP_CELLS: f64 = 4_000_000.0;
 /// Largest number of polar bins (sectors x radial bins) of the ground segmentation.
 const MAX_POLAR_BINS: f64 = 4_000_000.0;
 /// Largest sensor range accepted \[m\].
@@ -532,6 +534,17 @@ impl TerrainConfig {
         self.ground.validate()?;
         self.coarse.validate("coarse")?;
         self.fine.validate("fine")?;
+        if self.fine_enabled {
+            let ((cx, cy), (fx, fy)) = (self.coarse.cells(), self.fine.cells());
+            let cells = (cx * cy + fx * fy) as f64;
+            if cells > MAX_MAP_CELLS {
+                return Err(Error::config(
+                    "fine.resolution_m",
+                    format!("the coarse and the fine map together have {cells:.0} cells; at most {MAX_MAP_CELLS:.0}"),
+                    self.fine.resolution_m,
+                ));
+            }
+        }
         let l = &self.layers;
         require_positive("layers.plane_window_m", l.plane_window_m)?;
         if l.plane_min_cells < 3 {
@@ -593,6 +606,28 @@ mod tests {
         assert_eq!(c.fusion.window_s, 2.0);
         assert_eq!((c.coarse.resolution_m, c.coarse.cells()), (0.1, (200, 200)));
         assert_eq!(c.ground.bins(), 200);
+    }
+
+    #[test]
+    fn maps_past_the_cell_budget_are_refused_before_anything_is_allocated() {
+        // A strip 24.6 km long at 0.1 m: 9.8 M cells, which took 3 GB (a fuzzing finding).
+        let mut c = TerrainConfig::default();
+        c.coarse.size_x_m = 24_568.0;
+        c.coarse.size_y_m = 4.0;
+        let err = c.validate().unwrap_err().to_string();
+        assert!(err.contains("coarse.resolution_m") && err.contains("at most 4000000"), "{err}");
+        // Each map within the budget, both together over it.
+        let mut c = TerrainConfig::default();
+        c.coarse.size_x_m = 150.0;
+        c.coarse.size_y_m = 150.0;
+        c.fine.size_x_m = 150.0;
+        c.fine.size_y_m = 150.0;
+        c.fine.resolution_m = 0.1;
+        c.fine_enabled = false;
+        c.validate().unwrap();
+        c.fine_enabled = true;
+        let err = c.validate().unwrap_err().to_string();
+        assert!(err.contains("fine.resolution_m") && err.contains("4500000 cells"), "{err}");
     }
 
     #[test]
