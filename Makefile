@@ -14,7 +14,7 @@ SOURCES := $(shell find crates python -name '*.rs' -o -name '*.py' -o -name '*.p
 $(VENV)/.deps: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet "maturin>=1.9,<2" numpy pillow pyyaml matplotlib tqdm pytest hypothesis mujoco scipy scikit-image rosbags mcap mcap-ros2-support mcap-ros1-support rerun-sdk "ray>=2.9" atheris cyclonedds pymavlink foxglove-sdk websockets ruff vermin pytest-xdist
+	$(PY) -m pip install --quiet "maturin>=1.9,<2" numpy pillow pyyaml matplotlib tqdm pytest hypothesis mujoco scipy scikit-image osqp rosbags mcap mcap-ros2-support mcap-ros1-support rerun-sdk "ray>=2.9" atheris cyclonedds pymavlink foxglove-sdk websockets ruff vermin pytest-xdist
 	touch $@
 
 $(STAMP): $(VENV)/.deps $(SOURCES)

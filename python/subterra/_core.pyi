@@ -650,6 +650,22 @@ class MpcTracker:
         and ``origin`` (world x, y of the lower-left corner of cell (0, 0)), or ``risk_map``
         (its ``risk`` layer); neither means no risk and no obstacles. Releases the GIL.
         """
+    def last_qp(self) -> dict[str, Any] | None:
+        """The QP of the last SQP iteration of the last solve (None before the first).
+
+        1-D arrays ``p_colptr``, ``p_rowval``, ``p_nzval`` (``P``'s upper triangle in compressed
+        columns: SciPy's ``indptr``, ``indices``, ``data``), ``q``, ``a_colptr``, ``a_rowval``,
+        ``a_nzval``, ``b``, and the int ``equalities``: ``min ½zᵀPz + qᵀz`` s.t. ``A z = b`` in
+        the first ``equalities`` rows and ``A z <= b`` in the rest.
+        """
+    @staticmethod
+    def solve_qp(qp: dict[str, Any], *, solver: str | None = None, max_iterations: int | None = None) -> dict[str, Any]:
+        """Solves a QP laid out as ``last_qp`` returns it with ``solver`` (``"banded"``, the
+        tracker's own and the default, or ``"clarabel"``).
+
+        Returns ``z`` (empty if failed), ``status`` (``"solved"``, ``"inexact"``, ``"failed"``),
+        ``iterations`` and ``time_s`` (in the solver). Releases the GIL.
+        """
     def reset(self) -> None: ...
     @property
     def config(self) -> MpcConfig: ...

@@ -282,3 +282,98 @@ def test_config_of_the_wrong_type_is_a_config_error():
         subterra.MpcTracker(42)
     with pytest.raises(FileFormatError, match="nope.toml"):
         subterra.MpcTracker(REPO / "nope.toml")
+
+
+def _blocks_case():
+    """A curved path with a lethal block reaching into it (obstacle rows in the QP)."""
+    s = np.linspace(0.0, 6.0, 61)
+    path = np.column_stack([s, 0.4 * np.sin(0.5 * s)])
+    origin = (-2.0, -3.0)
+    risk = grid(100, 60, origin, 0.1)
+    paint(risk, origin, (2.0, 2.5, -0.6, 0.1), 1.0)
+    return path, risk, origin
+
+
+def test_both_qp_solvers_drive_the_same_closed_loop():
+    path, risk, origin = _blocks_case()
+    runs = {}
+    for solver in ("banded", "clarabel"):
+        tracker = subterra.MpcTracker({"solver": {"qp_solver": solver}})
+        assert tracker.config.to_dict()["solver"]["qp_solver"] == solver
+        state = np.array([0.0, 0.0, 0.0, 0.4])
+        states = []
+        for _ in range(40):
+            out = tracker.solve(state, path, risk=risk, resolution=0.1, origin=origin)
+            assert not out.is_backup, out
+            state = plant_step(state, out.command, tracker.dt)
+            states.append(state.copy())
+        runs[solver] = np.array(states)
+    # Two solvers to 1e-6 on every QP: the same closed loop up to millimetres.
+    assert np.max(np.abs(runs["banded"] - runs["clarabel"])) < 5e-3
+
+
+def test_the_last_qp_can_be_solved_again_by_either_solver():
+    path, risk, origin = _blocks_case()
+    tracker = subterra.MpcTracker()
+    assert tracker.last_qp() is None
+    tracker.solve([1.5, 0.0, 0.0, 0.5], path, risk=risk, resolution=0.1, origin=origin)
+    qp = tracker.last_qp()
+    n = 7 * tracker.horizon
+    assert qp["q"].shape == (n,) and qp["p_colptr"].shape == (n + 1,) and qp["equalities"] == 4 * tracker.horizon
+    banded = subterra.MpcTracker.solve_qp(qp)
+    clarabel = subterra.MpcTracker.solve_qp(qp, solver="clarabel")
+    assert banded["status"] == clarabel["status"] == "solved"
+    assert np.max(np.abs(banded["z"] - clarabel["z"])) < 1e-3
+    assert banded["time_s"] > 0 and banded["iterations"] > 0
+    # The dynamics hold at the solution: the first `equalities` rows of A z equal b.
+    from scipy import sparse
+
+    a = sparse.csc_matrix((qp["a_nzval"], qp["a_rowval"], qp["a_colptr"]), shape=(len(qp["b"]), n))
+    residual = a @ banded["z"] - qp["b"]
+    assert np.max(np.abs(residual[: qp["equalities"]])) < 1e-6
+    assert np.max(residual[qp["equalities"]:]) < 1e-6
+
+
+@pytest.mark.parametrize(
+    ("change", "argument"),
+    [
+        (lambda qp: qp.pop("b"), "qp"),
+        (lambda qp: qp.__setitem__("b", qp["b"][:-1]), "A` is invalid: column 139: row indices must be increasing and below 219 (the length of `b`)"),
+        (lambda qp: qp.__setitem__("p_colptr", qp["p_colptr"][:-1]), "P"),
+        (lambda qp: qp.__setitem__("a_rowval", qp["a_rowval"].astype(np.float64)), 'qp["a_rowval"]'),
+        (lambda qp: qp.__setitem__("q", np.full_like(qp["q"], np.nan)), "q"),
+        (lambda qp: qp.__setitem__("equalities", -1), 'qp["equalities"]'),
+        (lambda qp: qp.__setitem__("q", np.broadcast_to(np.zeros(1), (10**9,))), 'qp["q"]'),
+    ],
+)
+def test_a_bad_qp_names_its_part(change, argument):
+    tracker = subterra.MpcTracker()
+    tracker.solve([0.0, 0.0, 0.0, 0.5], np.array([[0.0, 0.0], [5.0, 0.0]]))
+    qp = tracker.last_qp()
+    change(qp)
+    with pytest.raises(InputError) as error:
+        subterra.MpcTracker.solve_qp(qp)
+    assert f"argument `{argument}" in str(error.value)
+
+
+def test_bad_solver_names_are_errors():
+    tracker = subterra.MpcTracker()
+    tracker.solve([0.0, 0.0, 0.0, 0.5], np.array([[0.0, 0.0], [5.0, 0.0]]))
+    with pytest.raises(InputError, match="`solver`"):
+        subterra.MpcTracker.solve_qp(tracker.last_qp(), solver="osqp")
+    with pytest.raises(InputError, match="`qp`"):
+        subterra.MpcTracker.solve_qp([1, 2])
+    with pytest.raises(ConfigError, match="qp_solver"):
+        subterra.MpcTracker({"solver": {"qp_solver": "osqp"}})
+
+
+def test_osqp_warm_started_on_the_trackers_qps_finds_the_same_solutions():
+    pytest.importorskip("osqp")
+    from subterra.bench import mpc as bench_mpc
+
+    qps = bench_mpc.closed_loop_qps()[:4]
+    banded = [subterra.MpcTracker.solve_qp(qp)["z"] for qp in qps]
+    times, solutions, statuses, fresh = bench_mpc._osqp_run(qps, bench_mpc.OSQP_VARIANTS["osqp_eps1e-5_polished"])
+    assert fresh[0] and len(times) == 4 and all(t > 0 for t in times)
+    assert all(s.startswith("solved") for s in statuses), statuses
+    assert max(float(np.max(np.abs(x - z))) for x, z in zip(solutions, banded)) < 1e-2

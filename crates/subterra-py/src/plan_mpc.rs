@@ -7,10 +7,11 @@ use std::borrow::Cow;
 use glam::DVec2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use subterra::plan::{ConvexPolygon, MpcConfig, MpcOutput, MpcTracker, RiskGrid, UnicycleState};
+use pyo3::types::PyDict;
+use subterra::plan::{ConvexPolygon, MpcConfig, MpcOutput, MpcQp, MpcTracker, QpSolverKind, RiskGrid, UnicycleState};
 
 use crate::shared::Shared;
-use crate::convert::{arg, check_elements, real_array, small_vector, type_name, MAX_GRID_CELLS, MAX_PATH_POINTS};
+use crate::convert::{arg, check_elements, real_array, small_vector, text, type_name, MAX_GRID_CELLS, MAX_PATH_POINTS};
 use crate::errors::{input_error, IntoPyResult};
 use crate::config::{resolve, PyMpcConfig};
 use crate::terrain::PyRiskMap;
@@ -237,6 +238,38 @@ impl PyMpcOutput {
 
 /// The MPC path tracker of a ground robot (STEP, Fan et al. 2021): keeps its last plan to warm-start
 /// the next solve.
+/// Most entries of one array of a QP given to `MpcTracker.solve_qp`.
+const MAX_QP_ENTRIES: usize = 1 << 22;
+
+/// One 1-D array of the QP dict `qp`, key `key`, as real numbers.
+fn qp_array<'py>(py: Python<'py>, qp: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+    let argument = format!("qp[{key:?}]");
+    let Some(value) = qp.get_item(key)? else {
+        return Err(input_error(py, format!("argument `qp` must have the key {key:?} (see MpcTracker.last_qp)")));
+    };
+    let raw = real_array(py, &argument, &value, "a 1-D array")?;
+    let shape: Vec<usize> = raw.getattr("shape")?.extract()?;
+    if shape.len() != 1 {
+        return Err(input_error(py, format!("argument `{argument}` must be a 1-D array, got shape {shape:?}")));
+    }
+    check_elements(py, &argument, &shape, MAX_QP_ENTRIES, "entries")?;
+    Ok(raw)
+}
+
+fn qp_floats(py: Python<'_>, qp: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<f64>> {
+    qp_array(py, qp, key)?.call_method1("astype", ("float64",))?.call_method0("tolist")?.extract()
+}
+
+fn qp_indices(py: Python<'_>, qp: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<usize>> {
+    let raw = qp_array(py, qp, key)?;
+    let kind: String = raw.getattr("dtype")?.getattr("kind")?.extract()?;
+    let values: Vec<f64> = raw.call_method1("astype", ("float64",))?.call_method0("tolist")?.extract()?;
+    if !matches!(kind.as_str(), "i" | "u") || values.iter().any(|&v| v < 0.0 || v > MAX_QP_ENTRIES as f64) {
+        return Err(input_error(py, format!("argument `qp[{key:?}]` must hold integer indices in [0, {MAX_QP_ENTRIES}], got dtype kind {kind:?}")));
+    }
+    Ok(values.into_iter().map(|v| v as usize).collect())
+}
+
 #[pyclass(name = "MpcTracker", module = "subterra._core", frozen)]
 pub struct PyMpcTracker {
     inner: Shared<MpcTracker>,
@@ -287,6 +320,68 @@ impl PyMpcTracker {
             py.detach(|| tracker.solve(&state, &path, grid.as_ref(), desired_speed))
         })?;
         Ok(PyMpcOutput { inner: result.py_err(py)? })
+    }
+
+    /// The QP of the last SQP iteration of the last solve (None before the first): a dict of
+    /// 1-D arrays `p_colptr`, `p_rowval`, `p_nzval` (`P`'s upper triangle in compressed
+    /// columns: SciPy's `indptr`, `indices`, `data`), `q`, `a_colptr`, `a_rowval`, `a_nzval`,
+    /// `b`, and the int `equalities`: `min ½zᵀPz + qᵀz` s.t. `A z = b` in the first
+    /// `equalities` rows, `A z <= b` in the rest.
+    fn last_qp<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(qp) = self.inner.lock().last_qp() else { return Ok(None) };
+        let d = PyDict::new(py);
+        let index = |v: Vec<usize>| v.into_iter().map(|i| i as i64).collect::<Vec<i64>>().into_pyarray(py);
+        d.set_item("p_colptr", index(qp.p_colptr))?;
+        d.set_item("p_rowval", index(qp.p_rowval))?;
+        d.set_item("p_nzval", qp.p_nzval.into_pyarray(py))?;
+        d.set_item("q", qp.q.into_pyarray(py))?;
+        d.set_item("a_colptr", index(qp.a_colptr))?;
+        d.set_item("a_rowval", index(qp.a_rowval))?;
+        d.set_item("a_nzval", qp.a_nzval.into_pyarray(py))?;
+        d.set_item("b", qp.b.into_pyarray(py))?;
+        d.set_item("equalities", qp.equalities)?;
+        Ok(Some(d))
+    }
+
+    /// Solves a QP laid out as `last_qp` returns it with the tracker's `solver` (`"banded"`,
+    /// its own, or `"clarabel"`), at most `max_iterations` interior-point iterations (None: the default config's). Returns
+    /// a dict: `z` (the solution; empty if the status is `"failed"`), `status` (`"solved"`,
+    /// `"inexact"`, `"failed"`), `iterations`, `time_s` (in the solver). Releases the GIL.
+    #[staticmethod]
+    #[pyo3(signature = (qp, *, solver = None, max_iterations = None))]
+    fn solve_qp<'py>(py: Python<'py>, qp: &Bound<'py, PyAny>, solver: Option<&Bound<'py, PyAny>>, max_iterations: Option<&Bound<'py, PyAny>>) -> PyResult<Bound<'py, PyDict>> {
+        let d = qp.cast::<PyDict>().map_err(|_| input_error(py, format!("argument `qp` must be a dict as MpcTracker.last_qp returns, got {}", type_name(qp))))?;
+        let kind = match solver.map(|s| text(py, "solver", s)).transpose()?.as_deref() {
+            None | Some("banded") => QpSolverKind::Banded,
+            Some("clarabel") => QpSolverKind::Clarabel,
+            Some(other) => return Err(input_error(py, format!("argument `solver` must be \"banded\" or \"clarabel\", got {other:?}"))),
+        };
+        let max_iterations: u32 = match max_iterations {
+            None => MpcConfig::default().solver.qp_max_iterations,
+            Some(v) => v.extract().map_err(|_| input_error(py, format!("argument `max_iterations` must be an int in 1..=1000, got {}", type_name(v))))?,
+        };
+        let equalities = match d.get_item("equalities")? {
+            Some(v) => v.extract::<usize>().map_err(|_| input_error(py, format!("argument `qp[\"equalities\"]` must be a non-negative int, got {}", type_name(&v))))?,
+            None => return Err(input_error(py, "argument `qp` must have the key \"equalities\" (see MpcTracker.last_qp)")),
+        };
+        let problem = MpcQp {
+            p_colptr: qp_indices(py, d, "p_colptr")?,
+            p_rowval: qp_indices(py, d, "p_rowval")?,
+            p_nzval: qp_floats(py, d, "p_nzval")?,
+            q: qp_floats(py, d, "q")?,
+            a_colptr: qp_indices(py, d, "a_colptr")?,
+            a_rowval: qp_indices(py, d, "a_rowval")?,
+            a_nzval: qp_floats(py, d, "a_nzval")?,
+            b: qp_floats(py, d, "b")?,
+            equalities,
+        };
+        let solution = py.detach(|| problem.solve(kind, max_iterations)).py_err(py)?;
+        let out = PyDict::new(py);
+        out.set_item("z", solution.z.into_pyarray(py))?;
+        out.set_item("status", solution.status.as_str())?;
+        out.set_item("iterations", solution.iterations)?;
+        out.set_item("time_s", solution.time_s)?;
+        Ok(out)
     }
 
     /// Forgets the last plan: the next solve starts from zero inputs.

@@ -198,6 +198,102 @@ def _closed_loop(risk: np.ndarray, repeats: int, at: list[int] | None = None) ->
     return report, captured
 
 
+#: OSQP settings compared: its defaults (ε = 1e-3), and tolerances near the tracker's (1e-6)
+#: with solution polishing. Both warm-started from the previous QP's solution.
+OSQP_VARIANTS = {
+    "osqp_default": {"eps_abs": 1e-3, "eps_rel": 1e-3, "polishing": False},
+    "osqp_eps1e-5_polished": {"eps_abs": 1e-5, "eps_rel": 1e-5, "polishing": True},
+}
+
+
+def closed_loop_qps() -> list[dict[str, Any]]:
+    """The QP of the last SQP iteration of every solve of one closed-loop run on the full scene
+    (``MpcTracker.last_qp``), in order."""
+    import subterra
+    from subterra.bench.reference.mpc import step
+
+    tracker = subterra.MpcTracker()
+    path, risk = bench_path(), bench_risk(lethal=True)
+    state = np.array(START, dtype=np.float64)
+    qps = []
+    for _ in range(RUN_STEPS):
+        out = tracker.solve(state, path, risk=risk, resolution=RESOLUTION_M, origin=ORIGIN)
+        qps.append(tracker.last_qp())
+        state = step(state, *out.inputs[0], tracker.dt)
+    return qps
+
+
+def _osqp_run(qps: list[dict[str, Any]], settings: dict[str, Any]) -> tuple[list[float], list[np.ndarray], list[str], list[bool]]:
+    """One pass of OSQP over ``qps`` in order: a solver set up once per sparsity pattern, then
+    updated (``Px``, ``Ax``, ``q``, ``l``, ``u``) and warm-started from the previous solution.
+    Per QP: OSQP's own update + solve (+ polish) time [ms] (setup time added when the pattern
+    changed), the solution, the status, and whether it needed a new setup."""
+    import osqp
+    from scipy import sparse
+
+    times, solutions, statuses, fresh = [], [], [], []
+    solver, pattern = None, None
+    for qp in qps:
+        n, m, me = len(qp["q"]), len(qp["b"]), int(qp["equalities"])
+        lower = np.concatenate([qp["b"][:me], np.full(m - me, -np.inf)])
+        key = (qp["p_colptr"].tobytes(), qp["p_rowval"].tobytes(), qp["a_colptr"].tobytes(), qp["a_rowval"].tobytes(), me)
+        extra = 0.0
+        if key != pattern:
+            solver, pattern = osqp.OSQP(), key
+            p = sparse.csc_matrix((qp["p_nzval"], qp["p_rowval"], qp["p_colptr"]), shape=(n, n))
+            a = sparse.csc_matrix((qp["a_nzval"], qp["a_rowval"], qp["a_colptr"]), shape=(m, n))
+            solver.setup(p, qp["q"], a, lower, qp["b"], verbose=False, warm_starting=True, **settings)
+            extra = solver.solve().info.setup_time  # the setup's own solve is not timed
+            solver.warm_start(x=np.zeros(n), y=np.zeros(m))
+        else:
+            solver.update(Px=qp["p_nzval"], Ax=qp["a_nzval"], q=qp["q"], l=lower, u=qp["b"])
+        result = solver.solve()
+        info = result.info
+        times.append((extra + info.update_time + info.solve_time + info.polish_time) * 1e3)
+        solutions.append(np.array(result.x))
+        statuses.append(str(info.status))
+        fresh.append(extra > 0.0)
+    return times, solutions, statuses, fresh
+
+
+def qp_solvers(repeats: int) -> dict[str, Any]:
+    """The tracker's QP solvers and OSQP on the same QPs (:func:`closed_loop_qps`), each
+    time the solver's own (no Python conversions), the fastest of ``repeats`` passes per QP;
+    medians over the QPs, and each solution's largest difference from the banded solver's."""
+    import subterra
+
+    qps = closed_loop_qps()
+    report: dict[str, Any] = {"qps": len(qps), "passes": repeats}
+    ours: dict[str, list[dict[str, Any]]] = {}
+    for solver in ("banded", "clarabel"):
+        best = [np.inf] * len(qps)
+        for _ in range(repeats):
+            results = [subterra.MpcTracker.solve_qp(qp, solver=solver) for qp in qps]
+            best = [min(b, r["time_s"] * 1e3) for b, r in zip(best, results)]
+        ours[solver] = results
+        report[solver] = {"per_qp": _summary(best), "iterations_mean": float(np.mean([r["iterations"] for r in results])),
+                          "statuses": sorted({r["status"] for r in results})}
+    reference = [r["z"] for r in ours["banded"]]
+    report["clarabel"]["max_difference_from_banded"] = float(max(np.max(np.abs(r["z"] - z)) for r, z in zip(ours["clarabel"], reference)))
+    try:
+        import osqp  # noqa: F401
+    except ImportError:
+        report["osqp"] = "not installed (pip install osqp)"
+        return report
+    for name, settings in OSQP_VARIANTS.items():
+        best = [np.inf] * len(qps)
+        for _ in range(repeats):
+            times, solutions, statuses, fresh = _osqp_run(qps, settings)
+            best = [min(b, t) for b, t in zip(best, times)]
+        warm = [t for t, new in zip(best, fresh) if not new]
+        report[name] = {"settings": settings, "per_qp": _summary(best), "per_qp_warm_updates_only": _summary(warm),
+                        "setups": int(sum(fresh)), "statuses": sorted(set(statuses)),
+                        "max_difference_from_banded": float(max(np.max(np.abs(x - z)) for x, z in zip(solutions, reference)))}
+    banded = report["banded"]["per_qp"]["median_ms"]
+    report["banded_faster_than_warm_osqp"] = {name: bool(banded < report[name]["per_qp_warm_updates_only"]["median_ms"]) for name in OSQP_VARIANTS}
+    return report
+
+
 def mpc_case(repeats: int, seed: int) -> dict[str, Any]:
     """The ``mpc_h20_200x200`` case of ``subterra bench plan`` (module notes): JSON-ready."""
     import subterra
@@ -229,6 +325,8 @@ def mpc_case(repeats: int, seed: int) -> dict[str, Any]:
         tracker = subterra.MpcTracker(CONVERGED_SOLVER)
         converged[name] = {**compare(tracker.solve(**kwargs), r), "reference_converged": r.converged}
 
+    solvers = qp_solvers(min(repeats, 10))
+
     tracker_ms = no_lethal["python_wall"]["median_ms"]
     worst_ms = max(no_lethal["python_wall"]["median_ms"], with_lethal["python_wall"]["median_ms"])
     return {
@@ -243,6 +341,7 @@ def mpc_case(repeats: int, seed: int) -> dict[str, Any]:
             "converged": ref_converged,
         },
         "speedup_vs_reference_median": float(np.median(ref_ms)) / tracker_ms,
+        "qp_solvers": solvers,
         "agreement_closed_loop_default_tracker": closed_loop,
         "agreement_converged": converged,
         "agreement_converged_max": {key: float(max(v[key] for v in converged.values())) for key in _MEASURES},

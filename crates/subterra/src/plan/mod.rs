@@ -25,6 +25,6 @@ mod recovery;
 pub use astar::{CostModel, EntryPrices, PlanOutcome, PlanStatus, PlannedPath, RiskAStar, RiskAStarConfig};
 pub use coverage::SensorCoverage;
 pub use grid::RiskGrid;
-pub use mpc::{step as unicycle_step, ConvexPolygon, MpcCommand, MpcConfig, MpcFootprint, MpcLimits, MpcObstacles, MpcOutput, MpcRisk, MpcSolver, MpcStatus, MpcTracker, MpcTracking, MpcWeights, UnicycleInput, UnicycleState};
+pub use mpc::{step as unicycle_step, ConvexPolygon, MpcCommand, MpcConfig, MpcFootprint, MpcLimits, MpcObstacles, MpcOutput, MpcRisk, MpcSolver, MpcStatus, MpcQp, MpcQpSolution, MpcTracker, MpcTracking, MpcWeights, QpSolverKind, QpStatus, UnicycleInput, UnicycleState};
 pub use navigator::{Navigator, NavigatorConfig, NavigatorInput, NavigatorOutput, NavigatorSettings, NavigatorTimings, UNSEEN_RISK_PER_M};
 pub use recovery::{Behaviour, Directive, PlanFeedback, RecoveryConfig, RecoveryInput, RecoveryMachine, Target, Transition};

@@ -7,6 +7,7 @@ mod assemble;
 mod clearance;
 mod config;
 mod geometry;
+mod ipm;
 mod line_search;
 mod linearise;
 mod output;
@@ -19,7 +20,7 @@ use std::time::Instant;
 
 use glam::DVec2;
 
-pub use config::{MpcConfig, MpcFootprint, MpcLimits, MpcObstacles, MpcRisk, MpcSolver, MpcTracking, MpcWeights};
+pub use config::{MpcConfig, MpcFootprint, MpcLimits, MpcObstacles, MpcRisk, MpcSolver, MpcTracking, MpcWeights, QpSolverKind};
 pub use geometry::ConvexPolygon;
 use crate::plan::grid::RiskGrid;
 pub use output::{MpcCommand, MpcOutput, MpcStatus};
@@ -33,7 +34,8 @@ use geometry::{lethal_polygons, PolygonScratch};
 use line_search::{line_search, tighten_speed_bounds, Step};
 use linearise::{linearise, speed_bounds};
 use path_shift::{path_offsets, SideOffsets};
-use qp::{CscBuilder, QpOutcome, QpProblem, QpSolver};
+use qp::{CscBuilder, QpProblem, QpSolver};
+pub use qp::{MpcQp, MpcQpSolution, QpStatus};
 use reference::Reference;
 
 /// A state's speed beyond this is a broken estimate, not a robot [m/s].
@@ -174,7 +176,11 @@ struct Workspace {
 ///    previous solve's first input (no such term on the first solve). The obstacle slack
 ///    keeps the QP feasible when the start already violates a margin; its linear weight
 ///    makes the penalty exact (zero slack whenever the rows can hold and `w_s1` exceeds
-///    their multipliers). Solved by Clarabel (interior point).
+///    their multipliers). Solved by the tracker's own primal-dual interior-point method
+///    (`solver.qp_solver = banded`: Mehrotra's predictor-corrector, each Newton system a
+///    quasi-definite `LDLᵀ` over the band the stage-by-stage layout gives, about one stage
+///    wide); a QP it does not solve to full accuracy goes to Clarabel, which can also solve
+///    every QP (`clarabel`). [`MpcTracker::last_qp`] gives the QP for inspection.
 /// 5. **Line search.** Merit `φ(u)` = the cost above on the exact rollout of `u`, targets of
 ///    step 2 held fixed, plus the exact penalties of the nonlinear constraints:
 ///    `w_s1·(σv_k + σo_k) + w_s2·(σv_k² + σo_k²)` with `σv_k` the excess of `v_k` over the
@@ -203,8 +209,9 @@ struct Workspace {
 /// Everything is deterministic: a fresh tracker (or one after [`MpcTracker::reset`]) given
 /// the same calls returns bit-identical outputs (only `solve_time_s` differs). The QP's
 /// sparsity depends only on how many obstacle rows each stage has; while it stays the same
-/// the Clarabel solver is kept and only its values are overwritten (no new ordering or
-/// symbolic factorisation), and every buffer of the solve is reused.
+/// the solver keeps its layout (the banded solver its order and envelope, Clarabel its
+/// ordering and symbolic factorisation) and only the values change, and every buffer of the
+/// solve is reused.
 #[derive(Debug)]
 pub struct MpcTracker {
     config: MpcConfig,
@@ -218,12 +225,19 @@ impl MpcTracker {
     /// A tracker with a validated config.
     pub fn new(config: MpcConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self { config, warm: None, ws: Workspace::default(), solver: QpSolver::new(config.solver.qp_max_iterations) })
+        Ok(Self { config, warm: None, ws: Workspace::default(), solver: QpSolver::new(config.solver.qp_max_iterations, config.solver.qp_solver) })
     }
 
     /// The config.
     pub fn config(&self) -> &MpcConfig {
         &self.config
+    }
+
+    /// The QP of the last SQP iteration of the last solve (`None` before the first solve), as
+    /// the solver got it: to inspect what the tracker solved, or to time another solver on it
+    /// ([`MpcQp::solve`]).
+    pub fn last_qp(&self) -> Option<MpcQp> {
+        (!self.ws.qp.q.is_empty()).then(|| MpcQp::of(&self.ws.qp))
     }
 
     /// Forgets the last plan and the QP solver: the next solve starts from zero inputs.
@@ -298,16 +312,16 @@ impl MpcTracker {
             let (outcome, iterations) = self.solver.solve(&ws.qp, &mut ws.z);
             qp_iterations += iterations;
             match outcome {
-                QpOutcome::Failed if sqp_iterations == 0 => {
+                QpStatus::Failed if sqp_iterations == 0 => {
                     status = MpcStatus::SolverFailedBackup;
                     break;
                 }
-                QpOutcome::Failed => {
+                QpStatus::Failed => {
                     status = MpcStatus::SolvedInexact;
                     break;
                 }
-                QpOutcome::Inexact => status = MpcStatus::SolvedInexact,
-                QpOutcome::Solved => {}
+                QpStatus::Inexact => status = MpcStatus::SolvedInexact,
+                QpStatus::Solved => {}
             }
             sqp_iterations += 1;
             match line_search(&c, ws, state, risk, previous_input) {

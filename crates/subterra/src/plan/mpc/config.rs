@@ -154,9 +154,25 @@ pub struct MpcSolver {
     pub step_tolerance: f64,
     /// Interior-point iterations per QP. subterra: 50 (typical QPs take 10-20).
     pub qp_max_iterations: u32,
+    /// Which interior-point solver solves the QPs. subterra: `banded`.
+    #[serde(default)]
+    pub qp_solver: QpSolverKind,
     /// A plan is unsafe (backup stop) when a predicted footprint comes closer to a lethal
     /// polygon than `min(margin, clearance now) - this` \[m\]. subterra: 0.02.
     pub clearance_tolerance_m: f64,
+}
+
+/// The QP solver of the tracker's SQP iterations.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum QpSolverKind {
+    /// The tracker's own interior-point method, whose Newton systems use the QP's band
+    /// structure (`MpcTracker`'s docs, step 4); a QP it does not solve to full accuracy is
+    /// solved again by Clarabel.
+    #[default]
+    Banded,
+    /// Clarabel (a general conic interior-point solver) for every QP.
+    Clarabel,
 }
 
 /// Everything the MPC tracker needs.
@@ -213,7 +229,7 @@ impl MpcConfig {
             footprint: MpcFootprint { length_m: robot.length_m, width_m: robot.width_m },
             risk: MpcRisk { unknown_risk: 0.15, lethal_risk: 0.9 },
             obstacles: MpcObstacles { margin_m: 0.1, max_overhang_m: 0.1, activation_m: 0.5, path_clearance_m: 0.15, max_path_shift_m: 1.0, path_shift_ramp_m: 1.0, max_per_stage: 4 },
-            solver: MpcSolver { sqp_iterations: 2, line_search_steps: 4, step_tolerance: 0.1, qp_max_iterations: 50, clearance_tolerance_m: 0.02 },
+            solver: MpcSolver { sqp_iterations: 2, line_search_steps: 4, step_tolerance: 0.1, qp_max_iterations: 50, qp_solver: QpSolverKind::Banded, clearance_tolerance_m: 0.02 },
         }
     }
 

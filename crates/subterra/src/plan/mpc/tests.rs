@@ -258,3 +258,102 @@ fn bad_inputs_name_the_argument_and_leave_the_tracker_alone() {
     assert_eq!(a, b);
 }
 
+
+/// The benchmark's world in small: a curved path, a risky band and lethal blocks beside it,
+/// one reaching into the path.
+fn blocks_world() -> (Vec<DVec2>, Vec<f32>, usize, DVec2) {
+    let path: Vec<DVec2> = (0..=78).map(|i| i as f64 * 0.1 / 6.0).map(|phi| DVec2::new(6.0 * phi.sin(), 6.0 * (1.0 - phi.cos()))).collect();
+    let (nx, origin) = (120, DVec2::new(-2.0, -4.0));
+    let mut risk = grid_of(nx, nx, 0.1);
+    paint(&mut risk, nx, origin, 0.1, (2.8, 3.3, -4.0, 8.0), 0.5);
+    for block in [(2.0, 2.5, -1.3, -0.4), (4.0, 4.5, 1.6, 2.1), (5.0, 5.6, 0.6, 1.1), (1.5, 2.0, 0.8, 1.3)] {
+        paint(&mut risk, nx, origin, 0.1, block, 1.0);
+    }
+    (path, risk, nx, origin)
+}
+
+#[test]
+fn the_banded_solver_finds_clarabels_solution_of_every_qp_of_a_run() {
+    let (path, risk, nx, origin) = blocks_world();
+    let grid = RiskGrid::new(&risk, nx, nx, 0.1, origin).unwrap();
+    let mut config = MpcConfig::default();
+    config.solver.qp_solver = QpSolverKind::Clarabel;
+    let mut tracker = MpcTracker::new(config).unwrap();
+    let (mut clarabel, mut banded) = (QpSolver::new(50, QpSolverKind::Clarabel), ipm::BandedIpm::default());
+    let (mut z_clarabel, mut z_banded) = (Vec::new(), Vec::new());
+    let start = UnicycleState { x_m: 0.0, y_m: -0.3, heading_rad: 0.0, speed_m_s: 0.5 };
+    let (mut qps, mut obstacle_qps, mut iterations) = (0, 0, 0);
+    let mut state = start;
+    for _ in 0..60 {
+        let out = tracker.solve(&state, &path, Some(&grid), None).unwrap();
+        let qp = &tracker.ws.qp;
+        let (a, _) = clarabel.solve(qp, &mut z_clarabel);
+        let (b, it) = banded.solve(qp, 50, &mut z_banded);
+        assert_eq!(a, QpStatus::Solved);
+        assert_eq!(b, QpStatus::Solved, "iterations {it}");
+        // The stage-by-stage layout keeps the band about one stage wide (7 variables and 4
+        // dynamics rows per stage).
+        assert!(banded.half_bandwidth() <= 14, "half bandwidth {}", banded.half_bandwidth());
+        let objective = |z: &[f64]| -> f64 {
+            let mut value: f64 = qp.q.iter().zip(z).map(|(q, z)| q * z).sum();
+            for c in 0..z.len() {
+                for k in qp.p.colptr[c]..qp.p.colptr[c + 1] {
+                    let r = qp.p.rowval[k];
+                    value += qp.p.nzval[k] * z[r] * z[c] * if r == c { 0.5 } else { 1.0 };
+                }
+            }
+            value
+        };
+        let (fa, fb) = (objective(&z_clarabel), objective(&z_banded));
+        assert!((fa - fb).abs() <= 1e-5 * fa.abs().max(1.0), "objectives {fa} and {fb}");
+        let gap = z_clarabel.iter().zip(&z_banded).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(gap < 1e-3, "solutions differ by {gap}");
+        qps += 1;
+        obstacle_qps += usize::from(qp.a.rows > qp.equalities + 6 * config.horizon);
+        iterations += it;
+        state = step(&state, &out.inputs[0], config.dt_s);
+    }
+    assert!(obstacle_qps >= 10, "only {obstacle_qps} of {qps} QPs had obstacle rows");
+    assert!(iterations <= 25 * qps, "{iterations} iterations over {qps} QPs");
+}
+
+#[test]
+fn the_last_qp_solves_alike_with_either_solver_and_bad_parts_are_named() {
+    let (path, risk, nx, origin) = blocks_world();
+    let grid = RiskGrid::new(&risk, nx, nx, 0.1, origin).unwrap();
+    let mut tracker = MpcTracker::new(MpcConfig::default()).unwrap();
+    assert!(tracker.last_qp().is_none());
+    let state = UnicycleState { x_m: 1.2, y_m: -0.1, heading_rad: 0.05, speed_m_s: 0.8 };
+    tracker.solve(&state, &path, Some(&grid), None).unwrap();
+    let qp = tracker.last_qp().unwrap();
+    assert_eq!(qp.q.len(), 7 * tracker.config().horizon);
+    let banded = qp.solve(QpSolverKind::Banded, 50).unwrap();
+    let clarabel = qp.solve(QpSolverKind::Clarabel, 50).unwrap();
+    assert_eq!((banded.status, clarabel.status), (QpStatus::Solved, QpStatus::Solved));
+    let gap = banded.z.iter().zip(&clarabel.z).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(gap < 1e-3, "{gap}");
+    assert_eq!(qp.solve(QpSolverKind::Banded, 50).unwrap().z, banded.z, "same QP, same bits");
+
+    let field = |bad: MpcQp| match bad.solve(QpSolverKind::Banded, 50) {
+        Err(Error::InvalidInput { argument, .. }) => argument,
+        other => panic!("{other:?}"),
+    };
+    let mut bad = qp.clone();
+    bad.p_colptr.pop();
+    assert_eq!(field(bad), "P");
+    let mut bad = qp.clone();
+    // Column 1's diagonal entry moved below the diagonal.
+    let k = bad.p_colptr[2] - 1;
+    bad.p_rowval[k] = bad.q.len() - 1;
+    assert_eq!(field(bad), "P");
+    let mut bad = qp.clone();
+    bad.a_rowval[0] = bad.b.len();
+    assert_eq!(field(bad), "A");
+    let mut bad = qp.clone();
+    bad.b[3] = f64::NAN;
+    assert_eq!(field(bad), "b");
+    let mut bad = qp.clone();
+    bad.equalities = bad.b.len() + 1;
+    assert_eq!(field(bad), "equalities");
+    assert!(qp.solve(QpSolverKind::Banded, 0).is_err());
+}
