@@ -15,6 +15,7 @@ import pytest
 
 import subterra
 import subterra.sim
+import subterra.terrain
 from subterra.errors import ConfigError, InputError
 from subterra.sim import DepthCamera
 
@@ -57,12 +58,50 @@ def test_a_grid_whose_transition_model_would_not_fit_is_a_config_error():
         lambda: subterra.TerrainMapper().update(_huge(np.float32)),
         lambda: subterra.TerrainMapper().update(np.broadcast_to(np.ones(3, np.float64), (10**9, 3))),
         lambda: subterra.RiskAStar().plan(np.zeros((4, 4), np.float32), np.broadcast_to(np.zeros(1), (10**8,)), [1, 1], resolution=0.1),
+        # Once walked point by point (minutes, then gigabytes) before any limit was checked.
+        lambda: subterra.PathFollower(np.broadcast_to(np.zeros(3), (10**9, 3))),
+        lambda: subterra.Pilot(subterra.PinholeCamera.d435()).set_path(np.broadcast_to(np.zeros(3), (10**9, 3))),
+        # Once copied to float64 first: a MemoryError asking for 22 GiB.
+        lambda: subterra.terrain.estimate_sensor_height(np.broadcast_to(np.ones(3, np.float32), (10**9, 3))),
     ],
-    ids=["depth-u16", "depth-f32", "astar-f32", "astar-f64", "mpc-f32", "mpc-f64", "mpc-path", "terrain", "terrain-f64", "astar-start"],
+    ids=["depth-u16", "depth-f32", "astar-f32", "astar-f64", "mpc-f32", "mpc-f64", "mpc-path", "terrain", "terrain-f64", "astar-start",
+         "follower-path", "pilot-path", "sensor-height"],
 )
 def test_a_huge_view_is_refused_before_it_is_copied(call):
-    with pytest.raises(InputError, match=r"argument `(depth|risk|reference_path|points|start)`"):
+    with pytest.raises(InputError, match=r"argument `(depth|risk|reference_path|points|start|path)`"):
         call()
+
+
+def test_a_path_without_a_length_stops_at_the_limit():
+    points = ([float(i), 0.0, 0.0] for i in range(2**20 + 1))
+    with pytest.raises(InputError, match=r"argument `path` has 1048577 points: more than 1048576"):
+        subterra.PathFollower(points)
+
+
+@pytest.mark.parametrize("value", [None, float("nan"), float("inf"), "1.0", True, 1 + 0j])
+def test_a_translation_is_three_finite_real_numbers(value):
+    # Once np.eye(4) with NaN (from None) or 1.0 (from "1.0") in its last column.
+    with pytest.raises(InputError, match="argument `y` must be a finite real number"):
+        subterra.terrain.translation(0.0, value, 0.0)
+    assert subterra.terrain.translation(1, np.float32(2), np.int64(3))[:3, 3].tolist() == [1.0, 2.0, 3.0]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "phrase"),
+    [
+        ({"ring_m": (1.0,)}, "argument `ring_m` must be 2 numbers"),
+        ({"ring_m": None}, "argument `ring_m` must be 2 numbers"),
+        ({"ring_m": (15.0, 3.0)}, "argument `ring_m` must be \\(min, max\\)"),
+        ({"ring_m": (0.0, float("inf"))}, "argument `ring_m` must be a finite real number"),
+        ({"points": np.zeros((10, 3), "U2")}, "argument `points` must be a real"),
+        ({"points": "points"}, "argument `points` must be a real"),
+    ],
+)
+def test_estimate_sensor_height_arguments_are_checked(kwargs, phrase):
+    # Once IndexError, TypeError, UFuncTypeError or a height from an infinite ring.
+    args = {"points": np.zeros((10, 3), np.float32)} | kwargs
+    with pytest.raises(InputError, match=phrase):
+        subterra.terrain.estimate_sensor_height(args.pop("points"), **args)
 
 
 def test_too_many_points_is_reported_with_the_whole_shape():
@@ -258,9 +297,28 @@ def test_camera_arguments_are_named(kwargs, name):
         (lambda p: subterra.sim.World.scenario(None), "name"),
         (lambda p: subterra.sim.Lidar(preset=["vlp16"]), "preset"),
         (lambda p: subterra.TerrainMapper().update(np.ones((10, 3))).layer(0), "name"),
+        # Arguments typed as a subterra class or a Python int once gave pyo3's bare TypeError
+        # ("'None' is not an instance of 'PinholeCamera'") or OverflowError, naming nothing.
+        (lambda p: subterra.DepthPerception(None), "camera"),
+        (lambda p: subterra.ObstacleMemory("p"), "perception"),
+        (lambda p: subterra.ObstacleMemory(p).update(None, stamp=0.0, world_from_body=np.eye(4)), "output"),
+        (lambda p: subterra.Qmdp(p).act(1), "output"),
+        (lambda p: subterra.Escape().step(stamp=0.0, world_from_body=np.eye(4), goal_world=[1, 0, 0], remaining_m=1.0, memory=3), "memory"),
+        (lambda p: subterra.sim.Simulation("highbay"), "world"),
+        (lambda p: subterra.sim.DepthCamera("d435"), "camera"),
+        (lambda p: subterra.sim.Lidar().scan(None, np.eye(4)), "world"),
+        (lambda p: subterra.sim.Simulation(subterra.sim.World.scenario("highbay", 0), start=[2.0, 2.0, 1.0]).add_depth_camera("c", subterra.PinholeCamera.d435()), "camera"),
+        (lambda p: subterra.sim.Simulation(subterra.sim.World.scenario("highbay", 0), start=[2.0, 2.0, 1.0]).set_goal(region=1), "region"),
+        (lambda p: subterra.Pilot(subterra.PinholeCamera.d435()).camera(-1), "n"),
+        (lambda p: subterra.Pilot(subterra.PinholeCamera.d435()).perception_info("0"), "n"),
+        (lambda p: subterra.Pilot(subterra.PinholeCamera.d435()).step(np.zeros((480, 640), np.uint16), stamp=0.0, world_from_body=np.eye(4), confidence="1"), "confidence"),
+        # np.complex128(1) was once taken as 1.0 with only a ComplexWarning.
+        (lambda p: subterra.RiskAStar().plan(np.zeros((4, 4), np.float32), [0.1, 0.1], [0.2, 0.2], resolution=np.complex128(1)), "resolution"),
     ],
     ids=["float-index", "huge-index", "str-state", "str-scale", "none-confidence", "str-stamp", "none-yaw", "negative-seed", "list-lookahead", "complex-speed",
-         "int-preset-name", "surrogate-name", "none-preset", "int-mode", "bytes-frame", "none-scenario", "list-lidar-preset", "int-layer"],
+         "int-preset-name", "surrogate-name", "none-preset", "int-mode", "bytes-frame", "none-scenario", "list-lidar-preset", "int-layer",
+         "none-camera", "str-perception", "none-output", "int-output", "int-memory", "str-world", "str-sim-camera", "none-world",
+         "pinhole-for-depth-camera", "int-region", "negative-n", "str-n", "str-pilot-confidence", "complex-resolution"],
 )
 def test_a_value_of_the_wrong_type_is_an_input_error_naming_the_argument(call, name):
     # pyo3's own conversion raised a bare TypeError or OverflowError ("while processing 'x'"

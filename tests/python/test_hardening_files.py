@@ -465,6 +465,23 @@ def _collect(sink: list, fn, *args) -> None:
         sink.append(exc)
 
 
+@pytest.mark.parametrize(
+    "write",
+    [
+        lambda path: clouds.write_pcd(path / "a.pcd", np.broadcast_to(np.ones(3, np.float32), (10**9, 3))),
+        lambda path: clouds.write_ply(path / "a.ply", np.broadcast_to(np.ones(3, np.float32), (10**9, 3))),
+        lambda path: depth.write_depth_png(path / "a.png", np.broadcast_to(np.uint16(1), (10**5, 10**5))),
+    ],
+    ids=["pcd", "ply", "png"],
+)
+def test_a_writer_refuses_a_huge_view_before_copying_it(tmp_path: Path, write) -> None:
+    # Once a MemoryError asking for 11 GiB (clouds) or 18.6 GiB (PNG): the view was made
+    # contiguous before its size was looked at.
+    with pytest.raises(errors.InputError, match="over the limit"):
+        write(tmp_path)
+
+
+
 def test_a_small_cloud_reads_under_an_address_space_limit(tmp_path: Path) -> None:
     # Every read reserved its 4 GiB limit first (`read(max_bytes + 1)`): under an
     # address-space cap a one-point PLY failed with a bare MemoryError.

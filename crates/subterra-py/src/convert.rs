@@ -110,6 +110,37 @@ pub fn integer(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>, lo: i12
     }
 }
 
+/// An instance of the Python class `T`, with an error naming `argument` and the class (pyo3's
+/// own cast is a bare `TypeError` that names no argument).
+pub fn instance<'py, T: pyo3::PyTypeInfo>(argument: &str, class: &str, value: &Bound<'py, PyAny>) -> PyResult<Bound<'py, T>> {
+    value
+        .cast::<T>()
+        .cloned()
+        .map_err(|_| input_error(value.py(), format!("argument `{argument}` must be a subterra {class}, got {}", type_name(value))))
+}
+
+/// The points of a path given as a sequence of 3-vectors [m] named `argument` (`path[n]` in
+/// errors). Its length is checked before the first point is read, so that a broadcast view
+/// of 10^9 points is refused at once rather than walked; a sequence without a length stops
+/// at the limit.
+pub fn path3(py: Python<'_>, argument: &str, value: &Bound<'_, PyAny>) -> PyResult<Vec<DVec3>> {
+    let too_long = |n: usize| input_error(py, format!("argument `{argument}` has {n} points: more than {MAX_PATH_POINTS}, the most accepted"));
+    if let Ok(n) = value.len() {
+        if n > MAX_PATH_POINTS {
+            return Err(too_long(n));
+        }
+    }
+    let items = value.try_iter().map_err(|_| input_error(py, format!("argument `{argument}` must be a sequence of 3-vectors, got {}", type_name(value))))?;
+    let mut points = Vec::new();
+    for (n, item) in items.enumerate() {
+        if n >= MAX_PATH_POINTS {
+            return Err(too_long(n + 1));
+        }
+        points.push(vec3(py, &format!("{argument}[{n}]"), &item?)?);
+    }
+    Ok(points)
+}
+
 /// `repr(value)` cut to 60 characters, for messages.
 fn short_repr(value: &Bound<'_, PyAny>) -> String {
     let r = value.repr().map(|r| r.to_string()).unwrap_or_else(|_| type_name(value));
@@ -246,7 +277,9 @@ fn dim(py: Python<'_>, n: usize) -> PyResult<u32> {
 pub mod arg {
     use pyo3::prelude::*;
 
-    use super::{integer, real, text};
+    use super::{instance, integer, real, text};
+    use crate::sim::{PyDepthCamera, PyLidar, PyWorld};
+    use crate::{PyDepthPerception, PyObstacleMemory, PyPerceptionOutput, PyPinholeCamera};
 
     /// `None` (explicit) or a real number.
     fn opt_real(argument: &str, v: &Bound<'_, PyAny>) -> PyResult<Option<f64>> {
@@ -291,6 +324,36 @@ pub mod arg {
         )*};
     }
 
+    macro_rules! instances {
+        ($($fn_name:ident => $name:ident: $ty:ty = $class:literal),* $(,)?) => {$(
+            #[allow(dead_code)]
+            pub fn $fn_name<'py>(v: &Bound<'py, PyAny>) -> PyResult<Bound<'py, $ty>> {
+                instance(stringify!($name), $class, v)
+            }
+        )*};
+    }
+    macro_rules! opt_instances {
+        ($($fn_name:ident => $name:ident: $ty:ty = $class:literal),* $(,)?) => {$(
+            #[allow(dead_code)]
+            pub fn $fn_name<'py>(v: &Bound<'py, PyAny>) -> PyResult<Option<Bound<'py, $ty>>> {
+                if v.is_none() {
+                    Ok(None)
+                } else {
+                    instance(stringify!($name), $class, v).map(Some)
+                }
+            }
+        )*};
+    }
+
+    /// `None` (explicit) or a `str` named `region`.
+    pub fn opt_region(v: &Bound<'_, PyAny>) -> PyResult<Option<String>> {
+        if v.is_none() {
+            Ok(None)
+        } else {
+            text(v.py(), "region", v).map(Some)
+        }
+    }
+
     /// `None` (explicit) or a `str` named `mode`.
     pub fn opt_mode(v: &Bound<'_, PyAny>) -> PyResult<Option<String>> {
         if v.is_none() {
@@ -305,5 +368,11 @@ pub mod arg {
 
     reals!(stamp, remaining_m, lookahead_m, confidence, speed, x, y, alpha, min_range_m, max_range_m, yaw, radius_m, dt, compute_time_s, sensor_height);
     opt_reals!(opt_scale => scale, opt_resolution => resolution, opt_desired_speed => desired_speed, opt_stamp => stamp, opt_limit_s => limit_s);
-    integers!(state_i64 => state: i64, i_i64 => i: i64, j_i64 => j: i64, k_i64 => k: i64, seed_u64 => seed: u64, id_u32 => id: u32, threads_usize => threads: usize);
+    integers!(state_i64 => state: i64, i_i64 => i: i64, j_i64 => j: i64, k_i64 => k: i64, seed_u64 => seed: u64, id_u32 => id: u32, threads_usize => threads: usize, n_usize => n: usize);
+
+    instances!(camera => camera: PyPinholeCamera = "PinholeCamera", perception => perception: PyDepthPerception = "DepthPerception",
+               output => output: PyPerceptionOutput = "PerceptionOutput", world => world: PyWorld = "sim.World",
+               depth_camera => camera: PyDepthCamera = "sim.DepthCamera", lidar => lidar: PyLidar = "sim.Lidar");
+    opt_instances!(opt_camera => camera: PyPinholeCamera = "PinholeCamera", opt_perception => perception: PyDepthPerception = "DepthPerception",
+                   opt_memory => memory: PyObstacleMemory = "ObstacleMemory");
 }

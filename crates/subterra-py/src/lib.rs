@@ -247,7 +247,7 @@ impl PyDepthPerception {
     )]
     fn new(
         py: Python<'_>,
-        camera: &PyPinholeCamera,
+        #[pyo3(from_py_with = arg::camera)] camera: Bound<'_, PyPinholeCamera>,
         #[pyo3(from_py_with = arg::s_preset)] preset: String,
         config: Option<&Bound<'_, PyAny>>,
         body_from_camera: Option<&Bound<'_, PyAny>>,
@@ -273,7 +273,7 @@ impl PyDepthPerception {
                 input_error(py, format!("argument `seed` must be an integer in 0..2**64, got {}", s.repr().map(|r| r.to_string()).unwrap_or_default()))
             })?,
         };
-        let cam = camera.inner;
+        let cam = camera.get().inner;
         let inner = py.detach(move || DepthPerception::new(cam, body_from_camera, config, seed)).py_err(py)?;
         let forces = BeliefForces::new(&inner);
         Ok(Self { inner: Shared::new(inner), camera: cam, forces })
@@ -460,8 +460,8 @@ struct PyObstacleMemory {
 impl PyObstacleMemory {
     /// A memory for `perception`'s camera, grid and mounting, with its config's `memory` settings.
     #[new]
-    fn new(py: Python<'_>, perception: &PyDepthPerception) -> PyResult<Self> {
-        Ok(Self { inner: Shared::new(ObstacleMemory::new(&perception.inner.lock()).py_err(py)?) })
+    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::perception)] perception: Bound<'_, PyDepthPerception>) -> PyResult<Self> {
+        Ok(Self { inner: Shared::new(ObstacleMemory::new(&perception.get().inner.lock()).py_err(py)?) })
     }
 
     /// Records `output` (a `PerceptionOutput` of that perception) taken at `stamp` [s] with
@@ -472,11 +472,12 @@ impl PyObstacleMemory {
     fn update(
         &self,
         py: Python<'_>,
-        output: &PyPerceptionOutput,
+        #[pyo3(from_py_with = arg::output)] output: Bound<'_, PyPerceptionOutput>,
         #[pyo3(from_py_with = arg::stamp)] stamp: f64,
         world_from_body: &Bound<'_, PyAny>,
-        perception: Option<&PyDepthPerception>,
+        #[pyo3(from_py_with = arg::opt_perception)] perception: Option<Bound<'_, PyDepthPerception>>,
     ) -> PyResult<PyMemoryOutput> {
+        let (output, perception) = (output.get(), perception.as_ref().map(Bound::get));
         let pose = isometry(py, "world_from_body", world_from_body)?;
         let counts = match perception {
             Some(p) => {
@@ -706,9 +707,10 @@ impl PyEscape {
         world_from_body: &Bound<'_, PyAny>,
         goal_world: &Bound<'_, PyAny>,
         #[pyo3(from_py_with = arg::remaining_m)] remaining_m: f64,
-        memory: Option<&PyObstacleMemory>,
+        #[pyo3(from_py_with = arg::opt_memory)] memory: Option<Bound<'_, PyObstacleMemory>>,
         repulsive_body: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PyEscapeOutput> {
+        let memory = memory.as_ref().map(Bound::get);
         let pose = isometry(py, "world_from_body", world_from_body)?;
         let goal = vec3(py, "goal_world", goal_world)?;
         let repulsion = match repulsive_body {
@@ -772,11 +774,7 @@ impl PyPathFollower {
     #[new]
     #[pyo3(signature = (path, *, lookahead_m = subterra::apf::DEFAULT_LOOKAHEAD_M))]
     fn new(py: Python<'_>, path: &Bound<'_, PyAny>, #[pyo3(from_py_with = arg::lookahead_m)] lookahead_m: f64) -> PyResult<Self> {
-        let items = path.try_iter().map_err(|_| input_error(py, format!("argument `path` must be a sequence of 3-vectors, got {}", convert::type_name(path))))?;
-        let mut points = Vec::new();
-        for (n, item) in items.enumerate() {
-            points.push(vec3(py, &format!("path[{n}]"), &item?)?);
-        }
+        let points = convert::path3(py, "path", path)?;
         Ok(Self { inner: Shared::new(PathFollower::new(&points, lookahead_m).py_err(py)?) })
     }
 

@@ -216,11 +216,7 @@ impl PyPilot {
     /// `lookahead_m` ahead.
     #[pyo3(signature = (path, *, lookahead_m = subterra::apf::DEFAULT_LOOKAHEAD_M))]
     fn set_path(&self, py: Python<'_>, path: &Bound<'_, PyAny>, #[pyo3(from_py_with = arg::lookahead_m)] lookahead_m: f64) -> PyResult<()> {
-        let items = path.try_iter().map_err(|_| input_error(py, format!("argument `path` must be a sequence of 3-vectors, got {}", type_name(path))))?;
-        let mut points = Vec::new();
-        for (n, item) in items.enumerate() {
-            points.push(vec3(py, &format!("path[{n}]"), &item?)?);
-        }
+        let points = crate::convert::path3(py, "path", path)?;
         self.inner.lock().set_path(&points, lookahead_m).py_err(py)
     }
 
@@ -237,7 +233,7 @@ impl PyPilot {
         #[pyo3(from_py_with = arg::stamp)] stamp: f64,
         world_from_body: &Bound<'_, PyAny>,
         #[pyo3(from_py_with = arg::opt_scale)] scale: Option<f64>,
-        confidence: f64,
+        #[pyo3(from_py_with = arg::confidence)] confidence: f64,
     ) -> PyResult<PyPilotOutput> {
         let pose = isometry(py, "world_from_body", world_from_body)?;
         let list: Vec<Bound<'_, PyAny>> = match frames.cast::<PyList>() {
@@ -291,7 +287,7 @@ impl PyPilot {
 
     /// Camera `n`'s intrinsics.
     #[pyo3(signature = (n = 0))]
-    fn camera(&self, py: Python<'_>, n: usize) -> PyResult<PyPinholeCamera> {
+    fn camera(&self, py: Python<'_>, #[pyo3(from_py_with = arg::n_usize)] n: usize) -> PyResult<PyPinholeCamera> {
         self.cameras.get(n).map(|c| PyPinholeCamera { inner: c.camera }).ok_or_else(|| input_error(py, format!("argument `n` must be below {}, got {n}", self.cameras.len())))
     }
 
@@ -303,7 +299,7 @@ impl PyPilot {
 
     /// The free state's id (the same for every camera of one config: the last state).
     #[pyo3(signature = (n = 0))]
-    fn free_state(&self, py: Python<'_>, n: usize) -> PyResult<u32> {
+    fn free_state(&self, py: Python<'_>, #[pyo3(from_py_with = arg::n_usize)] n: usize) -> PyResult<u32> {
         let this = self.inner.lock();
         let p = self.perception(py, &this, n)?;
         Ok(p.grid().free_state().0)
@@ -312,7 +308,7 @@ impl PyPilot {
     /// Camera `n`'s perception: `grid_shape` `(N_w, N_h, N_d)`, `state_count`,
     /// `free_state`, `frames`, `transition_build_s`, `transition_memory_bytes`.
     #[pyo3(signature = (n = 0))]
-    fn perception_info<'py>(&self, py: Python<'py>, n: usize) -> PyResult<Bound<'py, PyDict>> {
+    fn perception_info<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::n_usize)] n: usize) -> PyResult<Bound<'py, PyDict>> {
         let this = self.inner.lock();
         let p = self.perception(py, &this, n)?;
         let d = PyDict::new(py);
@@ -327,7 +323,7 @@ impl PyPilot {
 
     /// Centres of camera `n`'s voxels, shape `(S-1, 3)` [m], in the `frame` "camera" or "body".
     #[pyo3(signature = (frame = "camera".to_owned(), n = 0), text_signature = "($self, frame='camera', n=0)")]
-    fn voxel_centres<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::s_frame)] frame: String, n: usize) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    fn voxel_centres<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::s_frame)] frame: String, #[pyo3(from_py_with = arg::n_usize)] n: usize) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let this = self.inner.lock();
         let p = self.perception(py, &this, n)?;
         voxel_centres_array(py, p, &frame)

@@ -11,7 +11,7 @@ use subterra::plan::{PlanOutcome, RiskAStar, RiskAStarConfig, RiskGrid};
 use subterra::terrain::{CellIndex, RiskMap};
 
 use crate::shared::Shared;
-use crate::convert::{check_elements, small_vector, type_name, MAX_GRID_CELLS};
+use crate::convert::{check_elements, real, small_vector, type_name, MAX_GRID_CELLS};
 use crate::config::{resolve, PyRiskAStarConfig};
 use crate::errors::{input_error, IntoPyResult};
 use crate::terrain::PyRiskMap;
@@ -92,7 +92,8 @@ fn with_grid<T>(
     }
     let resolution_m = match resolution {
         Some(v) if !v.is_none() => {
-            v.extract::<f64>().map_err(|_| input_error(py, format!("argument `resolution` must be a number (cell side in metres), got {}", type_name(v))))?
+            // `real` refuses a complex or bool value (extract::<f64> took np.complex128(1) as 1.0).
+            real(py, "resolution", v)?
         }
         _ => return Err(input_error(py, "argument `resolution` is required when `risk` is an array (cell side in metres)")),
     };

@@ -4,6 +4,7 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
 use subterra::apf::{Qmdp, QmdpAction, QmdpConfig};
 
+use crate::convert::arg;
 use crate::errors::IntoPyResult;
 use crate::shared::Shared;
 use crate::config::{resolve, PyQmdpConfig};
@@ -56,9 +57,9 @@ struct PyQmdp {
 impl PyQmdp {
     #[new]
     #[pyo3(signature = (perception, config = None))]
-    fn new(py: Python<'_>, perception: &PyDepthPerception, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::perception)] perception: Bound<'_, PyDepthPerception>, config: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
         let config = resolve_config(py, config)?;
-        let p = perception.inner.lock();
+        let p = perception.get().inner.lock();
         Ok(Self { inner: Shared::new(py.detach(|| Qmdp::new(&p, config)).py_err(py)?) })
     }
 
@@ -70,9 +71,9 @@ impl PyQmdp {
 
     /// The best action under `output`'s belief (a `PerceptionOutput` of the perception
     /// this controller was made for).
-    fn act(&self, py: Python<'_>, output: &PyPerceptionOutput) -> PyResult<PyQmdpAction> {
+    fn act(&self, py: Python<'_>, #[pyo3(from_py_with = arg::output)] output: Bound<'_, PyPerceptionOutput>) -> PyResult<PyQmdpAction> {
         let mut this = self.inner.lock();
-        let (inner, out) = (&mut *this, &output.inner);
+        let (inner, out) = (&mut *this, &output.get().inner);
         Ok(PyQmdpAction { inner: py.detach(|| inner.act(out)).py_err(py)? })
     }
 

@@ -225,10 +225,10 @@ pub struct PyDepthCamera {
 impl PyDepthCamera {
     #[new]
     #[pyo3(signature = (camera = None, min_range_m = 0.1, max_range_m = 10.0))]
-    fn new(py: Python<'_>, camera: Option<&PyPinholeCamera>, #[pyo3(from_py_with = arg::min_range_m)] min_range_m: f64, #[pyo3(from_py_with = arg::max_range_m)] max_range_m: f64) -> PyResult<Self> {
+    fn new(py: Python<'_>, #[pyo3(from_py_with = arg::opt_camera)] camera: Option<Bound<'_, PyPinholeCamera>>, #[pyo3(from_py_with = arg::min_range_m)] min_range_m: f64, #[pyo3(from_py_with = arg::max_range_m)] max_range_m: f64) -> PyResult<Self> {
         let mut config = DepthCameraConfig::d435();
         if let Some(c) = camera {
-            config.camera = c.inner;
+            config.camera = c.get().inner;
         }
         config.min_range_m = min_range_m;
         config.max_range_m = max_range_m;
@@ -256,7 +256,7 @@ impl PyDepthCamera {
         text_signature = "($self, world, world_from_camera, noise='none', seed=0, threads=1, *, dtype='float32')"
     )]
     #[allow(clippy::too_many_arguments)]
-    fn render<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_camera: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::s_noise)] noise: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64, #[pyo3(from_py_with = arg::threads_usize)] threads: usize, #[pyo3(from_py_with = arg::s_dtype)] dtype: String) -> PyResult<Bound<'py, PyAny>> {
+    fn render<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::world)] world: Bound<'py, PyWorld>, world_from_camera: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::s_noise)] noise: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64, #[pyo3(from_py_with = arg::threads_usize)] threads: usize, #[pyo3(from_py_with = arg::s_dtype)] dtype: String) -> PyResult<Bound<'py, PyAny>> {
         let dtype = depth_dtype(py, "dtype", &dtype)?;
         let noise = noise.as_str();
         if threads == 0 || threads > 256 {
@@ -264,7 +264,7 @@ impl PyDepthCamera {
         }
         let pose = isometry(py, "world_from_camera", world_from_camera)?;
         let model = depth_noise(py, noise)?;
-        let (cam, w) = (&self.inner, &world.inner);
+        let (cam, w) = (&self.inner, &world.get().inner);
         let depth = py
             .detach(|| {
                 self.truth.with(|truth| {
@@ -313,10 +313,10 @@ impl PyLidar {
 
     /// One scan from `world_from_sensor` (4x4): `(points (N, 3) float32 in the sensor frame, ring (N,) uint16)`.
     #[pyo3(signature = (world, world_from_sensor, noise = "none".to_owned(), seed = 0), text_signature = "($self, world, world_from_sensor, noise='none', seed=0)")]
-    fn scan<'py>(&self, py: Python<'py>, world: &PyWorld, world_from_sensor: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::s_noise)] noise: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<LidarArrays<'py>> {
+    fn scan<'py>(&self, py: Python<'py>, #[pyo3(from_py_with = arg::world)] world: Bound<'py, PyWorld>, world_from_sensor: &Bound<'py, PyAny>, #[pyo3(from_py_with = arg::s_noise)] noise: String, #[pyo3(from_py_with = arg::seed_u64)] seed: u64) -> PyResult<LidarArrays<'py>> {
         let pose = isometry(py, "world_from_sensor", world_from_sensor)?;
         let model = lidar_noise(py, &noise)?;
-        let (lidar, w) = (&self.inner, &world.inner);
+        let (lidar, w) = (&self.inner, &world.get().inner);
         let (flat, ring) = py
             .detach(|| {
                 self.truth.with(|truth| {
@@ -367,7 +367,7 @@ impl PySimulation {
     )]
     fn new(
         py: Python<'_>,
-        world: &PyWorld,
+        #[pyo3(from_py_with = arg::world)] world: Bound<'_, PyWorld>,
         #[pyo3(from_py_with = arg::s_vehicle)] vehicle: String,
         sensors: Option<&Bound<'_, PyDict>>,
         #[pyo3(from_py_with = arg::seed_u64)] seed: u64,
@@ -383,7 +383,7 @@ impl PySimulation {
             return Err(input_error(py, format!("argument `yaw` must be finite, got {yaw}")));
         }
         // A start far off the world's geometry is a mistake (a typo, or a unit error), not a flight.
-        let (lo, hi) = world.inner.bounds();
+        let (lo, hi) = world.get().inner.bounds();
         let margin = DVec3::splat(START_MARGIN_M);
         if !(start.cmpge(lo - margin).all() && start.cmple(hi + margin).all()) {
             return Err(input_error(
@@ -400,7 +400,7 @@ impl PySimulation {
             _ => Err(SimError::Unknown { what: "vehicle".into(), name: vehicle.into(), known: "quadrotor, ground".into() }),
         }
         .sim_err(py)?;
-        let w = world.inner.clone();
+        let w = world.get().inner.clone();
         // The Rust constructor names its `vehicle` argument when the vehicle cannot start
         // where it stands; from Python that place is `start` (and `yaw`).
         let created = Simulation::new(w, v, seed).map_err(|e| match e {
@@ -423,9 +423,9 @@ impl PySimulation {
                     (mount.clone(), None, "none".to_owned())
                 };
                 if let Ok(cam) = sensor.cast::<PyDepthCamera>() {
-                    sim.add_depth_camera(py, name.clone(), &cam.borrow(), pose.as_ref(), noise)?;
+                    sim.add_depth_camera(py, name.clone(), cam.clone(), pose.as_ref(), noise)?;
                 } else if let Ok(lidar) = sensor.cast::<PyLidar>() {
-                    sim.add_lidar(py, name.clone(), &lidar.borrow(), pose.as_ref(), noise)?;
+                    sim.add_lidar(py, name.clone(), lidar.clone(), pose.as_ref(), noise)?;
                 } else {
                     return Err(input_error(py, format!("argument `sensors[{name:?}]` must be a DepthCamera or a Lidar, or a tuple (sensor, body_from_sensor, noise)")));
                 }
@@ -436,31 +436,31 @@ impl PySimulation {
 
     /// Mounts a depth camera (default pose: looking forward from the body origin).
     #[pyo3(signature = (name, camera, body_from_camera = None, noise = "none".to_owned()), text_signature = "($self, name, camera, body_from_camera=None, noise='none')")]
-    fn add_depth_camera(&self, py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String, camera: &PyDepthCamera, body_from_camera: Option<&Bound<'_, PyAny>>, #[pyo3(from_py_with = arg::s_noise)] noise: String) -> PyResult<()> {
+    fn add_depth_camera(&self, py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String, #[pyo3(from_py_with = arg::depth_camera)] camera: Bound<'_, PyDepthCamera>, body_from_camera: Option<&Bound<'_, PyAny>>, #[pyo3(from_py_with = arg::s_noise)] noise: String) -> PyResult<()> {
         let (name, noise) = (name.as_str(), noise.as_str());
         let pose = match body_from_camera {
             Some(m) => isometry(py, "body_from_camera", m)?,
             None => Isometry3::body_from_forward_optical(),
         };
         let model = depth_noise(py, noise)?;
-        self.inner.lock().add_depth_camera(name, *camera.inner.config(), pose, model).sim_err(py)
+        self.inner.lock().add_depth_camera(name, *camera.get().inner.config(), pose, model).sim_err(py)
     }
 
     /// Mounts a lidar (default pose: at the body origin, axes aligned).
     #[pyo3(signature = (name, lidar, body_from_sensor = None, noise = "none".to_owned()), text_signature = "($self, name, lidar, body_from_sensor=None, noise='none')")]
-    fn add_lidar(&self, py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String, lidar: &PyLidar, body_from_sensor: Option<&Bound<'_, PyAny>>, #[pyo3(from_py_with = arg::s_noise)] noise: String) -> PyResult<()> {
+    fn add_lidar(&self, py: Python<'_>, #[pyo3(from_py_with = arg::s_name)] name: String, #[pyo3(from_py_with = arg::lidar)] lidar: Bound<'_, PyLidar>, body_from_sensor: Option<&Bound<'_, PyAny>>, #[pyo3(from_py_with = arg::s_noise)] noise: String) -> PyResult<()> {
         let (name, noise) = (name.as_str(), noise.as_str());
         let pose = match body_from_sensor {
             Some(m) => isometry(py, "body_from_sensor", m)?,
             None => Isometry3::IDENTITY,
         };
         let model = lidar_noise(py, noise)?;
-        self.inner.lock().add_lidar(name, lidar.inner.config().clone(), pose, model).sim_err(py)
+        self.inner.lock().add_lidar(name, lidar.get().inner.config().clone(), pose, model).sim_err(py)
     }
 
     /// The goal: a region of the world by name, or a point with a radius [m].
     #[pyo3(signature = (region = None, point = None, radius_m = 0.5))]
-    fn set_goal(&self, py: Python<'_>, region: Option<String>, point: Option<&Bound<'_, PyAny>>, #[pyo3(from_py_with = arg::radius_m)] radius_m: f64) -> PyResult<()> {
+    fn set_goal(&self, py: Python<'_>, #[pyo3(from_py_with = arg::opt_region)] region: Option<String>, point: Option<&Bound<'_, PyAny>>, #[pyo3(from_py_with = arg::radius_m)] radius_m: f64) -> PyResult<()> {
         let goal = match (region, point) {
             (Some(r), None) => Goal::Region(r),
             (None, Some(p)) => Goal::Point { centre: vec3(py, "point", p)?, radius_m },

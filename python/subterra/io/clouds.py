@@ -76,6 +76,10 @@ from .._files import open_for_writing
 from ..errors import FileFormatError, InputError
 from .depth import _as_path, _check_readable_file, _read_bytes, _read_head
 
+#: Most points :func:`write_pcd` and :func:`write_ply` write (the core's limit on one cloud,
+#: 2^25); checked on the array's shape before it is copied.
+MAX_WRITE_POINTS = 1 << 25
+
 __all__ = [
     "CLOUD_EXTENSIONS",
     "CLOUD_FORMATS",
@@ -455,6 +459,12 @@ def _checked_points(points: object, name: str, suffix: str) -> np.ndarray:
         raise InputError(f"{name}: expected shape (N, 3), got {points.shape}{suffix}")
     if points.dtype.kind != "f":
         raise InputError(f"{name}: expected a float array [m], got dtype {points.dtype}{suffix}")
+    # Checked on the view, before the copy: a broadcast view of 10^9 points is refused, not
+    # materialised (the core's limit on one cloud).
+    if points.shape[0] > MAX_WRITE_POINTS:
+        raise InputError(
+            f"{name}: {points.shape[0]} points, over the limit of {MAX_WRITE_POINTS}{suffix}"
+        )
     with np.errstate(over="ignore"):  # beyond the float32 range: +-inf, not a warning
         return np.ascontiguousarray(points, dtype=np.float32)
 

@@ -380,6 +380,14 @@ def _checked_depth_array(
         raise error(
             f"{what}: expected a non-empty (H, W) depth array, got shape {array.shape}{suffix}"
         )
+    # Checked on the view, before the copy: a broadcast view of 10^10 pixels is refused,
+    # not materialised.
+    pixels = math.prod(int(n) for n in array.shape)
+    if pixels > MAX_DEPTH_PIXELS:
+        raise error(
+            f"{what}: shape {array.shape} has {pixels} pixels, over the limit of "
+            f"{MAX_DEPTH_PIXELS}{suffix}"
+        )
     dtype = array.dtype
     if _is_uint16(dtype):
         target = np.uint16

@@ -88,8 +88,21 @@ def load_terrain_config(path: str | os.PathLike[str]) -> TerrainConfig:
 def translation(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> np.ndarray:
     """A 4x4 ``float64`` pure translation [m], e.g. ``body_from_sensor = translation(z=0.7)``."""
     t = np.eye(4)
-    t[:3, 3] = (x, y, z)
+    t[:3, 3] = (_finite(x, "x"), _finite(y, "y"), _finite(z, "z"))
     return t
+
+
+#: Most points :func:`estimate_sensor_height` takes (the core's limit on one cloud, 2^25);
+#: checked on the array's shape before anything is copied.
+MAX_POINTS = 1 << 25
+
+
+def _finite(value: object, name: str) -> float:
+    """A finite real number (not a bool, a complex, a string or None), or an InputError naming it."""
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    if not ok or not np.isfinite(float(value)):
+        raise InputError(f"argument `{name}` must be a finite real number, got {value!r}")
+    return float(value)
 
 
 def estimate_sensor_height(points: np.ndarray, *, ring_m: tuple[float, float] = SENSOR_HEIGHT_RING_M) -> float:
@@ -106,9 +119,24 @@ def estimate_sensor_height(points: np.ndarray, *, ring_m: tuple[float, float] = 
 
     Raises :class:`~subterra.errors.InputError` if no point lies in the ring.
     """
-    p = np.asarray(points, dtype=np.float64)
+    try:
+        lo_m, hi_m = ring_m
+    except (TypeError, ValueError):
+        raise InputError(f"argument `ring_m` must be 2 numbers (min, max) [m], got {ring_m!r}") from None
+    lo_m, hi_m = _finite(lo_m, "ring_m"), _finite(hi_m, "ring_m")
+    if not 0.0 <= lo_m < hi_m:
+        raise InputError(f"argument `ring_m` must be (min, max) with 0 <= min < max [m], got {ring_m!r}")
+    ring_m = (lo_m, hi_m)
+    # The dtype and the shape are checked on the view, before the float64 copy: a broadcast
+    # view of 10^9 points is refused, not materialised.
+    p = points if isinstance(points, np.ndarray) else np.asarray(points)
+    if p.dtype.kind not in "fiu":
+        raise InputError(f"argument `points` must be a real (N, 3) array [m], got dtype {p.dtype}")
     if p.ndim != 2 or p.shape[1] != 3:
         raise InputError(f"argument `points` must have shape (N, 3), got {p.shape}")
+    if p.shape[0] > MAX_POINTS:
+        raise InputError(f"argument `points` has shape {p.shape}: more than {MAX_POINTS} points, the most accepted")
+    p = p.astype(np.float64)
     p = p[np.isfinite(p).all(axis=1)]
     r = np.hypot(p[:, 0], p[:, 1])
     z = p[(r >= ring_m[0]) & (r <= ring_m[1]), 2]
