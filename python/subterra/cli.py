@@ -20,8 +20,8 @@ from pathlib import Path
 from subterra.errors import InputError, SubterraError
 
 __all__ = [
-    "finite_floats", "float_in", "int_in", "main", "nonnegative_int", "positive_float", "positive_int", "positive_rate",
-    "seed_int", "sim_seconds", "unit_float",
+    "finite_floats", "float_in", "int_in", "main", "nonempty", "nonnegative_int", "positive_float", "positive_int",
+    "positive_rate", "seed_int", "sim_seconds", "unit_float",
 ]
 
 # ---------------------------------------------------------------------- argparse types
@@ -65,6 +65,16 @@ def int_in(low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
+def nonempty(text: str) -> str:
+    """An argparse type: a path or a value given explicitly, so not empty (``--world ''`` is a
+    mistake, not "no world": leave the option out for its default)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"expected a value (leave the option out for its default), got {text!r}")
+    return text
+
+
+nonempty.__name__ = "value"
+
 #: A finite number > 0 (no upper bound).
 positive_float = float_in(0.0, sys.float_info.max)
 #: A number in [0, 1].
@@ -104,9 +114,9 @@ def add_fault_options(p: argparse.ArgumentParser, unit: str) -> None:
     """``--faults`` and ``--faults-config`` (subterra.sim.faults)."""
     from subterra.sim.faults import FAULT_NAMES
 
-    p.add_argument("--faults", default=None,
+    p.add_argument("--faults", type=nonempty, default=None,
                    help=f"inject faults, comma-separated, or 'all' (a batch gives each {unit} the next in turn): " + ", ".join(FAULT_NAMES))
-    p.add_argument("--faults-config", default=None, help="TOML file with a [faults.<name>] table per fault's settings")
+    p.add_argument("--faults-config", type=nonempty, default=None, help="TOML file with a [faults.<name>] table per fault's settings")
 
 
 def fault_options(args: argparse.Namespace) -> tuple[list[str], dict | None]:
@@ -114,7 +124,7 @@ def fault_options(args: argparse.Namespace) -> tuple[list[str], dict | None]:
     from subterra.sim.faults import load_faults_config, parse_faults
 
     faults = parse_faults(args.faults)
-    config = load_faults_config(args.faults_config) if args.faults_config else None
+    config = load_faults_config(args.faults_config) if args.faults_config is not None else None
     if config and not faults:
         raise InputError("argument --faults-config: give --faults too (which faults to inject)")
     return faults, config
@@ -127,7 +137,7 @@ def _flight_options(p: argparse.ArgumentParser) -> None:
                         "acc2021 (the paper exactly, with the authors' conventions), flight (the paper's values with "
                         "subterra's conventions), flight-memory (sigma_o 300 and an obstacle memory), cable; "
                         "fly-batch takes a comma-separated list")
-    p.add_argument("--config", default=None, help="perception config TOML, instead of --preset")
+    p.add_argument("--config", type=nonempty, default=None, help="perception config TOML, instead of --preset")
     p.add_argument("--rate", type=positive_rate, default=15.0, help="camera and control rate [Hz] (default 15)")
     add_fault_options(p, "flight")
 
@@ -158,7 +168,7 @@ def _parser() -> argparse.ArgumentParser:
     per.add_argument("--preset", default="flight",
                      help="perception preset (default: flight); flight-memory and flight-escape run the obstacle "
                           "memory and the escape too, the camera taken as standing still")
-    per.add_argument("--config", help="TOML config file, instead of --preset")
+    per.add_argument("--config", type=nonempty, help="TOML config file, instead of --preset")
     per.add_argument("--scale", type=float_in(0.0, 1.0, unit="m"), help="metres per unit of uint16 images (default 0.001; TUM: 0.0002)")
     per.add_argument("--seed", type=seed_int, default=0)
     per.add_argument("--goal", type=_goal, default=(5.0, 0.0, 0.0), help="goal x,y,z in the body frame [m]")
@@ -189,14 +199,14 @@ def _parser() -> argparse.ArgumentParser:
 
     fly = sub.add_parser("fly", help="one closed-loop flight in the simulator (depth camera -> controller -> quadrotor)")
     _flight_options(fly)
-    fly.add_argument("--route", default=None, help="route, e.g. A-B (default: the world's first; highbay: A-B, B-C, C-D, D-C, D-B; tunnel: start-goal)")
+    fly.add_argument("--route", type=nonempty, default=None, help="route, e.g. A-B (default: the world's first; highbay: A-B, B-C, C-D, D-C, D-B; tunnel: start-goal)")
     fly.add_argument("--controller", default="apf-pf", choices=list(Pilot.controllers()),
                      help="apf-pf (particle filter, the paper), apf-pf-histogram (exact filter), apf-pf-qmdp (QMDP "
                           "action selection over the particle belief, the authors' follow-up) or raw-apf (the baseline)")
     fly.add_argument("--noise", default="d435", help="depth noise model: " + ", ".join(DEPTH_NOISE_PRESETS) + " (default d435)")
     fly.add_argument("--seed", type=seed_int, default=0, help="world layout, noise and filter seed (default 0)")
     fly.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time (default: 4x the straight-line time)")
-    fly.add_argument("--world", default=None, help="fly in this world file (TOML) instead of a built-in scenario")
+    fly.add_argument("--world", type=nonempty, default=None, help="fly in this world file (TOML) instead of a built-in scenario")
     fly.add_argument("--no-rerun", action="store_true", help="do not write flight.rrd even if rerun-sdk is installed")
     fly.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     fly.add_argument("--out", default=None, help="run folder (default runs/fly-<scenario>-<route>-<controller>-<noise>-s<seed>)")
@@ -238,7 +248,7 @@ def _parser() -> argparse.ArgumentParser:
     register_live(sub)
 
     demo = sub.add_parser("demo", help="the main job: simulated flights, the cable test and a small batch, with a report")
-    demo.add_argument("--data", default=None, help="shared data folder (default: ../shared/data if present)")
+    demo.add_argument("--data", type=nonempty, default=None, help="shared data folder (default: ../shared/data if present)")
     demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")
     demo.add_argument("--quick", action="store_true", help="a short version (20 s flights, fewer frames, one batch route)")
     _debug_everywhere(p)
@@ -322,8 +332,8 @@ def _fly(args: argparse.Namespace) -> int:
     from subterra.sim import load_world
     from subterra.viz.rerun import rerun_available
 
-    config = load_config(args.config) if args.config else None
-    world = load_world(args.world) if args.world else None
+    config = load_config(args.config) if args.config is not None else None
+    world = load_world(args.world) if args.world is not None else None
     scenario = world.name if world is not None else args.scenario
     route = args.route or (world.routes[0][0] if world is not None and world.routes else None)
     if route is None and world is None:

@@ -7,10 +7,14 @@ prints summary tables and writes a report folder with an index linking every plo
 from __future__ import annotations
 
 import json
+import os
+import stat
 import time
 from pathlib import Path
 from typing import Any
 
+from subterra._files import _describe
+from subterra.errors import InputError
 from subterra.flight import fly, fly_batch
 from subterra.flight.cable import cable_test
 from subterra.sim import DEFAULT_DEPTH_NOISE
@@ -67,9 +71,34 @@ def _real_data(data_dir: Path, report: Path) -> tuple[str, list[str]] | None:
                   "Per-frame data: [realsense-room.json](realsense-room.json)", ""]
 
 
+def _checked_data(data: str | os.PathLike[str]) -> Path:
+    """``data`` given explicitly: a folder that holds the RealSense frames, checked before the
+    demo runs (without it, a FIFO or a missing path would fail minutes later, at step 5)."""
+    if not str(data).strip():
+        raise InputError(f"argument `--data` must be the shared data folder, got {str(data)!r}")
+    path = Path(data)
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise InputError(f"argument `--data` must be the shared data folder, got a path that cannot be read ({reason}): {path}") from None
+    if not stat.S_ISDIR(mode):
+        kind = "a regular file" if stat.S_ISREG(mode) else _describe(mode)
+        raise InputError(f"argument `--data` must be the shared data folder, got {kind}: {path}")
+    if not (path / REALSENSE).is_dir():
+        raise InputError(f"argument `--data` must be the shared data folder, with {REALSENSE}/ in it; not found in {path}")
+    return path
+
+
 def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = False) -> int:
     """Runs the demo; returns the exit code. ``quick`` shortens everything (for tests):
-    20 s flights, 30 cable-test frames, a batch of one route, 10 s drives."""
+    20 s flights, 30 cable-test frames, a batch of one route, 10 s drives.
+
+    Raises:
+        InputError: ``data`` is given but is not a folder holding ``realsense-d435-room/``
+            (checked first, before anything runs).
+    """
+    data_dir = _checked_data(data) if data is not None else _default_data()
     started = time.perf_counter()
     stamp = time.strftime("%Y%m%d-%H%M%S")
     report = Path(out or f"runs/demo-{stamp}")
@@ -171,7 +200,6 @@ def run_demo(*, data: str | None = None, out: str | None = None, quick: bool = F
 
     # 5. Real data and the scenes.
     print("[5/5] APF-PF on real frames (if ../shared/data is there) and pictures of the built-in scenes")
-    data_dir = Path(data) if data else _default_data()
     real = None
     if data_dir is not None and (data_dir / REALSENSE).is_dir():
         real = _real_data(data_dir, report)

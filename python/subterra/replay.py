@@ -691,7 +691,8 @@ def _rerun_scan(recorder, time_s, points_sensor, world_from_sensor, world_from_b
 
 def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Adds the ``replay`` subcommand to ``subparsers``; its handler is ``args.handler``."""
-    from subterra.cli import finite_floats, float_in, positive_int, seed_int
+    from subterra.cli import finite_floats, float_in, nonempty, positive_int, seed_int
+    from subterra.terrain.cli import MAX_SENSOR_HEIGHT_M, MIN_SENSOR_HEIGHT_M
 
     p = subparsers.add_parser(
         "replay", help="run the depth or terrain pipeline over a ROS 1/2 bag or an MCAP file (no topics: list them)",
@@ -705,10 +706,10 @@ def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPar
     p.add_argument("--goal", type=finite_floats(3, "x,y,z in metres"), default=None,
                    help="depth: goal x,y,z [m], in the odometry's world frame with --odom-topic, else in the body frame (default 5 m ahead)")
     p.add_argument("--preset", default="flight", help="depth: perception preset (default flight)")
-    p.add_argument("--config", default=None, help="depth: perception config TOML; terrain: terrain config TOML")
+    p.add_argument("--config", type=nonempty, default=None, help="depth: perception config TOML; terrain: terrain config TOML")
     p.add_argument("--scale", type=float_in(0.0, 1.0, unit="m"), default=None, help="depth: metres per unit of 16UC1/mono16 images (default 0.001)")
     p.add_argument("--seed", type=seed_int, default=0, help="depth: particle filter seed (default 0)")
-    p.add_argument("--sensor-height", type=float_in(0.0, 100.0, unit="m"), default=None, help="terrain: lidar height above the ground when tf lacks it [m]")
+    p.add_argument("--sensor-height", type=float_in(MIN_SENSOR_HEIGHT_M, MAX_SENSOR_HEIGHT_M, low_open=False, unit="m"), default=None, help="terrain: lidar height above the ground when tf lacks it [m]")
     p.add_argument("--world-frame", default=None, help="world frame id (default: the odometry's frame_id, else odom)")
     p.add_argument("--body-frame", default=None, help="body frame id (default: the odometry's child_frame_id, else base_link)")
     p.add_argument("--layers", default=",".join(DEFAULT_LAYERS),

@@ -309,3 +309,66 @@ def test_non_utf8_config_is_a_one_line_error(tmp_path, capsys, command):
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err
     assert "UTF-8" in err and "latin1.toml" in err, err
+
+
+@pytest.mark.parametrize("argv", [
+    ["fly", "--world", ""],
+    ["fly", "--config", ""],
+    ["fly", "--faults", ""],
+    ["fly", "--faults-config", ""],
+    ["fly", "--route", ""],
+    ["drive", "--world", ""],
+    ["drive", "--config", " "],
+    ["drive", "--faults", ""],
+    ["perceive", "d", "--intrinsics", "i.json", "--config", ""],
+    ["terrain", "x.npy", "--body-from-sensor", ""],
+    ["terrain", "x.npy", "--poses", ""],
+    ["terrain", "x.npy", "--config", ""],
+    ["replay", "r.mcap", "--config", ""],
+    ["demo", "--data", ""],
+    # Once accepted: a sensor 1e-320 m above the ground, scans 1e-320 s apart.
+    ["terrain", "x.npy", "--sensor-height", "1e-320"],
+    ["terrain", "x.npy", "--period", "1e-320"],
+    ["replay", "r.mcap", "--sensor-height", "0.001"],
+])
+def test_an_empty_or_absurd_option_value_is_an_argument_error(capsys, argv):
+    # An empty value was taken as "not given": `fly --world ''` flew the default scenario.
+    option = argv[-2]
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: argument {option}: ") and err.count("\n") == 1, err
+
+
+def test_terrain_poses_must_be_one_per_file(tmp_path, capsys):
+    # Two poses for one scan ran without complaint (the second pose was dropped).
+    cloud = tmp_path / "scan.npy"
+    np.save(cloud, _scan(n=100))
+    poses = tmp_path / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0.7\n1 0 0 1 0 1 0 0 0 0 1 0.7\n")
+    assert main(["terrain", str(cloud), "--poses", str(poses), "--sensor-height", "0.7", "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: argument `--poses` has 2 poses for 1 files") and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero", "missing", "file", "empty-folder"])
+def test_demo_data_that_is_not_the_data_folder_fails_at_once(tmp_path, capsys, kind):
+    # `demo --data <FIFO | /dev/zero | /nonexistent>` ran the whole demo before looking at it.
+    import os
+    import time
+
+    data = {"dev-zero": Path("/dev/zero"), "missing": tmp_path / "nope"}.get(kind, tmp_path / kind)
+    if kind == "fifo":
+        os.mkfifo(data)
+    elif kind == "file":
+        data.write_text("x")
+    elif kind == "empty-folder":
+        data.mkdir()
+    started = time.perf_counter()
+    assert main(["demo", "--data", str(data), "--quick", "--out", str(tmp_path / "out")]) == 2
+    assert time.perf_counter() - started < 5.0
+    err = capsys.readouterr().err
+    assert err.startswith("error: argument `--data` must be the shared data folder") and err.count("\n") == 1, err
+    assert str(data) in err and not (tmp_path / "out").exists()

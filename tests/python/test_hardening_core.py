@@ -431,3 +431,73 @@ def test_a_section_config_names_its_fields_alike_for_nan_and_out_of_range():
             subterra.RobotConfig({"length_m": value})
         with pytest.raises(ConfigError, match=r"`ground\.bin_m`"):
             segment_ground(np.zeros((10, 3), np.float32), sensor_height=0.7, config={"ground": {"bin_m": value}})
+
+
+# ------------------------------------------------------------------ values beyond any world
+
+
+@pytest.mark.parametrize(
+    ("call", "name"),
+    [
+        # Once an all-zero command (the attraction of a goal 1e308 m away overflowed).
+        (lambda: subterra.ApfController().command([1e308, 0, 0]), "goal_body"),
+        (lambda: subterra.Navigator((1e308, 0)), "goal"),
+        (lambda: subterra.Navigator((1, 0), home=(0, -2e6)), "home"),
+        (lambda: subterra.Navigator((1, 0)).set_goal((1e7, 0)), "goal"),
+        # Once `solver_failed_backup` (x) and `solved` (a heading of 1e308 rad).
+        (lambda: subterra.MpcTracker().solve([1e308, 0, 0, 0], [[0, 0], [5, 0]]), "state"),
+        (lambda: subterra.MpcTracker().solve([0, 0, 1e308, 0], [[0, 0], [5, 0]]), "state"),
+        (lambda: subterra.MpcTracker().solve([0, 0, -2e6, 0], [[0, 0], [5, 0]]), "state"),
+        # Once 0.0: the ground plane extended 1e308 m.
+        (lambda: subterra.sim.World.scenario("highbay", 0).ground_height(1e308, 0), "x"),
+        (lambda: subterra.Navigator((5, 0)).step(None, stamp=0.0, world_from_body=np.eye(4), speed=1e308), "speed"),
+        (lambda: subterra.Navigator((5, 0)).step(None, stamp=0.0, world_from_body=np.eye(4), speed=-101.0), "speed"),
+    ],
+    ids=["apf-goal", "nav-goal", "nav-home", "nav-set-goal", "mpc-x", "mpc-heading", "mpc-heading-2e6", "ground-height",
+         "nav-speed", "nav-speed-back"],
+)
+def test_a_position_heading_or_speed_beyond_any_world_is_refused(call, name):
+    with pytest.raises(InputError, match=f"`{name}`"):
+        call()
+
+
+def test_positions_within_the_limits_still_work():
+    assert subterra.MpcTracker().solve([0, 0, 1e5, 0], [[0, 0], [5, 0]]).status != "invalid"
+    assert subterra.ApfController().command([9e5, 0, 0]).v_x_m_s > 0
+    assert subterra.sim.World.scenario("highbay", 0).ground_height(9e5, 0) is not None
+
+
+@pytest.mark.parametrize("stamp", [1e308, -1e308, 2e10])
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda p, t: subterra.ObstacleMemory(p).update(p.update(np.zeros((480, 640), np.uint16)), stamp=t, world_from_body=np.eye(4)),
+        lambda p, t: subterra.Escape().step(stamp=t, world_from_body=np.eye(4), goal_world=[1, 0, 0], remaining_m=1.0),
+        lambda p, t: subterra.Pilot(subterra.PinholeCamera.d435()).step(np.zeros((480, 640), np.uint16), stamp=t, world_from_body=np.eye(4)),
+        lambda p, t: subterra.TerrainMapper().update(np.ones((10, 3), np.float32), stamp=t),
+        lambda p, t: subterra.Navigator((5, 0)).step(None, stamp=t, world_from_body=np.eye(4)),
+        lambda p, t: subterra.OdometryMux([("vio", 10.0)]).push("vio", t, np.eye(4)),
+    ],
+    ids=["memory", "escape", "pilot", "mapper", "navigator", "mux"],
+)
+def test_a_stamp_beyond_1e10_s_is_refused(call, stamp):
+    # Once accepted everywhere (a map stamped 1e308 s).
+    perception = subterra.DepthPerception(subterra.PinholeCamera.d435())
+    with pytest.raises(InputError, match=r"argument `stamp` .*within 1e10 s"):
+        call(perception, stamp)
+
+
+@pytest.mark.parametrize("scale", [5e-324, 1e-7, 1.5])
+def test_a_depth_scale_outside_a_micrometre_to_a_metre_is_refused(scale):
+    # 5e-324 m per unit was taken: every pixel at 0 m, the closest depth printed 0.000.
+    perception = subterra.DepthPerception(subterra.PinholeCamera.d435())
+    with pytest.raises(InputError, match=r"argument `scale` .*\[1e-6, 1\] m/unit"):
+        perception.update(np.ones((480, 640), np.uint16), scale=scale)
+    perception.update(np.ones((480, 640), np.uint16), scale=1e-4)
+
+
+@pytest.mark.parametrize(("section", "value"), [("coarse", 1e308), ("fine", 11.0), ("coarse", 5e-4)])
+def test_a_map_cell_outside_a_millimetre_to_ten_metres_is_refused(section, value):
+    # A coarse cell of 1e308 m passed the cell budget (one cell).
+    with pytest.raises(ConfigError, match=rf"{section}\.resolution_m"):
+        subterra.TerrainConfig.from_dict({section: {"resolution_m": value}})

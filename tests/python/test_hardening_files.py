@@ -402,10 +402,82 @@ def test_transform_buffer_refuses_far_translations_bad_shapes_and_stamps() -> No
         buf.add("odom", "base_link", far)
     with pytest.raises(errors.InputError, match=r"expected shape \(4, 4\), got \(3, 3\)"):
         buf.add("odom", "base_link", np.eye(3))
-    with pytest.raises(errors.InputError, match=r"stamp_ns .*expected an integer"):
+    with pytest.raises(errors.InputError, match=r"argument `stamp_ns` must be an integer"):
         buf.add("odom", "base_link", np.eye(4), stamp_ns=float("nan"))
     buf.add("odom", "base_link", np.eye(4), stamp_ns=np.int64(7))
     assert buf.can_transform("odom", "base_link", 7)
+
+
+@pytest.mark.parametrize("stamp", [-1, 2**64, 1.5, "3", None])
+def test_transform_buffer_stamps_are_ros_times(stamp: Any) -> None:
+    # -1, 2**64 and 1.5 were once stored; a lookup at 'a' raised "'<' not supported".
+    buf = ros.TransformBuffer()
+    with pytest.raises(errors.InputError, match=r"argument `stamp_ns` must be (an integer|in \[0, )") as info:
+        buf.add("odom", "base_link", np.eye(4), stamp_ns=stamp)
+    assert "'odom' -> 'base_link'" in str(info.value)
+    buf.add("odom", "base_link", np.eye(4), stamp_ns=ros.MAX_STAMP_NS)
+    if stamp is not None:  # None: the newest sample
+        with pytest.raises(errors.InputError, match=r"argument `stamp_ns`"):
+            buf.lookup("odom", "base_link", stamp)
+    with pytest.raises(errors.InputError, match=r"argument `stamp_ns`"):
+        buf.lookup("odom", "base_link", "a")
+
+
+@pytest.mark.parametrize("value", [float("nan"), None, -1, 1.5, "3", 2**64])
+@pytest.mark.parametrize("name", ["max_extrapolation_ns", "max_history_ns"])
+def test_transform_buffer_durations_are_integers_of_nanoseconds(name: str, value: Any) -> None:
+    # NaN gave a bare ValueError, None a bare TypeError; -1, 1.5 and '3' were taken.
+    if name == "max_history_ns" and value is None:
+        ros.TransformBuffer(max_history_ns=None)  # None: keep every sample
+        return
+    with pytest.raises(errors.InputError, match=f"argument `{name}`"):
+        ros.TransformBuffer(**{name: value})
+
+
+def test_transform_buffer_refuses_a_stack_of_poses_before_copying_it() -> None:
+    # A (10^9, 4, 4) broadcast view was copied first: a MemoryError asking for 119 GiB.
+    with pytest.raises(errors.InputError, match=r"expected shape \(4, 4\), got \(1000000000, 4, 4\)"):
+        ros.TransformBuffer().add("odom", "base_link", np.broadcast_to(np.eye(4), (10**9, 4, 4)))
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "phrase"),
+    [
+        ("width", 10**9, "camera.width"),
+        ("cx", 1e308, "camera.cx"),
+        ("fx", 1e-300, "camera.fx"),
+        ("height", 2**40, "camera.height"),
+    ],
+)
+def test_intrinsics_beyond_the_cameras_limits_are_refused(tmp_path: Path, field: str, value: Any, phrase: str) -> None:
+    # Once read as Intrinsics(width=1000000000, ...): the camera's limits apply to the files too.
+    d = {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480, field: value}
+    with pytest.raises(errors.ConfigError, match=rf"^{field}: .*{phrase}.*: <dict>$"):
+        intrinsics.intrinsics_from_dict(d)
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(errors.FileFormatError, match=rf"^{field}: .*{phrase}.*camera\.json$"):
+        intrinsics.read_intrinsics(path)
+
+
+@pytest.mark.parametrize("fmt", ["kitti", "tum"])
+def test_a_trajectory_beyond_1000_km_is_refused_naming_the_line(tmp_path: Path, fmt: str) -> None:
+    # A KITTI or TUM translation of 1e308 m was read as a pose.
+    row = ("1 0 0 {t} 0 1 0 0 0 0 1 0" if fmt == "kitti" else "{s} {t} 0 0 0 0 0 1")
+    lines = [row.format(t=0.0, s=0.0), "# a comment", row.format(t=1e308, s=1.0)]
+    path = tmp_path / "poses.txt"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(errors.FileFormatError, match=r"poses line 3: expected a translation within 1e\+06 m .*poses\.txt$"):
+        poses.read_trajectory(path)
+
+
+@pytest.mark.parametrize("scale", [5e-324, 1e-7, 2.0])
+def test_a_depth_file_scale_outside_a_micrometre_to_a_metre_is_refused(tmp_path: Path, scale: float) -> None:
+    path = tmp_path / "d.npy"
+    np.save(path, np.ones((4, 4), np.uint16))
+    with pytest.raises(errors.ConfigError, match=r"^scale: expected a finite number in \[1e-06, 1\]"):
+        depth.read_depth(path, scale=scale)
+    assert depth.read_depth(path, scale=1e-4).scale_m_per_unit == 1e-4
 
 
 def test_transform_buffer_refuses_nan_and_unnormalised_quaternions_from_messages() -> None:

@@ -356,7 +356,7 @@ def test_uppercase_extension_is_accepted(tmp_path: Path) -> None:
 def test_bad_scale_raises_config_error_naming_scale(tmp_path: Path, scale) -> None:
     path = tmp_path / "ok.png"
     depth.write_depth_png(path, np.ones((2, 2), np.uint16))
-    with pytest.raises(errors.ConfigError, match=r"^scale: expected a finite number > 0"):
+    with pytest.raises(errors.ConfigError, match=r"^scale: expected a finite number in \[1e-06, 1\]"):
         depth.read_depth(path, scale=scale)
 
 

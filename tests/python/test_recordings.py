@@ -209,7 +209,7 @@ def test_depth_image_from_a_payload_at_an_odd_byte_and_the_checks_the_fast_path_
     np.testing.assert_array_equal(depth.data, values)
     assert depth.scale_m_per_unit == 0.001 and depth.path == "/depth at 2"
     # A caller's scale is still checked, and an empty image is still refused.
-    with pytest.raises(errors.ConfigError, match="scale_m_per_unit: expected a finite number > 0"):
+    with pytest.raises(errors.ConfigError, match="scale_m_per_unit: expected a finite number in \\[1e-06, 1\\]"):
         ros.decode_depth_image(msg, scale=-1.0)
     empty = SimpleNamespace(header=_header(), height=0, width=4, encoding="16UC1", is_bigendian=0, step=8, data=b"")
     with pytest.raises(errors.InputError, match="non-empty"):

@@ -226,8 +226,9 @@ pub fn with_depth<T>(
         Ok(())
     };
     if let Some(s) = scale {
-        if !(s.is_finite() && s > 0.0 && s <= 1.0) {
-            return Err(input_error(py, format!("argument `scale` must be in (0, 1] metres per unit, got {s}")));
+        let (lo, hi) = subterra::depth::DEPTH_SCALE_RANGE_M_PER_UNIT;
+        if !(s.is_finite() && (lo..=hi).contains(&s)) {
+            return Err(input_error(py, format!("argument `scale` must be in [{lo:e}, {hi}] m/unit (metres per unit), got {s:e}")));
         }
     }
     if let Ok(array) = depth.cast::<PyArray2<u16>>() {

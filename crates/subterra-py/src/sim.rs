@@ -173,8 +173,10 @@ impl PyWorld {
 
     /// Terrain height at `(x, y)` [m], None over a hole or where nothing is below.
     fn ground_height(&self, py: Python<'_>, #[pyo3(from_py_with = arg::x)] x: f64, #[pyo3(from_py_with = arg::y)] y: f64) -> PyResult<Option<f64>> {
-        if !(x.is_finite() && y.is_finite()) {
-            return Err(input_error(py, format!("arguments `x`, `y` must be finite, got ({x}, {y})")));
+        // Beyond the limit of poses: a point no robot of the library can stand at.
+        let far = subterra::frames::MAX_TRANSLATION_M;
+        if !(x.is_finite() && y.is_finite() && x.abs() <= far && y.abs() <= far) {
+            return Err(input_error(py, format!("arguments `x`, `y` must be finite and within {far:e} m of the origin, got ({x}, {y})")));
         }
         Ok(self.inner.ground_height(x, y))
     }

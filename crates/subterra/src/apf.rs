@@ -95,9 +95,7 @@ impl ApfController {
 
     /// The command toward `goal_body` under the summed `repulsive_body` force.
     pub fn command(&self, goal_body: DVec3, repulsive_body: DVec3) -> Result<Command> {
-        if !goal_body.is_finite() {
-            return Err(Error::input("goal_body", format!("must be finite, got {goal_body}")));
-        }
+        crate::frames::check_position("goal_body", &goal_body.to_array())?;
         if !repulsive_body.is_finite() {
             return Err(Error::input("repulsive_body", format!("must be finite, got {repulsive_body}")));
         }

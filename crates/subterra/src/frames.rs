@@ -17,6 +17,31 @@ const ROTATION_TOLERANCE: f64 = 1e-6;
 /// would be off by more than 6 cm.
 pub const MAX_TRANSLATION_M: f64 = 1e6;
 
+/// Largest |stamp| accepted \[s\]: 10^10 s (317 years; Unix and ROS times until 2286). Beyond
+/// it a value is corrupt, and an `f64` no longer resolves the 10 µs between two samples.
+pub const MAX_STAMP_S: f64 = 1e10;
+
+/// Checks that a time stamp `stamp_s` \[s\] is finite and within [`MAX_STAMP_S`] of zero;
+/// the error names `argument`.
+pub fn check_stamp(argument: &str, stamp_s: f64) -> Result<()> {
+    if !(stamp_s.is_finite() && stamp_s.abs() <= MAX_STAMP_S) {
+        return Err(Error::input(argument, format!("must be finite and within {MAX_STAMP_S:e} s of zero, got {stamp_s}")));
+    }
+    Ok(())
+}
+
+/// Checks that the coordinates `coords_m` of a position (or of a goal relative to the robot)
+/// are finite and within [`MAX_TRANSLATION_M`] of the origin; the error names `argument`.
+pub fn check_position(argument: &str, coords_m: &[f64]) -> Result<()> {
+    if !coords_m.iter().all(|c| c.is_finite() && c.abs() <= MAX_TRANSLATION_M) {
+        return Err(Error::input(
+            argument,
+            format!("must be finite and within {MAX_TRANSLATION_M:e} m of the origin; re-centre the coordinates, got {coords_m:?}"),
+        ));
+    }
+    Ok(())
+}
+
 /// A rigid transform `target_from_source`: rotation then translation.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Isometry3 {
@@ -168,5 +193,19 @@ mod tests {
         let mut m = Isometry3::IDENTITY.to_matrix_rows();
         m[2][2] = -1.0;
         assert!(Isometry3::from_matrix_rows("m", &m).is_err());
+    }
+
+    #[test]
+    fn stamps_and_positions_beyond_any_world_name_their_argument() {
+        // Probe findings: stamps of 1e308 s and goals 1e308 m away were taken everywhere.
+        for bad in [1e308, -1e308, 1.0001e10, f64::NAN] {
+            let err = check_stamp("stamp", bad).unwrap_err().to_string();
+            assert!(err.contains("argument `stamp`") && err.contains("1e10 s"), "{err}");
+        }
+        assert!(check_stamp("stamp", MAX_STAMP_S).is_ok() && check_stamp("stamp", -1.0).is_ok());
+        let err = check_position("goal", &[0.0, 1e308]).unwrap_err().to_string();
+        assert!(err.contains("argument `goal`") && err.contains("re-centre"), "{err}");
+        assert!(check_position("goal", &[f64::INFINITY]).is_err());
+        assert!(check_position("goal", &[MAX_TRANSLATION_M, -MAX_TRANSLATION_M]).is_ok());
     }
 }

@@ -426,9 +426,7 @@ impl OdometryMux {
         let Some(s) = self.sources.get(source) else {
             return Err(Error::input("source", format!("index {source} is out of range: {} sources", self.sources.len())));
         };
-        if !sample.stamp_s.is_finite() {
-            return Err(Error::input("stamp", format!("must be finite, got {}", sample.stamp_s)));
-        }
+        crate::frames::check_stamp("stamp", sample.stamp_s)?;
         if let Some(last) = &s.last {
             if sample.stamp_s <= last.stamp_s {
                 return Err(Error::input(

@@ -43,7 +43,7 @@ def _merged(base: dict[str, Any], over: dict[str, Any] | None) -> dict[str, Any]
 def register_cli(subparsers: argparse._SubParsersAction) -> None:
     """Adds ``drive`` and ``drive-batch`` to ``subparsers``; their handlers are ``args.handler``."""
     from subterra.batch.cli import add_engine_options
-    from subterra.cli import add_fault_options, finite_floats, positive_rate, seed_int, sim_seconds
+    from subterra.cli import add_fault_options, finite_floats, nonempty, positive_rate, seed_int, sim_seconds
     from subterra.drive.run import GROUND_SCENARIOS, PLANNERS
     from subterra.scenarios.ground import RECOVERY_SCENARIOS
     from subterra.sim import LIDAR_NOISE_PRESETS
@@ -51,13 +51,13 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     scenarios = ", ".join((*GROUND_SCENARIOS, *RECOVERY_SCENARIOS))
     p = subparsers.add_parser("drive", help="one closed-loop drive of the ground robot (lidar -> risk map -> A* -> MPC)")
     p.add_argument("--scenario", default="mine", help=f"{scenarios} (default mine)")
-    p.add_argument("--world", default=None, help="drive in this world file (TOML, docs/world-format.md) instead")
+    p.add_argument("--world", type=nonempty, default=None, help="drive in this world file (TOML, docs/world-format.md) instead")
     p.add_argument("--planner", default="risk-aware", choices=PLANNERS, help="risk-aware (STEP, Fan et al. 2021; default) or additive (the baseline)")
     p.add_argument("--seed", type=seed_int, default=0, help="world layout and lidar noise seed (default 0)")
     p.add_argument("--start", type=finite_floats(2, "x,y in metres"), default=None, help="start x,y [m] (default: the world's start region)")
     p.add_argument("--goal", type=finite_floats(2, "x,y in metres"), default=None, help="goal x,y [m] (default: the world's goal region)")
     p.add_argument("--noise", default="os1_64", choices=LIDAR_NOISE_PRESETS, help="lidar noise (default os1_64)")
-    p.add_argument("--config", default=None, help="navigator TOML: sections [planner], [tracker], [recovery], [navigator]")
+    p.add_argument("--config", type=nonempty, default=None, help="navigator TOML: sections [planner], [tracker], [recovery], [navigator]")
     p.add_argument("--rate", type=positive_rate, default=10.0, help="lidar and control rate [Hz] (default 10)")
     p.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time (default: 4x the straight-line time at half speed, >= 90)")
     p.add_argument("--no-rerun", action="store_true", help="do not write drive.rrd even if rerun-sdk is installed")
@@ -74,7 +74,7 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     b.add_argument("--planners", default=",".join(PLANNERS), help=f"comma-separated (default {','.join(PLANNERS)})")
     b.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time per drive (default as drive)")
     b.add_argument("--no-plots", action="store_true", help="skip the maps of the first seed")
-    b.add_argument("--config", default=None, help="navigator TOML for every drive: sections [planner], [tracker], [recovery], [navigator]")
+    b.add_argument("--config", type=nonempty, default=None, help="navigator TOML for every drive: sections [planner], [tracker], [recovery], [navigator]")
     add_fault_options(b, "drive")
     add_engine_options(b, unit="drive")
     b.set_defaults(handler=_drive_batch)

@@ -318,14 +318,20 @@ def _as_path(value: object, name: str) -> Path:
     raise InputError(f"{name}: expected a str or os.PathLike, got {type(value).__name__}")
 
 
+# Metres per raw unit accepted [m/unit]: the core's DEPTH_SCALE_RANGE_M_PER_UNIT (1 µm to 1 m;
+# cameras use 0.1 mm to 1 mm, and a denormal scale puts every pixel at 0 m).
+_SCALE_RANGE_M_PER_UNIT = (1e-6, 1.0)
+
+
 def _checked_scale(value: object, name: str) -> float:
+    lo, hi = _SCALE_RANGE_M_PER_UNIT
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ConfigError(
-            f"{name}: expected a finite number > 0 [m/unit], got {type(value).__name__} {value!r}"
+            f"{name}: expected a finite number in [{lo:g}, {hi:g}] [m/unit], got {type(value).__name__} {value!r}"
         )
     scale = float(value)
-    if not math.isfinite(scale) or scale <= 0.0:
-        raise ConfigError(f"{name}: expected a finite number > 0 [m/unit], got {scale!r}")
+    if not (math.isfinite(scale) and lo <= scale <= hi):
+        raise ConfigError(f"{name}: expected a finite number in [{lo:g}, {hi:g}] [m/unit], got {scale!r}")
     return scale
 
 

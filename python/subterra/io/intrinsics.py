@@ -108,6 +108,18 @@ class Intrinsics:
                 raise ConfigError(f"{name}: expected an int > 0 [px], got {value!r}")
             object.__setattr__(self, name, int(value))
 
+    def _check_as_camera(self) -> None:
+        """The camera's own limits (sides, pixels, focal lengths, principal point), so that
+        intrinsics read from a file or a dict always make a camera; the message names the field."""
+        from .._core import PinholeCamera  # the package's __init__ has loaded the core
+
+        try:
+            PinholeCamera(fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy, width=self.width, height=self.height)
+        except SubterraError as exc:
+            text = str(exc)
+            field = next((name for name in _PLAIN_KEYS if f"`camera.{name}`" in text), "intrinsics")
+            raise ConfigError(f"{field}: {text}") from None
+
     def to_camera(self) -> Any:
         """This camera as a :class:`subterra.PinholeCamera` (needs the compiled core)."""
         from subterra import PinholeCamera  # lazy: the io layer loads without _core
@@ -188,7 +200,10 @@ def intrinsics_from_dict(d: Mapping[str, Any], source: str = "<dict>") -> Intrin
     Raises:
         InputError: ``d`` is not a mapping, a field is missing, of the wrong type, or K
             is not a pinhole matrix.
-        ConfigError: a value is out of range (focal length <= 0, size <= 0, NaN, ...).
+        ConfigError: a value is out of range (focal length <= 0, size <= 0, NaN, ...) or
+            beyond the limits of :class:`subterra.PinholeCamera` (sides 1-16384 px, at most
+            16.7 MP, focal lengths 1-10^6 px, principal point within one image size); the
+            message names the field.
     """
     return _intrinsics_from_mapping(d, source)
 
@@ -242,9 +257,11 @@ def _intrinsics_from_mapping(d: object, source: str) -> Intrinsics:
             f"'camera_matrix' or 'K', got keys {keys}: {source}"
         )
     try:
-        return Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height)
+        result = Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height)
+        result._check_as_camera()
     except ConfigError as exc:
         raise ConfigError(f"{exc}: {source}") from exc
+    return result
 
 
 def _field(d: Mapping, key: str, source: str, label: str | None = None) -> object:

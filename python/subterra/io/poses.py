@@ -35,6 +35,7 @@ import numpy as np
 from .._files import read_regular_text
 from ..errors import ConfigError, FileFormatError, InputError
 from .depth import _as_path, _check_readable_file
+from .ros import _MAX_TRANSLATION_M
 
 __all__ = [
     "DEFAULT_ROTATION_TOLERANCE",
@@ -126,7 +127,8 @@ def read_trajectory(
     Raises:
         FileFormatError: the file is missing, empty, not text, has a line with the wrong
             number of values, a value that is not a finite number, a pose that is not
-            rigid, or (TUM) a time that does not increase. The message names the line
+            rigid or lies beyond 1000 km of the origin, or (TUM) a time that does not
+            increase. The message names the line
             and ends with the path.
         InputError: ``path`` is not a path or ``format`` is unknown.
         ConfigError: ``rotation_tolerance`` is not a finite number > 0.
@@ -150,6 +152,7 @@ def read_trajectory(
         poses = _poses_from_quaternions(values, tolerance, line_numbers, file_path)
         if stamps is not None:
             _check_stamps(stamps, line_numbers, file_path)
+    _check_translations(poses[:, :3, 3], line_numbers, file_path)
     return Trajectory(world_from_body=poses, stamps_s=stamps, path=os.fspath(path), format=kind)
 
 
@@ -257,6 +260,17 @@ def _check_rotations(
         raise FileFormatError(
             f"poses line {line_numbers[i]}: expected a proper rotation (det R = +1), got det "
             f"{det[i]:.3g} (a reflection): {path}"
+        )
+
+
+def _check_translations(translations: np.ndarray, line_numbers: np.ndarray, path: Path) -> None:
+    """Every position within the limit of poses (1000 km of the origin, as the core's)."""
+    bad = np.abs(translations).max(axis=1) > _MAX_TRANSLATION_M
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise FileFormatError(
+            f"poses line {line_numbers[i]}: expected a translation within {_MAX_TRANSLATION_M:g} m "
+            f"of the origin, got {translations[i].tolist()} (re-centre the coordinates): {path}"
         )
 
 

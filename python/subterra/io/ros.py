@@ -666,9 +666,10 @@ def _checked_rigid(value: Any, label: str) -> np.ndarray:
     # Checked before the cast: a complex matrix would lose its imaginary part with a warning.
     if raw.dtype.kind not in "iuf":
         raise InputError(f"{label}: expected a 4x4 matrix of real numbers, got dtype {raw.dtype}")
+    # The shape on the view, before the copy: a broadcast stack of 10^9 poses costs nothing.
+    if raw.shape != (4, 4):
+        raise InputError(f"{label}: expected shape (4, 4), got {raw.shape}")
     m = np.array(raw, dtype=np.float64)
-    if m.shape != (4, 4):
-        raise InputError(f"{label}: expected shape (4, 4), got {m.shape}")
     if not np.isfinite(m).all():
         raise InputError(f"{label}: expected finite values, got NaN or inf")
     if np.abs(m[3] - (0.0, 0.0, 0.0, 1.0)).max() > 1e-9:
@@ -692,14 +693,12 @@ def _checked_rigid(value: Any, label: str) -> np.ndarray:
 
 
 def _checked_stamp(value: Any, label: str) -> int:
-    """``value`` as an int of nanoseconds, or an InputError."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise InputError(f"stamp_ns of {label}: expected an integer [ns], got {type(value).__name__}")
-    if not isinstance(value, numbers.Integral):
-        as_float = float(value)
-        if not (math.isfinite(as_float) and as_float.is_integer()):
-            raise InputError(f"stamp_ns of {label}: expected an integer [ns], got {value!r}")
-    return int(value)
+    """``value`` as an int of nanoseconds in [0, :data:`MAX_STAMP_NS`], or an InputError
+    naming ``stamp_ns`` and ``label``."""
+    try:
+        return _encoder_stamp(value, "stamp_ns")
+    except InputError as exc:
+        raise InputError(f"{exc} ({label})") from None
 
 
 def _strip(frame: str) -> str:
@@ -722,10 +721,14 @@ class TransformBuffer:
     """
 
     def __init__(self, max_extrapolation_ns: int = DEFAULT_EXTRAPOLATION_NS, max_history_ns: int | None = None) -> None:
-        self.max_extrapolation_ns = int(max_extrapolation_ns)
+        """Raises:
+        InputError: ``max_extrapolation_ns`` or ``max_history_ns`` (when given) is not an
+            integer in [0, :data:`MAX_STAMP_NS`] [ns]; the message names the argument.
+        """
+        self.max_extrapolation_ns = _encoder_stamp(max_extrapolation_ns, "max_extrapolation_ns")
         #: A dynamic edge forgets samples this much older than its newest (None: keeps all;
         #: a live node keeps a few seconds so that it runs for days in bounded memory).
-        self.max_history_ns = None if max_history_ns is None else int(max_history_ns)
+        self.max_history_ns = None if max_history_ns is None else _encoder_stamp(max_history_ns, "max_history_ns")
         self._parent: dict[str, str] = {}
         self._static: dict[str, np.ndarray] = {}
         self._stamps: dict[str, list[int]] = {}
@@ -754,8 +757,8 @@ class TransformBuffer:
         Raises:
             InputError: the parent is the child; ``parent_from_child`` is not a finite
                 rigid transform (rotation orthonormal within 1e-3 with det +1, bottom row
-                ``0 0 0 1``, translation within 1e7 m); ``stamp_ns`` is not an integer.
-                The message names the frames.
+                ``0 0 0 1``, translation within 1e6 m); ``stamp_ns`` is not an integer in
+                [0, :data:`MAX_STAMP_NS`]. The message names the argument and the frames.
         """
         parent, child = _strip(parent), _strip(child)
         if parent == child:
@@ -833,8 +836,11 @@ class TransformBuffer:
         Raises:
             InputError: the frames are not connected, or a dynamic edge on the way has no
                 sample within ``max_extrapolation_ns`` of ``stamp_ns``; the message lists the
-                frames known.
+                frames known. ``stamp_ns`` is not None or an integer in [0,
+                :data:`MAX_STAMP_NS`].
         """
+        if stamp_ns is not None:
+            stamp_ns = _encoder_stamp(stamp_ns, "stamp_ns")
         target, source = _strip(target), _strip(source)
         if target == source:
             return np.eye(4)

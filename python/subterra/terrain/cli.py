@@ -33,27 +33,31 @@ __all__ = ["parse_body_from_sensor", "register_cli", "run_cli", "run_terrain"]
 DEFAULT_PERIOD_S = 0.1
 #: Most points drawn in the top view of the cloud (a seeded subsample beyond that).
 TOP_VIEW_MAX_POINTS = 200_000
+#: Smallest ``--sensor-height`` [m] (below: a typo, or a value in kilometres).
+MIN_SENSOR_HEIGHT_M = 0.01
 #: Largest ``--sensor-height`` [m] (beyond: a typo, or millimetres).
 MAX_SENSOR_HEIGHT_M = 100.0
+#: Shortest ``--period`` between scans [s] (a 1 kHz sensor; below: a typo).
+MIN_PERIOD_S = 1e-3
 #: Largest ``--period`` between scans [s].
 MAX_PERIOD_S = 3600.0
 
 
 def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Adds the ``terrain`` subcommand to ``subparsers``; its handler is ``args.handler``."""
-    from subterra.cli import float_in, unit_float
+    from subterra.cli import float_in, nonempty, unit_float
 
     p = subparsers.add_parser("terrain", help="terrain risk maps from point-cloud files (PCD, PLY, KITTI .bin, .npy)")
     p.add_argument("files", nargs="+", metavar="FILE", help="point clouds in the sensor frame, in scan order")
-    p.add_argument("--poses", default=None, help="world_from_sensor per file: KITTI (3x4) or TUM text file (default identity)")
+    p.add_argument("--poses", type=nonempty, default=None, help="world_from_sensor per file: KITTI (3x4) or TUM text file (default identity)")
     mount = p.add_mutually_exclusive_group()
-    mount.add_argument("--sensor-height", type=float_in(0.0, MAX_SENSOR_HEIGHT_M, unit="m"), default=None, help="height of a level sensor above the ground [m] (default: estimated)")
+    mount.add_argument("--sensor-height", type=float_in(MIN_SENSOR_HEIGHT_M, MAX_SENSOR_HEIGHT_M, low_open=False, unit="m"), default=None, help="height of a level sensor above the ground [m] (default: estimated)")
     mount.add_argument(
-        "--body-from-sensor", default=None,
+        "--body-from-sensor", type=nonempty, default=None,
         help="sensor mounting: x,y,z [m] | x,y,z,roll,pitch,yaw [m, deg] | 12 or 16 numbers of the 3x4 / 4x4 matrix, row-major",
     )
-    p.add_argument("--config", default=None, help="terrain config TOML (default configs/terrain.toml values)")
-    p.add_argument("--period", type=float_in(0.0, MAX_PERIOD_S, unit="s"), default=DEFAULT_PERIOD_S, help=f"seconds between scans without TUM stamps (default {DEFAULT_PERIOD_S})")
+    p.add_argument("--config", type=nonempty, default=None, help="terrain config TOML (default configs/terrain.toml values)")
+    p.add_argument("--period", type=float_in(MIN_PERIOD_S, MAX_PERIOD_S, low_open=False, unit="s"), default=DEFAULT_PERIOD_S, help=f"seconds between scans without TUM stamps (default {DEFAULT_PERIOD_S})")
     p.add_argument("--confidence", type=unit_float, default=1.0, help="odometry confidence in [0, 1] (default 1)")
     p.add_argument("--out", default=None, help="output folder (default runs/terrain-<time>)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -66,7 +70,7 @@ def run_cli(args: argparse.Namespace) -> int:
     out = Path(args.out or f"runs/terrain-{time.strftime('%Y%m%d-%H%M%S')}")
     summary = run_terrain(
         args.files, out, poses=args.poses, sensor_height=args.sensor_height,
-        body_from_sensor=parse_body_from_sensor(args.body_from_sensor) if args.body_from_sensor else None,
+        body_from_sensor=parse_body_from_sensor(args.body_from_sensor) if args.body_from_sensor is not None else None,
         config=args.config, period_s=args.period, confidence=args.confidence, progress=not args.no_progress,
     )
     last = summary["scans"][-1]
@@ -142,14 +146,16 @@ def run_terrain(
     files = [Path(f) for f in files]
     if not files:
         raise InputError("argument `files` is empty: give at least one point-cloud file")
-    if not (math.isfinite(period_s) and period_s > 0):
-        raise InputError(f"argument `--period` must be a finite number > 0 s, got {period_s}")
-    if sensor_height is not None and not (math.isfinite(sensor_height) and sensor_height > 0):
-        raise InputError(f"argument `--sensor-height` must be a finite number > 0 m, got {sensor_height}")
+    if not (math.isfinite(period_s) and MIN_PERIOD_S <= period_s <= MAX_PERIOD_S):
+        raise InputError(f"argument `--period` must be a finite number in [{MIN_PERIOD_S:g}, {MAX_PERIOD_S:g}] s, got {period_s}")
+    if sensor_height is not None and not (math.isfinite(sensor_height) and MIN_SENSOR_HEIGHT_M <= sensor_height <= MAX_SENSOR_HEIGHT_M):
+        raise InputError(
+            f"argument `--sensor-height` must be a finite number in [{MIN_SENSOR_HEIGHT_M:g}, {MAX_SENSOR_HEIGHT_M:g}] m, got {sensor_height}"
+        )
     if poses is not None:
         trajectory = read_trajectory(poses)
-        if len(trajectory) < len(files):
-            raise InputError(f"argument `--poses` has {len(trajectory)} poses for {len(files)} files: {poses}")
+        if len(trajectory) != len(files):
+            raise InputError(f"argument `--poses` has {len(trajectory)} poses for {len(files)} files (one per file): {poses}")
         world_from_sensor = [_orthonormalised(p) for p in trajectory.world_from_body[: len(files)]]
         stamps = trajectory.stamps_s[: len(files)] if trajectory.stamps_s is not None else None
     else:

@@ -259,9 +259,7 @@ impl Escape {
         obstacles_world: &[DVec3],
         repulsive_body: DVec3,
     ) -> Result<EscapeOutput> {
-        if !stamp_s.is_finite() {
-            return Err(Error::input("stamp", format!("must be finite, got {stamp_s}")));
-        }
+        crate::frames::check_stamp("stamp", stamp_s)?;
         if let Some(last) = self.last_stamp_s {
             if stamp_s < last {
                 return Err(Error::input("stamp", format!("must not go back in time: {stamp_s} s after {last} s (call reset() first)")));

@@ -183,9 +183,7 @@ impl ObstacleMemory {
     /// frame's voxel counts ([`DepthPerception::last_counts`]), feed the near-field guard
     /// (see [`ObstacleMemory`]; without them, or with `guard_sigmas = 0`, there is no guard).
     pub fn update(&mut self, output: &PerceptionOutput, counts: Option<&VoxelCounts>, stamp_s: f64, world_from_body: &Isometry3) -> Result<MemoryOutput> {
-        if !stamp_s.is_finite() {
-            return Err(Error::input("stamp", format!("must be finite, got {stamp_s}")));
-        }
+        crate::frames::check_stamp("stamp", stamp_s)?;
         if let Some(last) = self.last_stamp_s {
             if stamp_s < last {
                 return Err(Error::input("stamp", format!("must not go back in time: {stamp_s} s after {last} s (call reset() first)")));

@@ -260,9 +260,7 @@ impl Pilot {
         if frames.len() != self.cameras.len() {
             return Err(Error::input("frames", format!("must hold one image per camera ({}), got {}", self.cameras.len(), frames.len())));
         }
-        if !stamp_s.is_finite() {
-            return Err(Error::input("stamp", format!("must be finite, got {stamp_s}")));
-        }
+        crate::frames::check_stamp("stamp", stamp_s)?;
         if !(world_from_body.translation.is_finite() && world_from_body.rotation.is_finite()) {
             return Err(Error::input("world_from_body", "must be finite"));
         }

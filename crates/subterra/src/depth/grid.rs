@@ -15,6 +15,11 @@ use crate::error::{Error, Result};
 /// the bin it starts: in floating point `(0.3 - 0.1)/0.1 = 1.9999999999999998`.
 pub(super) const BIN_EPSILON: f64 = 1e-9;
 
+/// Metres per raw unit of a `uint16` depth image accepted \[m/unit\]: 1 µm (a full scale of
+/// 65 mm) to 1 m (65 km). Cameras use 0.1 mm to 1 mm; outside the range a value is a mistake
+/// (a denormal scale puts every pixel at 0 m).
+pub const DEPTH_SCALE_RANGE_M_PER_UNIT: (f64, f64) = (1e-6, 1.0);
+
 /// A voxel of the grid: column block `i`, row block `j`, depth bin `k`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct VoxelIndex {
@@ -238,8 +243,9 @@ impl DepthVoxelGrid {
     }
 
     fn ensure_binning(&mut self, scale: f64) -> Result<()> {
-        if !(scale.is_finite() && scale > 0.0) {
-            return Err(Error::input("scale", format!("metres per unit must be finite and > 0, got {scale}")));
+        let (lo, hi) = DEPTH_SCALE_RANGE_M_PER_UNIT;
+        if !(scale.is_finite() && (lo..=hi).contains(&scale)) {
+            return Err(Error::input("scale", format!("metres per unit must be in [{lo:e}, {hi}] m/unit, got {scale:e}")));
         }
         if self.binning_scale == scale {
             return Ok(());

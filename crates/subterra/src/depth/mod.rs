@@ -16,6 +16,6 @@ mod observation;
 mod perception;
 mod transition;
 
-pub use grid::{DepthImage, DepthVoxelGrid, StateId, VoxelCounts, VoxelIndex};
+pub use grid::{DepthImage, DepthVoxelGrid, StateId, VoxelCounts, VoxelIndex, DEPTH_SCALE_RANGE_M_PER_UNIT};
 pub use perception::{DepthPerception, MostProbableVoxel, PerceptionOutput, StageTimings};
 pub use transition::TransitionModel;

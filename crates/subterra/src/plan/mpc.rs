@@ -39,7 +39,10 @@ pub use qp::{MpcQp, MpcQpSolution, QpStatus};
 use reference::Reference;
 
 /// A state's speed beyond this is a broken estimate, not a robot [m/s].
-const MAX_STATE_SPEED_M_S: f64 = 100.0;
+pub(crate) const MAX_STATE_SPEED_M_S: f64 = 100.0;
+/// A state's |heading| beyond this is a broken estimate [rad] (headings are not wrapped, but
+/// a robot that turned 10^6 rad has spun for days; `f64` keeps 10^-10 rad at this size).
+pub(crate) const MAX_STATE_HEADING_RAD: f64 = 1e6;
 
 /// Targets of one stage, fixed during one SQP iteration (`MpcTracker`'s docs, step 2).
 #[derive(Debug, Clone, Copy, Default)]
@@ -260,6 +263,10 @@ impl MpcTracker {
         let c = self.config;
         if !state.is_finite() {
             return Err(Error::input("state", format!("must be 4 finite numbers [x, y, θ, v], got {:?}", state.to_array())));
+        }
+        crate::frames::check_position("state", &[state.x_m, state.y_m])?;
+        if state.heading_rad.abs() > MAX_STATE_HEADING_RAD {
+            return Err(Error::input("state", format!("heading {} rad is beyond |θ| <= {MAX_STATE_HEADING_RAD:e} rad (a broken estimate)", state.heading_rad)));
         }
         if state.speed_m_s.abs() > MAX_STATE_SPEED_M_S {
             return Err(Error::input("state", format!("speed {} m/s is beyond any ground robot (|v| <= {MAX_STATE_SPEED_M_S} m/s)", state.speed_m_s)));

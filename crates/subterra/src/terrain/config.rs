@@ -14,6 +14,9 @@ use crate::error::{require_non_negative, require_positive, Error, Result};
 /// A cell takes about 300 bytes while a map is built and handed over (its 21 layers, the
 /// builder's per-cell state, a copy for the caller): 4 M cells is about 1.2 GB.
 const MAX_MAP_CELLS: f64 = 4_000_000.0;
+/// Cell sides of a map accepted \[m\]: no range sensor resolves less than 1 mm, and a cell
+/// wider than 10 m averages away every step and slope a wheel meets.
+const MAP_RESOLUTION_RANGE_M: (f64, f64) = (1e-3, 10.0);
 /// Largest number of polar bins (sectors x radial bins) of the ground segmentation.
 const MAX_POLAR_BINS: f64 = 4_000_000.0;
 /// Largest sensor range accepted \[m\].
@@ -488,6 +491,10 @@ impl MapConfig {
 
     fn validate(&self, prefix: &str) -> Result<()> {
         require_positive(&format!("{prefix}.resolution_m"), self.resolution_m)?;
+        let (lo, hi) = MAP_RESOLUTION_RANGE_M;
+        if !(lo..=hi).contains(&self.resolution_m) {
+            return Err(Error::config(format!("{prefix}.resolution_m"), format!("must be in [{lo}, {hi}] m (a cell side)"), self.resolution_m));
+        }
         require_positive(&format!("{prefix}.size_x_m"), self.size_x_m)?;
         require_positive(&format!("{prefix}.size_y_m"), self.size_y_m)?;
         let cells = (self.size_x_m / self.resolution_m).round() * (self.size_y_m / self.resolution_m).round();
@@ -657,6 +664,14 @@ mod tests {
         let mut c = TerrainConfig::default();
         c.coarse.resolution_m = 1e-5;
         assert!(field_of(c).contains("coarse.resolution_m"));
+        // A probe finding: one cell of 1e308 m passed the cell budget (one cell).
+        let mut c = TerrainConfig::default();
+        c.coarse.resolution_m = 1e308;
+        let err = field_of(c);
+        assert!(err.contains("coarse.resolution_m") && err.contains("[0.001, 10] m"), "{err}");
+        let mut c = TerrainConfig::default();
+        c.fine.resolution_m = 11.0;
+        assert!(field_of(c).contains("fine.resolution_m"));
         let mut c = TerrainConfig::default();
         c.risk.step_m.lethal = 0.01;
         assert!(field_of(c).contains("risk.step_m.lethal"));

@@ -173,9 +173,7 @@ impl TerrainMapper {
         if points.is_empty() {
             return Err(Error::input("points_sensor", "is empty; a scan needs at least one point"));
         }
-        if !stamp_s.is_finite() {
-            return Err(Error::input("stamp_s", format!("must be finite, got {stamp_s}")));
-        }
+        crate::frames::check_stamp("stamp_s", stamp_s)?;
         if let Some(previous) = self.window.newest_stamp() {
             if stamp_s < previous {
                 return Err(Error::input("stamp_s", format!("{stamp_s} is earlier than the previous scan's {previous}; call reset() after a time jump")));

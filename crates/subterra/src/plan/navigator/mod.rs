@@ -35,10 +35,10 @@ use self::memory::{DrivenMemory, HazardMemory, NearMemory};
 use self::reactive::SafetyView;
 use self::target::path_length_from;
 use crate::error::{Error, Result};
-use crate::frames::Isometry3;
+use crate::frames::{check_position, check_stamp, Isometry3};
 use crate::plan::astar::{PlanOutcome, PlanStatus, RiskAStar};
 use crate::plan::grid::RiskGrid;
-use crate::plan::mpc::{MpcOutput, MpcTracker, UnicycleState};
+use crate::plan::mpc::{MpcOutput, MpcTracker, UnicycleState, MAX_STATE_SPEED_M_S};
 use crate::plan::recovery::{wrap_angle, Behaviour, PlanFeedback, RecoveryInput, RecoveryMachine, Target};
 use crate::terrain::{RiskMap, RobotConfig, TerrainConfig, TerrainMapper, TerrainStats, TerrainTimings};
 
@@ -188,8 +188,9 @@ impl Navigator {
     /// `risk.lethal_risk`: one definition of lethal.
     pub fn new(robot: RobotConfig, terrain: TerrainConfig, config: NavigatorConfig, goal: DVec2, home: Option<DVec2>) -> Result<Self> {
         config.validate()?;
-        if !goal.is_finite() {
-            return Err(Error::input("goal", format!("must be finite, got ({}, {})", goal.x, goal.y)));
+        check_position("goal", &[goal.x, goal.y])?;
+        if let Some(home) = home {
+            check_position("home", &[home.x, home.y])?;
         }
         let mut config = config;
         let lethal = terrain.risk.lethal_risk;
@@ -283,9 +284,7 @@ impl Navigator {
     /// navigator that has just been made. A goal that is not finite is an `InputError`
     /// naming `goal`, and nothing changes.
     pub fn set_goal(&mut self, goal: DVec2) -> Result<()> {
-        if !goal.is_finite() {
-            return Err(Error::input("goal", format!("must be finite, got ({}, {})", goal.x, goal.y)));
-        }
+        check_position("goal", &[goal.x, goal.y])?;
         self.recovery = RecoveryMachine::new(self.config.recovery, self.recovery.home())?;
         self.tracker.reset();
         self.goal = goal;
@@ -302,9 +301,10 @@ impl Navigator {
     /// One control tick (see [`Navigator`]).
     pub fn step(&mut self, input: &NavigatorInput<'_>) -> Result<NavigatorOutput> {
         let started = Instant::now();
-        if !(input.speed_m_s.is_finite()) {
-            return Err(Error::input("speed", format!("must be finite, got {}", input.speed_m_s)));
+        if !(input.speed_m_s.is_finite() && input.speed_m_s.abs() <= MAX_STATE_SPEED_M_S) {
+            return Err(Error::input("speed", format!("must be finite and within {MAX_STATE_SPEED_M_S} m/s of zero (any ground robot), got {}", input.speed_m_s)));
         }
+        check_stamp("stamp_s", input.stamp_s)?;
         let pose = &input.world_from_body;
         let position = DVec2::new(pose.translation.x, pose.translation.y);
         let heading = yaw_of(pose);
