@@ -201,6 +201,12 @@ def test_bench_case_reports_the_fields():
     assert set(case["agreement_converged"]) == {"straight", "curved", "risk_band", "off_path"}
     m = case["agreement_converged_max"]
     assert m["predicted_position_m"] <= POSITION_TOL_M and m["predicted_speed_m_s"] <= SPEED_TOL_M_S
+    solvers = case["qp_solvers"]
+    assert solvers["qps"] == bench_mpc.RUN_STEPS and solvers["banded"]["statuses"] == ["solved"]
+    assert solvers["clarabel"]["max_difference_from_banded"] < 1e-3
+    if "osqp_default" in solvers:
+        assert solvers["osqp_default"]["per_qp"]["runs"] == bench_mpc.RUN_STEPS
+        assert set(solvers["banded_faster_than_warm_osqp"]) == set(bench_mpc.OSQP_VARIANTS)
     json.dumps(case)
 
 
