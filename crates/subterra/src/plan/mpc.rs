@@ -243,9 +243,11 @@ impl MpcTracker {
         (!self.ws.qp.q.is_empty()).then(|| MpcQp::of(&self.ws.qp))
     }
 
-    /// Forgets the last plan and the QP solver: the next solve starts from zero inputs.
+    /// Forgets the last plan, the last QP and the QP solver: the next solve starts from zero
+    /// inputs.
     pub fn reset(&mut self) {
         self.warm = None;
+        self.ws.qp.q.clear();
         self.solver.reset();
     }
 

@@ -618,29 +618,7 @@ impl BandedIpm {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plan::mpc::qp::CscBuilder;
-
-    /// `min ½(z0² + z1²) - z0 - 3 z1  s.t.  z0 + z1 = 2,  z1 <= bound` (and `-z1 <= lower` if given).
-    fn small_qp(bound: f64, lower: Option<f64>) -> QpProblem {
-        let mut qp = QpProblem::default();
-        let mut b = CscBuilder::default();
-        b.push(0, 0, 1.0);
-        b.push(1, 1, 1.0);
-        b.finish(2, 2, &mut qp.p);
-        qp.q = vec![-1.0, -3.0];
-        b.clear();
-        b.push(0, 0, 1.0);
-        b.push(0, 1, 1.0);
-        b.push(1, 1, 1.0);
-        qp.b = vec![2.0, bound];
-        if let Some(lower) = lower {
-            b.push(2, 1, -1.0);
-            qp.b.push(lower);
-        }
-        b.finish(qp.b.len(), 2, &mut qp.a);
-        qp.equalities = 1;
-        qp
-    }
+    use crate::plan::mpc::qp::small_qp;
 
     #[test]
     fn solves_a_small_qp_by_hand() {

@@ -391,6 +391,30 @@ impl QpSolver {
     }
 }
 
+/// `min ½(z0² + z1²) - z0 - 3 z1  s.t.  z0 + z1 = 2,  z1 <= bound` (and `-z1 <= lower` if
+/// given): the small QP the solvers' tests solve by hand.
+#[cfg(test)]
+pub(super) fn small_qp(bound: f64, lower: Option<f64>) -> QpProblem {
+    let mut qp = QpProblem::default();
+    let mut b = CscBuilder::default();
+    b.push(0, 0, 1.0);
+    b.push(1, 1, 1.0);
+    b.finish(2, 2, &mut qp.p);
+    qp.q = vec![-1.0, -3.0];
+    b.clear();
+    b.push(0, 0, 1.0);
+    b.push(0, 1, 1.0);
+    b.push(1, 1, 1.0);
+    qp.b = vec![2.0, bound];
+    if let Some(lower) = lower {
+        b.push(2, 1, -1.0);
+        qp.b.push(lower);
+    }
+    b.finish(qp.b.len(), 2, &mut qp.a);
+    qp.equalities = 1;
+    qp
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -412,19 +436,7 @@ mod tests {
     #[test]
     fn solves_a_box_qp_by_hand_and_reuses_the_solver() {
         // min ½(z0² + z1²) - z0 - 3 z1  s.t. z0 + z1 = 2, z1 <= 1.5  ->  z = (0.5, 1.5).
-        let mut qp = QpProblem::default();
-        let mut b = CscBuilder::default();
-        b.push(0, 0, 1.0);
-        b.push(1, 1, 1.0);
-        b.finish(2, 2, &mut qp.p);
-        qp.q = vec![-1.0, -3.0];
-        b.clear();
-        b.push(0, 0, 1.0);
-        b.push(0, 1, 1.0);
-        b.push(1, 1, 1.0);
-        b.finish(2, 2, &mut qp.a);
-        qp.b = vec![2.0, 1.5];
-        qp.equalities = 1;
+        let mut qp = small_qp(1.5, None);
         let mut solver = QpSolver::new(50, QpSolverKind::Clarabel);
         let mut z = Vec::new();
         assert_eq!(solver.solve(&qp, &mut z).0, QpStatus::Solved);
@@ -434,14 +446,7 @@ mod tests {
         assert_eq!(solver.solve(&qp, &mut z).0, QpStatus::Solved);
         assert!((z[0] - 1.5).abs() < 1e-4 && (z[1] - 0.5).abs() < 1e-4, "{z:?}");
         // Infeasible: z1 <= 0.5 and -z1 <= -1.
-        b.clear();
-        b.push(0, 0, 1.0);
-        b.push(0, 1, 1.0);
-        b.push(1, 1, 1.0);
-        b.push(2, 1, -1.0);
-        b.finish(3, 2, &mut qp.a);
-        qp.b = vec![2.0, 0.5, -1.0];
-        assert_eq!(solver.solve(&qp, &mut z).0, QpStatus::Failed);
+        assert_eq!(solver.solve(&small_qp(0.5, Some(-1.0)), &mut z).0, QpStatus::Failed);
     }
 
     #[test]

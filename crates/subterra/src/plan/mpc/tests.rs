@@ -356,4 +356,6 @@ fn the_last_qp_solves_alike_with_either_solver_and_bad_parts_are_named() {
     bad.equalities = bad.b.len() + 1;
     assert_eq!(field(bad), "equalities");
     assert!(qp.solve(QpSolverKind::Banded, 0).is_err());
+    tracker.reset();
+    assert!(tracker.last_qp().is_none(), "reset forgets the last QP");
 }
