@@ -13,7 +13,7 @@
 //! Every failure is a `subterra.errors.ConfigError` naming the dotted field.
 
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyFloat, PyList, PyString};
+use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 use pyo3::PyClass;
 use serde_json::Value;
 use subterra::apf::QmdpConfig;
@@ -93,30 +93,74 @@ pub(crate) fn read_config_text(py: Python<'_>, path: &str) -> PyResult<String> {
 
 // ---------------------------------------------------------------- dict <-> JSON
 
-/// Checks a config value before it is serialised: every float finite (JSON has no NaN) and
-/// dicts and lists nested at most [`MAX_CONFIG_DEPTH`] deep, with errors naming the field.
-pub(crate) fn check_config_value(py: Python<'_>, argument: &str, field: &str, value: &Bound<'_, PyAny>, depth: usize) -> PyResult<()> {
+/// A config value (dict, list, tuple, str, bool, int, float, None, or a NumPy bool, integer
+/// or real scalar, taken as its Python equivalent) as JSON: every float finite (JSON has no
+/// NaN), dicts and lists nested at most [`MAX_CONFIG_DEPTH`] deep, and anything else (complex,
+/// bytes, arrays) an error naming the field.
+pub(crate) fn config_json(py: Python<'_>, argument: &str, field: &str, value: &Bound<'_, PyAny>, depth: usize) -> PyResult<Value> {
     let name = |f: &str| if f.is_empty() { format!("argument `{argument}`") } else { format!("config field `{f}`") };
     if depth > MAX_CONFIG_DEPTH {
         return Err(config_error(py, format!("{} is nested deeper than {MAX_CONFIG_DEPTH} levels", name(field))));
     }
+    let finite = |x: f64| -> PyResult<Value> {
+        match serde_json::Number::from_f64(x) {
+            Some(n) => Ok(Value::Number(n)),
+            None => Err(config_error(py, format!("{} is invalid: must be finite (got {x})", name(field)))),
+        }
+    };
+    let integer = |v: &Bound<'_, PyAny>| -> PyResult<Value> {
+        if let Ok(i) = v.extract::<i64>() {
+            return Ok(Value::from(i));
+        }
+        if let Ok(u) = v.extract::<u64>() {
+            return Ok(Value::from(u));
+        }
+        // Beyond 64 bits: a float, as JSON would read it; the field's type then refuses it.
+        finite(v.call_method0("__float__")?.extract::<f64>()?)
+    };
     if let Ok(dict) = value.cast::<PyDict>() {
+        let mut object = serde_json::Map::new();
         for (key, v) in dict.iter() {
             let key = key.str()?.to_string();
-            let sub = if field.is_empty() { key } else { format!("{field}.{key}") };
-            check_config_value(py, argument, &sub, &v, depth + 1)?;
+            let sub = if field.is_empty() { key.clone() } else { format!("{field}.{key}") };
+            object.insert(key, config_json(py, argument, &sub, &v, depth + 1)?);
         }
-    } else if let Ok(list) = value.cast::<PyList>() {
-        for (i, v) in list.iter().enumerate() {
-            check_config_value(py, argument, &format!("{field}[{i}]"), &v, depth + 1)?;
-        }
-    } else if value.is_instance_of::<PyFloat>() {
-        let x: f64 = value.extract()?;
-        if !x.is_finite() {
-            return Err(config_error(py, format!("{} is invalid: must be finite (got {x})", name(field))));
-        }
+        return Ok(Value::Object(object));
     }
-    Ok(())
+    if value.is_instance_of::<PyList>() || value.is_instance_of::<PyTuple>() {
+        let mut array = Vec::new();
+        for (i, v) in value.try_iter()?.enumerate() {
+            array.push(config_json(py, argument, &format!("{field}[{i}]"), &v?, depth + 1)?);
+        }
+        return Ok(Value::Array(array));
+    }
+    if value.is_none() {
+        return Ok(Value::Null);
+    }
+    if value.is_instance_of::<PyString>() {
+        return Ok(Value::String(value.extract()?));
+    }
+    if value.is_instance_of::<PyBool>() {
+        return Ok(Value::Bool(value.extract()?));
+    }
+    if value.is_instance_of::<PyInt>() {
+        return integer(value);
+    }
+    if value.is_instance_of::<PyFloat>() {
+        return finite(value.extract()?);
+    }
+    // NumPy scalars, as their Python equivalents (np.float32(2.0) is 2.0).
+    let np = py.import("numpy")?;
+    if value.is_instance(&np.getattr("bool_")?)? {
+        return Ok(Value::Bool(value.is_truthy()?));
+    }
+    if value.is_instance(&np.getattr("integer")?)? {
+        return integer(&value.call_method0("__int__")?);
+    }
+    if value.is_instance(&np.getattr("floating")?)? {
+        return finite(value.call_method0("__float__")?.extract()?);
+    }
+    Err(config_error(py, format!("{} must be a number, a bool, a string, a list or a dict, got {}", name(field), type_name(value))))
 }
 
 /// Deserialises a config from JSON, naming the field of an error (`planner.lam`).
@@ -128,34 +172,36 @@ pub(crate) fn from_json_value<T: serde::de::DeserializeOwned>(py: Python<'_>, ar
     })
 }
 
-/// A Python value as JSON through `json.dumps` (numpy scalars become numbers); `section`
-/// prefixes the fields an error names (`robot` for `robot.length_m`), as the core's
-/// validation names them.
+/// A Python value as JSON ([`config_json`]); `section` prefixes the fields an error names
+/// (`robot` for `robot.length_m`), as the core's validation names them.
 fn to_json_value(py: Python<'_>, argument: &str, section: &str, value: &Bound<'_, PyAny>) -> PyResult<Value> {
-    check_config_value(py, argument, section, value, 0)?;
-    let text: String = py
-        .import("json")?
-        .call_method1("dumps", (value,))
-        .map_err(|e| config_error(py, format!("argument `{argument}` cannot be serialised to JSON: {e}")))?
-        .extract()?;
-    serde_json::from_str(&text).map_err(|e| config_error(py, format!("argument `{argument}` could not be parsed: {e}")))
+    config_json(py, argument, section, value, 0)
 }
 
 /// Overlays `patch` on `base`: objects merge key by key (recursively), anything else replaces.
-fn merge(base: &mut Value, patch: Value) {
+/// A section (an object in `base`) given as a list is an error naming it: serde would fill
+/// the section's fields by position. `field` is the dotted name of `base` in errors.
+fn merge(py: Python<'_>, field: &str, base: &mut Value, patch: Value) -> PyResult<()> {
     match (base, patch) {
         (Value::Object(b), Value::Object(p)) => {
             for (k, v) in p {
                 match b.get_mut(&k) {
-                    Some(slot) => merge(slot, v),
+                    Some(slot) => {
+                        let sub = if field.is_empty() { k } else { format!("{field}.{k}") };
+                        merge(py, &sub, slot, v)?;
+                    }
                     None => {
                         b.insert(k, v);
                     }
                 }
             }
         }
+        (Value::Object(_), Value::Array(_)) => {
+            return Err(config_error(py, format!("config section `{field}` must be a dict (a table), got a list")));
+        }
         (slot, v) => *slot = v,
     }
+    Ok(())
 }
 
 /// `base` (a config as JSON) with the (partial, nested) dict `d` laid over it; the caller
@@ -167,7 +213,7 @@ fn merged(py: Python<'_>, argument: &str, prefix: &str, base: serde_json::Result
     if !patch.is_object() {
         return Err(config_error(py, format!("argument `{argument}` must be a dict, got {}", type_name(d))));
     }
-    merge(&mut base, patch);
+    merge(py, prefix, &mut base, patch)?;
     Ok(base)
 }
 

@@ -371,7 +371,7 @@ impl PySimulation {
         py: Python<'_>,
         #[pyo3(from_py_with = arg::world)] world: Bound<'_, PyWorld>,
         #[pyo3(from_py_with = arg::s_vehicle)] vehicle: String,
-        sensors: Option<&Bound<'_, PyDict>>,
+        sensors: Option<&Bound<'_, PyAny>>,
         #[pyo3(from_py_with = arg::seed_u64)] seed: u64,
         start: Option<&Bound<'_, PyAny>>,
         #[pyo3(from_py_with = arg::yaw)] yaw: f64,
@@ -410,6 +410,12 @@ impl PySimulation {
             other => other,
         });
         let sim = Self { inner: Shared::new(created.sim_err(py)?) };
+        let sensors = match sensors {
+            Some(s) if !s.is_none() => Some(s.cast::<PyDict>().map_err(|_| {
+                input_error(py, format!("argument `sensors` must be a dict {{name: sensor}} or {{name: (sensor, body_from_sensor, noise)}}, got {}", crate::convert::type_name(s)))
+            })?),
+            _ => None,
+        };
         if let Some(sensors) = sensors {
             for (name, mount) in sensors.iter() {
                 let name: String = name.extract().map_err(|_| input_error(py, "argument `sensors` must map names (str) to sensors"))?;
@@ -538,7 +544,7 @@ impl PySimulation {
         };
         let mut this = self.inner.lock();
         let sim = &mut *this;
-        let out = py.detach(|| sim.step(&cmd, dt, compute_time_s)).sim_err(py)?;
+        let out = py.detach(|| sim.step(&cmd, dt, compute_time_s)).map_err(|e| e.renamed("dt_s", "dt")).sim_err(py)?;
         let d = PyDict::new(py);
         d.set_item("time_s", out.time_s)?;
         d.set_item("status", status_name(&out.status))?;

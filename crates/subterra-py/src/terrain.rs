@@ -9,7 +9,7 @@ use glam::DVec2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use subterra::terrain::{segment_ground as core_segment_ground, GroundConfig, Layer, MissionItem, RiskMap, RobotConfig, TerrainConfig, TerrainMapper, TerrainStats, TerrainTimings};
+use subterra::terrain::{segment_ground as core_segment_ground, GroundConfig, Layer, MissionItem, RiskMap, RobotConfig, TerrainConfig, TerrainMapper, MAX_MISSION_ITEMS, TerrainStats, TerrainTimings};
 use subterra::Isometry3;
 
 use crate::shared::Shared;
@@ -404,9 +404,20 @@ impl PyTerrainMapper {
     /// [m, world frame] or a dict `{"position": (x, y), "radius": r}`; an empty list clears them.
     fn set_mission_items(&self, py: Python<'_>, items: &Bound<'_, PyAny>) -> PyResult<()> {
         let np = py.import("numpy")?;
+        // The count is checked on the sequence (a broadcast view of 10^8 rows costs nothing to
+        // refuse); a sequence without a length stops at the limit.
+        let too_many = |n: usize| input_error(py, format!("argument `items` has {n} items: more than {MAX_MISSION_ITEMS}, the most accepted"));
+        if let Ok(n) = items.len() {
+            if n > MAX_MISSION_ITEMS {
+                return Err(too_many(n));
+            }
+        }
         let mut parsed = Vec::new();
         let iter = items.try_iter().map_err(|_| input_error(py, format!("argument `items` must be a sequence, got {}", type_name(items))))?;
         for (i, item) in iter.enumerate() {
+            if i >= MAX_MISSION_ITEMS {
+                return Err(too_many(i + 1));
+            }
             let item = item?;
             // Real numbers only: a complex value is refused, not cast (real_array checks the dtype).
             let numbers = |v: &Bound<'_, PyAny>| -> Option<Vec<f64>> {

@@ -56,6 +56,14 @@ impl SimError {
     pub fn config(field: impl Into<String>, reason: impl Into<String>, value: impl ToString) -> Self {
         Self::InvalidConfig { field: field.into(), reason: reason.into(), value: value.to_string() }
     }
+    /// The same error with the argument `from` called `to` (a binding whose parameter has
+    /// another name: `dt` for the simulator's `dt_s`).
+    pub fn renamed(self, from: &str, to: &str) -> Self {
+        match self {
+            Self::InvalidInput { argument, reason } if argument == from => Self::InvalidInput { argument: to.into(), reason },
+            other => other,
+        }
+    }
     /// Shorthand for [`SimError::InvalidInput`].
     pub fn input(argument: impl Into<String>, reason: impl Into<String>) -> Self {
         Self::InvalidInput { argument: argument.into(), reason: reason.into() }

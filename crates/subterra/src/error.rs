@@ -73,6 +73,19 @@ impl Error {
         }
     }
 
+    /// The same config error with its field moved into `section` (a config nested in another
+    /// names the field as the outer file spells it): the field's own prefix `own` (`astar.`,
+    /// or `""` for a config whose fields have none) is replaced by `section.`.
+    pub fn in_section(self, own: &str, section: &str) -> Self {
+        match self {
+            Self::InvalidConfig { field, reason, value } => {
+                let rest = field.strip_prefix(own).unwrap_or(&field);
+                Self::InvalidConfig { field: format!("{section}.{rest}"), reason, value }
+            }
+            other => other,
+        }
+    }
+
     /// Shorthand for [`Error::InvalidInput`].
     pub fn input(argument: impl Into<String>, reason: impl Into<String>) -> Self {
         Self::InvalidInput { argument: argument.into(), reason: reason.into() }

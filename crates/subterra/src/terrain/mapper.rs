@@ -17,6 +17,10 @@ use crate::frames::Isometry3;
 /// Most cells of the scratch map a fusion window's scans are binned into (about 40 bytes each).
 const MAX_SCRATCH_CELLS: f64 = 25_000_000.0;
 
+/// Most keep-out circles of the `mission` layer. Every map update stamps each circle, so
+/// 10^6 of them cost seconds per update; a mission plan holds tens.
+pub const MAX_MISSION_ITEMS: usize = 10_000;
+
 /// Wall-clock time of each stage of one update \[s\].
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct TerrainTimings {
@@ -122,6 +126,9 @@ impl TerrainMapper {
 
     /// Replaces the mission items whose keep-out circles make the `mission` layer.
     pub fn set_mission_items(&mut self, items: &[MissionItem]) -> Result<()> {
+        if items.len() > MAX_MISSION_ITEMS {
+            return Err(Error::input("items", format!("{} items: more than {MAX_MISSION_ITEMS}, the most accepted", items.len())));
+        }
         for (i, item) in items.iter().enumerate() {
             if !item.position_world.is_finite() {
                 return Err(Error::input("items", format!("item {i} has a non-finite position {:?}", item.position_world)));

@@ -349,8 +349,10 @@ impl NavigatorConfig {
 
     /// Checks every section.
     pub fn validate(&self) -> Result<()> {
-        self.planner.validate()?;
-        self.tracker.validate()?;
+        // Each section's errors name the field as the navigator's file spells it
+        // (`planner.lam`, not the A* file's `astar.lam`).
+        self.planner.validate().map_err(|e| e.in_section("astar.", "planner"))?;
+        self.tracker.validate().map_err(|e| e.in_section("", "tracker"))?;
         self.recovery.validate()?;
         self.navigator.validate()
     }
@@ -363,6 +365,16 @@ mod tests {
     #[test]
     fn the_default_is_the_default_robots() {
         assert_eq!(NavigatorConfig::default(), NavigatorConfig::for_robot(&RobotConfig::default()));
+    }
+
+    #[test]
+    fn section_errors_name_the_navigators_field() {
+        let mut c = NavigatorConfig::default();
+        c.planner.lam = 2f64.powi(64);
+        assert!(c.validate().unwrap_err().to_string().contains("`planner.lam`"));
+        let mut c = NavigatorConfig::default();
+        c.tracker.dt_s = 2f64.powi(64);
+        assert!(c.validate().unwrap_err().to_string().contains("`tracker.dt_s`"));
     }
 
     #[test]
