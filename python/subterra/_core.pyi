@@ -9,6 +9,9 @@ import numpy as np
 import numpy.typing as npt
 
 __version__: str
+#: ``segment_ground``'s (and ``terrain --sensor-height``'s) sensor height bounds [m].
+MIN_SENSOR_HEIGHT_M: float
+MAX_SENSOR_HEIGHT_M: float
 
 def preset_names() -> list[str]: ...
 

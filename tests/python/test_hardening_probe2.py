@@ -82,3 +82,51 @@ def test_simulation_step_names_dt():
     s = sim.Simulation(_world(), "quadrotor", start=[2.0, 2.0, 1.0])
     with pytest.raises(InputError, match=r"argument `dt` is invalid"):
         s.step([0.1, 0, 0, 0], dt=1e9)
+
+
+def test_pilot_goals_and_paths_beyond_1000_km_name_their_argument():
+    cam = subterra.PinholeCamera(50.0, 50.0, 32.0, 24.0, 64, 48)
+    pilot = subterra.Pilot(cam)
+    with pytest.raises(InputError, match=r"argument `goal_world`.*1e6 m of the origin"):
+        pilot.set_goal([1e308, 0, 0])
+    with pytest.raises(InputError, match=r"argument `goal_world`"):
+        pilot.set_goal([9e5, 9e5, 0])  # 1.27e6 m away: the distance counts, not each axis
+    with pytest.raises(InputError, match=r"argument `path\[1\]`"):
+        pilot.set_path([[0, 0, 0], [1e300, 0, 0]])
+    with pytest.raises(InputError, match=r"argument `path\[1\]`"):
+        subterra.PathFollower([[0, 0, 0], [1e300, 0, 0]])
+    pilot.set_goal([5e5, 5e5, 0])
+
+
+def test_a_navigator_at_9e5_9e5_is_refused():
+    with pytest.raises(InputError, match=r"1e6 m of the origin"):
+        subterra.Navigator((9e5, 9e5))
+
+
+@pytest.mark.parametrize("origin", [(1e300, 0.0), (9e5, 9e5)])
+def test_a_risk_grid_beyond_1000_km_is_refused_naming_origin(origin):
+    risk = np.ones((10, 10), np.float32)
+    with pytest.raises(InputError, match=r"argument `origin`"):
+        subterra.RiskAStar().plan(risk, (1e300, 0.5), (1e300 + 5, 0.5), resolution=1.0, origin=origin)
+    with pytest.raises(InputError, match=r"argument `origin`"):
+        subterra.RiskAStar().plan_cells(risk, (0, 0), (5, 5), resolution=1.0, origin=origin)
+
+
+def test_astar_start_and_goal_beyond_1000_km_name_their_argument():
+    risk = np.zeros((10, 10), np.float32)
+    with pytest.raises(InputError, match=r"argument `start`.*1e6 m"):
+        subterra.RiskAStar().plan(risk, (1e300, 0.5), (5, 5), resolution=1.0)
+    with pytest.raises(InputError, match=r"argument `goal`.*1e6 m"):
+        subterra.RiskAStar().plan(risk, (0.5, 0.5), (0, -1e300), resolution=1.0)
+
+
+@pytest.mark.parametrize("h", [1e308, -5.0, 5e-324, 0.0, 100.5])
+def test_segment_ground_sensor_height_is_bounded_like_the_cli(h):
+    with pytest.raises(InputError, match=r"argument `sensor_height`"):
+        subterra.segment_ground(np.zeros((4, 3), np.float32), sensor_height=h)
+    subterra.segment_ground(np.zeros((4, 3), np.float32), sensor_height=1.5)
+
+
+def test_the_mpc_refuses_a_risk_grid_beyond_1000_km_naming_origin():
+    with pytest.raises(InputError, match=r"argument `origin`"):
+        subterra.MpcTracker().solve([0, 0, 0, 0], [[0, 0], [1, 0]], risk=np.ones((10, 10), np.float32), resolution=1.0, origin=(1e300, 0))

@@ -811,6 +811,9 @@ impl PyPathFollower {
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    // Bounds shared with the CLI (`terrain --sensor-height`).
+    m.add("MIN_SENSOR_HEIGHT_M", subterra::terrain::MIN_SENSOR_HEIGHT_M)?;
+    m.add("MAX_SENSOR_HEIGHT_M", subterra::terrain::MAX_SENSOR_HEIGHT_M)?;
     m.add_class::<PyPinholeCamera>()?;
     config::register(m)?;
     m.add_class::<PyDepthPerception>()?;

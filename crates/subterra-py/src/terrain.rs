@@ -494,7 +494,7 @@ impl PyTerrainMapper {
 fn segment_ground<'py>(py: Python<'py>, points: &Bound<'_, PyAny>, #[pyo3(from_py_with = arg::sensor_height)] sensor_height: f64, config: Option<&Bound<'_, PyAny>>) -> PyResult<Bound<'py, PyArray1<bool>>> {
     let ground: GroundConfig = resolve_config(py, "config", config)?.ground;
     let sensor_height = finite(py, "sensor_height", sensor_height)?;
-    let labels = with_points(py, "points", points, |flat| py.detach(|| core_segment_ground(flat, &ground, sensor_height)))?.py_err(py)?;
+    let labels = with_points(py, "points", points, |flat| py.detach(|| core_segment_ground(flat, &ground, sensor_height)))?.map_err(|e| e.renamed(&["sensor_height_m"], "sensor_height")).py_err(py)?;
     Ok(labels.into_pyarray(py))
 }
 

@@ -31,9 +31,12 @@ pub fn check_stamp(argument: &str, stamp_s: f64) -> Result<()> {
 }
 
 /// Checks that the coordinates `coords_m` of a position (or of a goal relative to the robot)
-/// are finite and within [`MAX_TRANSLATION_M`] of the origin; the error names `argument`.
+/// are finite and within [`MAX_TRANSLATION_M`] of the origin (Euclidean norm); the error names
+/// `argument`.
 pub fn check_position(argument: &str, coords_m: &[f64]) -> Result<()> {
-    if !coords_m.iter().all(|c| c.is_finite() && c.abs() <= MAX_TRANSLATION_M) {
+    // The Euclidean norm, as the message says (hypot: no overflow for 1e300).
+    let norm = coords_m.iter().fold(0.0f64, |a, &c| a.hypot(c));
+    if !(coords_m.iter().all(|c| c.is_finite()) && norm <= MAX_TRANSLATION_M) {
         return Err(Error::input(
             argument,
             format!("must be finite and within {MAX_TRANSLATION_M:e} m of the origin; re-centre the coordinates, got {coords_m:?}"),
@@ -102,7 +105,8 @@ impl Isometry3 {
             ));
         }
         let translation = DVec3::new(m[0][3], m[1][3], m[2][3]);
-        if translation.abs().max_element() > MAX_TRANSLATION_M {
+        let distance_m = translation.length();
+        if distance_m.is_nan() || distance_m > MAX_TRANSLATION_M {
             return Err(Error::input(
                 argument,
                 format!("translation {:?} m is beyond {MAX_TRANSLATION_M:e} m of the world origin; re-centre the coordinates", translation.to_array()),
@@ -206,6 +210,9 @@ mod tests {
         let err = check_position("goal", &[0.0, 1e308]).unwrap_err().to_string();
         assert!(err.contains("argument `goal`") && err.contains("re-centre"), "{err}");
         assert!(check_position("goal", &[f64::INFINITY]).is_err());
-        assert!(check_position("goal", &[MAX_TRANSLATION_M, -MAX_TRANSLATION_M]).is_ok());
+        // The distance from the origin, not each axis: (9e5, 9e5) is 1.27e6 m away.
+        assert!(check_position("goal", &[0.0, -MAX_TRANSLATION_M]).is_ok());
+        assert!(check_position("goal", &[0.9 * MAX_TRANSLATION_M, 0.9 * MAX_TRANSLATION_M]).is_err());
+        assert!(check_position("goal", &[1e300, 1e300]).is_err());
     }
 }

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from subterra._core import MAX_SENSOR_HEIGHT_M, MIN_SENSOR_HEIGHT_M  # --sensor-height [m], as segment_ground
 from subterra._extras import require
 from subterra.errors import InputError
 
@@ -33,10 +34,6 @@ __all__ = ["parse_body_from_sensor", "register_cli", "run_cli", "run_terrain"]
 DEFAULT_PERIOD_S = 0.1
 #: Most points drawn in the top view of the cloud (a seeded subsample beyond that).
 TOP_VIEW_MAX_POINTS = 200_000
-#: Smallest ``--sensor-height`` [m] (below: a typo, or a value in kilometres).
-MIN_SENSOR_HEIGHT_M = 0.01
-#: Largest ``--sensor-height`` [m] (beyond: a typo, or millimetres).
-MAX_SENSOR_HEIGHT_M = 100.0
 #: Shortest ``--period`` between scans [s] (a 1 kHz sensor; below: a typo).
 MIN_PERIOD_S = 1e-3
 #: Largest ``--period`` between scans [s].

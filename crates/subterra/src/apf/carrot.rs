@@ -62,8 +62,8 @@ impl PathFollower {
         if !(lookahead_m.is_finite() && lookahead_m > 0.0) {
             return Err(Error::input("lookahead_m", format!("must be finite and > 0, got {lookahead_m}")));
         }
-        if let Some(p) = points_world.iter().find(|p| !p.is_finite()) {
-            return Err(Error::input("path", format!("points must be finite, got {p}")));
+        for (i, p) in points_world.iter().enumerate() {
+            crate::frames::check_position(&format!("path[{i}]"), &p.to_array())?;
         }
         let mut points: Vec<DVec3> = Vec::with_capacity(points_world.len());
         for &p in points_world {

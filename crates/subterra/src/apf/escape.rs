@@ -268,9 +268,7 @@ impl Escape {
         if !(world_from_body.translation.is_finite() && world_from_body.rotation.is_finite()) {
             return Err(Error::input("world_from_body", "must be finite"));
         }
-        if !goal_world.is_finite() {
-            return Err(Error::input("goal_world", format!("must be finite, got {goal_world}")));
-        }
+        crate::frames::check_position("goal_world", &goal_world.to_array())?;
         if !(remaining_m.is_finite() && remaining_m >= 0.0) {
             return Err(Error::input("remaining_m", format!("must be finite and >= 0, got {remaining_m}")));
         }

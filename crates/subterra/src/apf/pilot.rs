@@ -204,9 +204,7 @@ impl Pilot {
 
     /// Flies to `goal_world` \[m\] (drops a path).
     pub fn set_goal(&mut self, goal_world: DVec3) -> Result<()> {
-        if !goal_world.is_finite() {
-            return Err(Error::input("goal_world", format!("must be finite, got {goal_world}")));
-        }
+        crate::frames::check_position("goal_world", &goal_world.to_array())?;
         self.goal = Some(Goal::Point(goal_world));
         Ok(())
     }

@@ -168,10 +168,7 @@ impl RiskAStar {
     /// grid. A target on the grid is planned to as by [`RiskAStar::plan_with`]. Errors (naming
     /// `start` or `target`) if a position is not finite or the start lies off the grid.
     pub fn plan_toward(&mut self, grid: &RiskGrid<'_>, start_world: DVec2, target_world: DVec2, entry: Option<&EntryPrices<'_>>) -> Result<PlanOutcome> {
-        let far = crate::frames::MAX_TRANSLATION_M;
-        if !(target_world.is_finite() && target_world.x.abs() <= far && target_world.y.abs() <= far) {
-            return Err(Error::input("target", format!("must be finite and within {far:e} m of the origin, got ({}, {})", target_world.x, target_world.y)));
-        }
+        crate::frames::check_position("target", &target_world.to_array())?;
         if grid.cell_of(target_world).is_some() {
             return self.plan_with(grid, start_world, target_world, entry);
         }

@@ -73,9 +73,9 @@ impl<'a> RiskGrid<'a> {
                 format!("must be in [{MIN_RESOLUTION_M:e}, {MAX_RESOLUTION_M:e}] m, got {resolution_m}"),
             ));
         }
-        if !origin_m.is_finite() {
-            return Err(Error::input("origin", format!("must be finite, got ({}, {})", origin_m.x, origin_m.y)));
-        }
+        // Within reach of every position a planner is given: a grid at x = 1e300 would hold
+        // cells whose centres round to one another.
+        crate::frames::check_position("origin", &origin_m.to_array())?;
         // Unknown cells (NaN) pass.
         if let Some(i) = risk.iter().position(|&r| !r.is_nan() && !(0.0..=1.0).contains(&r)) {
             return Err(Error::input(
@@ -175,9 +175,7 @@ impl<'a> RiskGrid<'a> {
     }
 
     pub(crate) fn locate(&self, argument: &str, p: DVec2) -> Result<CellIndex> {
-        if !p.is_finite() {
-            return Err(Error::input(argument, format!("must be finite, got ({}, {})", p.x, p.y)));
-        }
+        crate::frames::check_position(argument, &p.to_array())?;
         self.cell_of(p).ok_or_else(|| {
             let (o, res) = (self.origin_m, self.resolution_m);
             Error::input(

@@ -22,6 +22,6 @@ mod risk;
 pub use cloud::PrefilterStats;
 pub use config::{FusionConfig, GroundConfig, LayerConfig, MapConfig, PrefilterConfig, Ramp, RiskConfig, RobotConfig, TerrainConfig, UncertaintyConfig};
 pub use grid::{CellIndex, GridGeometry, Layer, RiskMap, DEFAULT_LETHAL_RISK};
-pub use ground::segment_ground;
+pub use ground::{segment_ground, MAX_SENSOR_HEIGHT_M, MIN_SENSOR_HEIGHT_M};
 pub use mapper::{TerrainMapper, MAX_MISSION_ITEMS, TerrainOutput, TerrainStats, TerrainTimings};
 pub use risk::MissionItem;

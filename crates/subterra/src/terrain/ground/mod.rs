@@ -320,6 +320,12 @@ impl GroundSegmenter {
     }
 }
 
+/// Lowest sensor height above the ground accepted by [`segment_ground`] (and the terrain
+/// CLI's `--sensor-height`) \[m\]; below: a typo, or a value in kilometres.
+pub const MIN_SENSOR_HEIGHT_M: f64 = 0.01;
+/// Highest sensor height accepted \[m\]; beyond: a typo, or millimetres.
+pub const MAX_SENSOR_HEIGHT_M: f64 = 100.0;
+
 /// Labels each point of `points` (row-major `(N, 3)`, sensor-centred, z up) ground (`true`)
 /// or obstacle (`false`) by line fits in cylindrical coordinates (Himmelsbach et al., IEEE IV
 /// 2010; set out exactly below); `sensor_height_m` is the
@@ -442,6 +448,12 @@ impl GroundSegmenter {
 /// ground they too pass above it.
 pub fn segment_ground(points: &[f32], config: &GroundConfig, sensor_height_m: f64) -> Result<Vec<bool>> {
     let points = as_points("points", points)?;
+    if !(MIN_SENSOR_HEIGHT_M..=MAX_SENSOR_HEIGHT_M).contains(&sensor_height_m) {
+        return Err(crate::error::Error::input(
+            "sensor_height_m",
+            format!("must be in [{MIN_SENSOR_HEIGHT_M}, {MAX_SENSOR_HEIGHT_M}] m, got {sensor_height_m}"),
+        ));
+    }
     let mut segmenter = GroundSegmenter::new(*config)?;
     let mut heights = Vec::new();
     segmenter.segment(points, sensor_height_m, &mut heights)?;

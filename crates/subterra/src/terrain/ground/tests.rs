@@ -411,6 +411,10 @@ fn fast_atan2_is_close() {
 fn wrong_inputs_name_their_argument() {
     assert!(segment_ground(&[1.0, 2.0], &GroundConfig::default(), 0.5).unwrap_err().to_string().contains("points"));
     assert!(segment_ground(&[1.0, 2.0, 3.0], &GroundConfig::default(), f64::NAN).unwrap_err().to_string().contains("sensor_height_m"));
+    // Probe finding: 1e308, -5 and 5e-324 m were taken; the CLI's bounds hold here too.
+    for h in [1e308, -5.0, 5e-324, MAX_SENSOR_HEIGHT_M * 1.01] {
+        assert!(segment_ground(&[1.0, 2.0, 3.0], &GroundConfig::default(), h).unwrap_err().to_string().contains("sensor_height_m"));
+    }
     let config = GroundConfig { sectors: 0, ..GroundConfig::default() };
     assert!(segment_ground(&[], &config, 0.5).unwrap_err().to_string().contains("ground.sectors"));
 }
