@@ -21,7 +21,7 @@ import os
 import stat
 from typing import BinaryIO, Union
 
-from .errors import FileFormatError
+from .errors import FileFormatError, InputError
 
 __all__ = [
     "MAX_BINARY_BYTES",
@@ -144,6 +144,31 @@ def open_regular(
         raise
 
 
+def check_writable(path: PathLike, what: str, *, new: bool = False) -> None:
+    """Errors unless ``path`` can be written as a new or replaced regular file: its parent
+    folder exists, and it does not exist (``new``) or is a regular file.
+
+    Raises:
+        FileFormatError: the path exists and is not a regular file.
+        InputError: the parent folder is missing, or (``new``) the path exists, or ``stat``
+            fails (a symlink loop, no permission).
+    """
+    shown = os.fspath(path)
+    parent = os.path.dirname(os.path.abspath(shown))
+    if not os.path.isdir(parent):
+        raise InputError(f"cannot write {what}: the folder {parent} does not exist (writers do not create folders): {shown}")
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        raise InputError(f"cannot write {what}: {exc.strerror or exc}: {shown}") from None
+    if st is not None and new:
+        raise InputError(f"cannot write {what}: the path exists already (give a new one): {shown}")
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        raise FileFormatError(f"cannot write {what}: not a regular file (got {_describe(st.st_mode)}): {shown}")
+
+
 def open_for_writing(path: PathLike, what: str) -> BinaryIO:
     """Open ``path`` for binary writing (created or truncated), never blocking.
 
@@ -151,18 +176,20 @@ def open_for_writing(path: PathLike, what: str) -> BinaryIO:
     is refused before it is opened; the open itself uses ``O_NONBLOCK`` (a FIFO swapped in
     meanwhile fails at once instead of waiting for a reader) and is checked with ``fstat``.
 
+    The parent folder must exist: every writer refuses to create folders (a typo in a
+    folder name is an error, not a new tree).
+
     Raises:
         FileFormatError: ``cannot write <what>: not a regular file ...: <path>``.
-        OSError: the file cannot be created (missing folder, no permission, ...), as ``open``.
+        InputError: ``cannot write <what>: ...: <path>`` when the parent folder is missing or
+            the file cannot be created (no permission, a symlink loop, ...).
     """
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        st = None
-    if st is not None and not stat.S_ISREG(st.st_mode):
-        raise FileFormatError(f"cannot write {what}: not a regular file (got {_describe(st.st_mode)}): {os.fspath(path)}")
+    check_writable(path, what)
     flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
-    fd = os.open(path, flags, 0o666)
+    try:
+        fd = os.open(path, flags, 0o666)
+    except OSError as exc:
+        raise InputError(f"cannot write {what}: {exc.strerror or exc}: {os.fspath(path)}") from None
     try:
         mode = os.fstat(fd).st_mode
         if not stat.S_ISREG(mode):

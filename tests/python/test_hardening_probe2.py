@@ -130,3 +130,48 @@ def test_segment_ground_sensor_height_is_bounded_like_the_cli(h):
 def test_the_mpc_refuses_a_risk_grid_beyond_1000_km_naming_origin():
     with pytest.raises(InputError, match=r"argument `origin`"):
         subterra.MpcTracker().solve([0, 0, 0, 0], [[0, 0], [1, 0]], risk=np.ones((10, 10), np.float32), resolution=1.0, origin=(1e300, 0))
+
+
+def _writers(tmp_path):
+    import subterra.io as sio
+    pts = np.zeros((4, 3), np.float32)
+    return [
+        lambda p: sio.write_pcd(p, pts),
+        lambda p: sio.write_ply(p, pts),
+        lambda p: sio.write_depth_png(p, np.ones((4, 4), np.uint16)),
+        lambda p: sio.McapWriter(p).close(),
+    ]
+
+
+def test_writers_refuse_a_missing_folder_naming_the_path(tmp_path):
+    target = tmp_path / "nonexistent" / "x"
+    for write in _writers(tmp_path):
+        with pytest.raises(InputError, match=r"does not exist.*nonexistent/x$"):
+            write(target)
+        assert not (tmp_path / "nonexistent").exists()
+
+
+def test_writers_refuse_a_symlink_loop_naming_the_path(tmp_path):
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    for write in _writers(tmp_path):
+        with pytest.raises(InputError, match=r"cannot write .*loop$"):
+            write(loop)
+
+
+def test_write_bag_refuses_an_existing_path_naming_it(tmp_path):
+    pytest.importorskip("rosbags")
+    import subterra.io as sio
+    existing = tmp_path / "bag"
+    existing.mkdir()
+    with pytest.raises(InputError, match=r"exists already.*bag$"):
+        sio.write_bag(existing, [])
+    with pytest.raises(InputError, match=r"does not exist"):
+        sio.write_bag(tmp_path / "missing" / "bag", [])
+
+
+def test_mcap_writer_on_a_file_that_takes_no_bytes_is_an_input_error():
+    import subterra.io as sio
+    w = sio.McapWriter("/proc/self/mem")
+    with pytest.raises(InputError, match=r"cannot write recording: .*/proc/self/mem"):
+        w.close()

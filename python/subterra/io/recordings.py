@@ -45,6 +45,7 @@ from typing import Any, NamedTuple
 
 from .._files import (
     check_regular_file,
+    check_writable,
     open_for_writing,
     open_regular,
     read_regular_text,
@@ -501,7 +502,6 @@ class McapWriter:
         from .ros import default_typestore
 
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self._store = typestore if typestore is not None else default_typestore()
         self._file = open_for_writing(self.path, "recording")  # closed in close()
         self._writer = mcap_writer.Writer(self._file, chunk_size=chunk_size)
@@ -545,9 +545,12 @@ class McapWriter:
             return
         self.closed = True
         try:
-            self._writer.finish()
-        finally:
-            self._file.close()
+            try:
+                self._writer.finish()
+            finally:
+                self._file.close()
+        except OSError as exc:  # a file that opens but takes no bytes (/proc/self/mem, a full disk)
+            raise InputError(f"cannot write recording: {exc.strerror or exc}: {self.path}") from None
 
     def __enter__(self) -> McapWriter:
         return self
@@ -568,9 +571,11 @@ def write_bag(
     ``path`` ending in ``.bag``: a ROS 1 bag (messages built with a ROS 1 typestore, e.g.
     ``get_typestore(Stores.ROS1_NOETIC)``, which is the default ``typestore`` then).
     Otherwise a ROS 2 bag folder with ``storage`` ``"sqlite3"`` or ``"mcap"`` (messages
-    of a ROS 2 typestore, default Humble). The path must not exist yet.
+    of a ROS 2 typestore, default Humble). The path must not exist yet and its folder must (an
+    :class:`~subterra.errors.InputError` naming the path otherwise).
     """
     p = Path(path)
+    check_writable(p, "bag", new=True)
     typesys = _need("rosbags.typesys")
     if p.suffix == ".bag":
         rosbag1 = _need("rosbags.rosbag1")
