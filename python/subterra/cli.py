@@ -75,6 +75,9 @@ def nonempty(text: str) -> str:
 
 nonempty.__name__ = "value"
 
+#: Shortest ``--time-limit`` [s] (drive, fly, sil): one control step; below (1e-320) is a typo.
+MIN_SIM_SECONDS = 0.01
+
 #: A finite number > 0 (no upper bound).
 positive_float = float_in(0.0, sys.float_info.max)
 #: A number in [0, 1].
@@ -87,8 +90,8 @@ nonnegative_int = int_in(0, MAX_COUNT)
 seed_int = int_in(0, 2**32 - 1)
 #: A rate [Hz]; the pipelines narrow it further (e.g. 1..200 Hz for flights).
 positive_rate = float_in(0.0, 1000.0, unit="Hz")
-#: Simulated seconds (at most a day).
-sim_seconds = float_in(0.0, 86_400.0, unit="s")
+#: Simulated seconds (MIN_SIM_SECONDS to a day).
+sim_seconds = float_in(MIN_SIM_SECONDS, 86_400.0, low_open=False, unit="s")
 
 
 def finite_floats(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
@@ -172,7 +175,7 @@ def _parser() -> argparse.ArgumentParser:
     per.add_argument("--scale", type=float_in(0.0, 1.0, unit="m"), help="metres per unit of uint16 images (default 0.001; TUM: 0.0002)")
     per.add_argument("--seed", type=seed_int, default=0)
     per.add_argument("--goal", type=_goal, default=(5.0, 0.0, 0.0), help="goal x,y,z in the body frame [m]")
-    per.add_argument("--out", default="runs/perceive", help="output folder (default runs/perceive)")
+    per.add_argument("--out", type=nonempty, default="runs/perceive", help="output folder (default runs/perceive)")
 
     bench = sub.add_parser("bench", help="benchmarks against the NumPy reference")
     bench.add_argument("what", choices=["batch", "perception", "plan", "replay", "sim", "terrain"])
@@ -187,7 +190,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--messages", type=positive_int, default=20, help="replay: clouds and images per recording (default 20)")
     bench.add_argument("--seed", type=seed_int, default=0)
     bench.add_argument("--flights", type=positive_int, default=20, help="batch: flights per engine (default 20)")
-    bench.add_argument("--out", help="write the JSON report here too")
+    bench.add_argument("--out", type=nonempty, help="write the JSON report here too")
 
     sim = sub.add_parser("sim", help="the simulator: look at the built-in scenes")
     sim_sub = sim.add_subparsers(dest="sim_command", required=True)
@@ -195,7 +198,7 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("scenario", help="highbay, cable, tunnel, mine or subway")
     render.add_argument("--seed", type=seed_int, default=0)
     render.add_argument("--noise", default="d435", help="depth noise preset (default d435)")
-    render.add_argument("--out", default="runs/render", help="output folder (default runs/render)")
+    render.add_argument("--out", type=nonempty, default="runs/render", help="output folder (default runs/render)")
 
     fly = sub.add_parser("fly", help="one closed-loop flight in the simulator (depth camera -> controller -> quadrotor)")
     _flight_options(fly)
@@ -209,7 +212,7 @@ def _parser() -> argparse.ArgumentParser:
     fly.add_argument("--world", type=nonempty, default=None, help="fly in this world file (TOML) instead of a built-in scenario")
     fly.add_argument("--no-rerun", action="store_true", help="do not write flight.rrd even if rerun-sdk is installed")
     fly.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    fly.add_argument("--out", default=None, help="run folder (default runs/fly-<scenario>-<route>-<controller>-<noise>-s<seed>)")
+    fly.add_argument("--out", type=nonempty, default=None, help="run folder (default runs/fly-<scenario>-<route>-<controller>-<noise>-s<seed>)")
 
     batch = sub.add_parser("fly-batch", help="many randomized flights, APF-PF and the raw-APF baseline side by side")
     _flight_options(batch)
@@ -249,7 +252,7 @@ def _parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="the main job: simulated flights, the cable test and a small batch, with a report")
     demo.add_argument("--data", type=nonempty, default=None, help="shared data folder (default: ../shared/data if present)")
-    demo.add_argument("--out", default=None, help="report folder (default runs/demo-<time>)")
+    demo.add_argument("--out", type=nonempty, default=None, help="report folder (default runs/demo-<time>)")
     demo.add_argument("--quick", action="store_true", help="a short version (20 s flights, fewer frames, one batch route)")
     _debug_everywhere(p)
     return p

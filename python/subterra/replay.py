@@ -710,15 +710,15 @@ def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPar
     p.add_argument("--scale", type=float_in(0.0, 1.0, unit="m"), default=None, help="depth: metres per unit of 16UC1/mono16 images (default 0.001)")
     p.add_argument("--seed", type=seed_int, default=0, help="depth: particle filter seed (default 0)")
     p.add_argument("--sensor-height", type=float_in(MIN_SENSOR_HEIGHT_M, MAX_SENSOR_HEIGHT_M, low_open=False, unit="m"), default=None, help="terrain: lidar height above the ground when tf lacks it [m]")
-    p.add_argument("--world-frame", default=None, help="world frame id (default: the odometry's frame_id, else odom)")
-    p.add_argument("--body-frame", default=None, help="body frame id (default: the odometry's child_frame_id, else base_link)")
+    p.add_argument("--world-frame", type=nonempty, default=None, help="world frame id (default: the odometry's frame_id, else odom)")
+    p.add_argument("--body-frame", type=nonempty, default=None, help="body frame id (default: the odometry's child_frame_id, else base_link)")
     p.add_argument("--layers", default=",".join(DEFAULT_LAYERS),
                    help="terrain: map layers written as images to replay.mcap: comma-separated, 'all' or 'none'")
     p.add_argument("--max-messages", type=positive_int, default=None, help="stop after this many images / clouds")
     p.add_argument("--no-rerun", action="store_true", help="no replay.rrd even if rerun-sdk is installed")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--out", default=None, help="run folder (default runs/replay-<recording>-<pipeline>)")
+    p.add_argument("--out", type=nonempty, default=None, help="run folder (default runs/replay-<recording>-<pipeline>)")
     p.set_defaults(handler=run_cli)
     return p
 

@@ -17,7 +17,7 @@ __all__ = ["add_engine_options", "engine_options", "out_dir", "save_and_report"]
 
 def add_engine_options(p: argparse.ArgumentParser, *, unit: str) -> None:
     """Adds ``--engine``, ``--address``, ``--workers``, ``--resume`` and ``--out``."""
-    from subterra.cli import int_in
+    from subterra.cli import int_in, nonempty
 
     p.add_argument("--engine", default="threads", choices=ENGINES,
                    help="threads (default: a thread pool here) or ray (a Ray cluster; pip install 'subterra[cluster]')")
@@ -27,7 +27,7 @@ def add_engine_options(p: argparse.ArgumentParser, *, unit: str) -> None:
                    help=f"parallel {unit}s (default: the CPU count; ray: the local cluster's CPUs, or no cap on a cluster)")
     p.add_argument("--resume", action="store_true",
                    help=f"continue the batch in --out: run only the {unit}s its log does not hold")
-    p.add_argument("--out", default=None, help="output folder (default runs/<command>-<scenario>-<time>)")
+    p.add_argument("--out", type=nonempty, default=None, help="output folder (default runs/<command>-<scenario>-<time>)")
 
 
 def engine_options(args: argparse.Namespace) -> dict[str, Any]:

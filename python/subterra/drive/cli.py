@@ -62,7 +62,7 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--time-limit", type=sim_seconds, default=None, help="seconds of simulated time (default: 4x the straight-line time at half speed, >= 90)")
     p.add_argument("--no-rerun", action="store_true", help="do not write drive.rrd even if rerun-sdk is installed")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    p.add_argument("--out", default=None, help="run folder (default runs/drive-<scenario>-<planner>-s<seed>)")
+    p.add_argument("--out", type=nonempty, default=None, help="run folder (default runs/drive-<scenario>-<planner>-s<seed>)")
     add_fault_options(p, "drive")
     p.set_defaults(handler=_drive)
 

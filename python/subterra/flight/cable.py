@@ -434,12 +434,12 @@ def _plot(summary: dict[str, Any], path: Path) -> None:
 
 def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Adds the ``cable-test`` subcommand to ``subparsers``; its handler is ``args.handler``."""
-    from subterra.cli import positive_int, seed_int
+    from subterra.cli import nonempty, positive_int, seed_int
 
     p = subparsers.add_parser("cable-test", help="the thin-cable test of the APF-PF paper §V-A (Fig. 6)")
     p.add_argument("--frames", type=positive_int, default=DEFAULT_FRAMES, help=f"frames per noise condition (default {DEFAULT_FRAMES})")
     p.add_argument("--seed", type=seed_int, default=0, help="world, filter and noise seed (default 0)")
-    p.add_argument("--out", default=None, help="output folder (default runs/cable-test-<time>)")
+    p.add_argument("--out", type=nonempty, default=None, help="output folder (default runs/cable-test-<time>)")
     p.add_argument("--no-flight-comparison", action="store_true", help="skip the run of the `flight` preset on the same frames")
     p.set_defaults(handler=run_cli)
     return p

@@ -15,24 +15,24 @@ __all__ = ["register_cli"]
 
 def register_cli(subparsers: argparse._SubParsersAction) -> None:
     """Adds ``node`` and ``sil``; their handlers are ``args.handler``."""
-    from subterra.cli import int_in, positive_float, seed_int, sim_seconds
+    from subterra.cli import int_in, nonempty, positive_float, seed_int, sim_seconds
 
     p = subparsers.add_parser("node", help="run live as a ROS 2 node over DDS (no ROS install needed; extra subterra[ros])",
                               description="Subscribes to the robot's sensors, odometry, goals and tf over ROS 2 DDS and publishes "
                                           "velocity commands, the path, the maps and diagnostics (docs/live.md).")
     p.add_argument("robot", choices=("ground", "drone"), help="ground: point clouds -> Navigator; drone: depth images -> Pilot")
-    p.add_argument("--config", default=None, help="node settings (TOML: topics, frames, QoS, rates, safety; configs/node.toml)")
+    p.add_argument("--config", type=nonempty, default=None, help="node settings (TOML: topics, frames, QoS, rates, safety; configs/node.toml)")
     p.add_argument("--domain-id", type=int_in(0, 232), default=None, help="DDS domain (ROS_DOMAIN_ID; default from the config, 0)")
     p.add_argument("--use-sim-time", action="store_true", help="read ages against /clock (a simulator) instead of the wall clock")
     p.add_argument("--loopback", action="store_true", help="keep DDS on 127.0.0.1 (no traffic leaves this machine)")
     p.add_argument("--duration", type=positive_float, default=None, help="stop after this many wall seconds (default: until Ctrl-C)")
-    p.add_argument("--stats", default=None, help="write the node's counts (frames, drops, stops, compute time) to this JSON file at exit")
-    p.add_argument("--mavlink", default=None, metavar="CONNECTION",
+    p.add_argument("--stats", type=nonempty, default=None, help="write the node's counts (frames, drops, stops, compute time) to this JSON file at exit")
+    p.add_argument("--mavlink", type=nonempty, default=None, metavar="CONNECTION",
                    help="also stream the commands to a PX4/ArduPilot autopilot as MAVLink velocity setpoints, e.g. "
                         "udpout:127.0.0.1:14540 (extra subterra[mavlink]); it never arms the vehicle")
     p.add_argument("--mavlink-frame", choices=("body", "local"), default="body", help="body: FLU -> MAV_FRAME_BODY_NED (default)")
     p.add_argument("--mavlink-baud", type=int_in(1200, 12_000_000), default=921600, help="serial rate for a serial --mavlink device")
-    p.add_argument("--foxglove", default=None, metavar="[HOST:]PORT",
+    p.add_argument("--foxglove", type=nonempty, default=None, metavar="[HOST:]PORT",
                    help="serve a live view on Foxglove's WebSocket protocol (loopback unless HOST is given; extra subterra[viz])")
     p.set_defaults(handler=_node)
 
@@ -42,10 +42,10 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
     s.add_argument("--robot", choices=("ground", "drone"), default="ground", help="ground (default, scenario mine) or drone (highbay)")
     s.add_argument("--scenario", default=None, help="ground: mine, slopes, rough, ledge, cave; drone: highbay")
     s.add_argument("--seed", type=seed_int, default=0, help="world and sensor noise seed (default 0)")
-    s.add_argument("--out", default="runs/sil", help="run folder (default runs/sil)")
+    s.add_argument("--out", type=nonempty, default="runs/sil", help="run folder (default runs/sil)")
     s.add_argument("--domain-id", type=int_in(0, 232), default=None, help="DDS domain (default: 100 + pid %% 100)")
     s.add_argument("--time-limit", type=sim_seconds, default=None, help="simulated seconds (default as drive/fly)")
-    s.add_argument("--config", default=None, help="the node's settings (TOML); the loop sets its domain, clock and sensor QoS")
+    s.add_argument("--config", type=nonempty, default=None, help="the node's settings (TOML); the loop sets its domain, clock and sensor QoS")
     s.set_defaults(handler=_sil)
 
 

@@ -56,7 +56,7 @@ def register_cli(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPar
     p.add_argument("--config", type=nonempty, default=None, help="terrain config TOML (default configs/terrain.toml values)")
     p.add_argument("--period", type=float_in(MIN_PERIOD_S, MAX_PERIOD_S, low_open=False, unit="s"), default=DEFAULT_PERIOD_S, help=f"seconds between scans without TUM stamps (default {DEFAULT_PERIOD_S})")
     p.add_argument("--confidence", type=unit_float, default=1.0, help="odometry confidence in [0, 1] (default 1)")
-    p.add_argument("--out", default=None, help="output folder (default runs/terrain-<time>)")
+    p.add_argument("--out", type=nonempty, default=None, help="output folder (default runs/terrain-<time>)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(handler=run_cli)
     return p
