@@ -14,6 +14,17 @@ import subterra
 from subterra.cli import main
 from subterra.terrain import translation
 
+
+def assert_argument_error(capsys, argv):
+    """`subterra argv` exits 2 with one line `error: argument <option>: ...` (the option is
+    argv[-2]) and no traceback."""
+    option = argv[-2]
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: argument {option}: ") and err.count("\n") == 1, err
+
 CLOUD_TOPIC = "/lidar/points"
 T0 = 1_700_000_000_000_000_000
 SENSOR_HEIGHT_M = 0.7
@@ -246,13 +257,7 @@ def test_unknown_names_are_errors(tmp_path, capsys, argv, expected):
     ["replay", "r.mcap", "--seed", "-1"],
 ])
 def test_absurd_numbers_are_argument_errors(capsys, argv):
-    option = argv[-2]
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert f"error: argument {option}: " in err, err
-    assert "Traceback" not in err
+    assert_argument_error(capsys, argv)
 
 
 def test_drive_batch_seeds_are_checked_by_the_handler(capsys):
@@ -330,15 +335,29 @@ def test_non_utf8_config_is_a_one_line_error(tmp_path, capsys, command):
     ["terrain", "x.npy", "--sensor-height", "1e-320"],
     ["terrain", "x.npy", "--period", "1e-320"],
     ["replay", "r.mcap", "--sensor-height", "0.001"],
+    # The second probe: every path, folder, frame and connection option, and a run of 1e-320 s.
+    ["replay", "r.mcap", "--world-frame", ""],
+    ["replay", "r.mcap", "--body-frame", ""],
+    ["replay", "r.mcap", "--out", ""],
+    ["terrain", "scan.npy", "--out", ""],
+    ["sim", "render", "tunnel", "--out", ""],
+    ["node", "ground", "--config", ""],
+    ["node", "drone", "--stats", ""],
+    ["node", "ground", "--mavlink", ""],
+    ["node", "ground", "--foxglove", ""],
+    ["sil", "--config", ""],
+    ["sil", "--out", ""],
+    ["fly", "--out", ""],
+    ["drive", "--out", ""],
+    ["perceive", "d", "--intrinsics", "i.json", "--out", ""],
+    # Once accepted: a run of 1e-320 s.
+    ["drive", "--time-limit", "1e-320"],
+    ["fly", "--time-limit", "1e-320"],
+    ["sil", "--time-limit", "1e-320"],
 ])
 def test_an_empty_or_absurd_option_value_is_an_argument_error(capsys, argv):
     # An empty value was taken as "not given": `fly --world ''` flew the default scenario.
-    option = argv[-2]
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.startswith(f"error: argument {option}: ") and err.count("\n") == 1, err
+    assert_argument_error(capsys, argv)
 
 
 def test_terrain_poses_must_be_one_per_file(tmp_path, capsys):

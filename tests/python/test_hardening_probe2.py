@@ -175,33 +175,3 @@ def test_mcap_writer_on_a_file_that_takes_no_bytes_is_an_input_error():
     w = sio.McapWriter("/proc/self/mem")
     with pytest.raises(InputError, match=r"cannot write recording: .*/proc/self/mem"):
         w.close()
-
-
-@pytest.mark.parametrize("argv", [
-    ["replay", "r.mcap", "--world-frame", ""],
-    ["replay", "r.mcap", "--body-frame", ""],
-    ["replay", "r.mcap", "--out", ""],
-    ["terrain", "scan.npy", "--out", ""],
-    ["sim", "render", "tunnel", "--out", ""],
-    ["node", "ground", "--config", ""],
-    ["node", "drone", "--stats", ""],
-    ["node", "ground", "--mavlink", ""],
-    ["node", "ground", "--foxglove", ""],
-    ["sil", "--config", ""],
-    ["sil", "--out", ""],
-    ["fly", "--out", ""],
-    ["drive", "--out", ""],
-    ["perceive", "d", "--intrinsics", "i.json", "--out", ""],
-    # Once accepted: a run of 1e-320 s.
-    ["drive", "--time-limit", "1e-320"],
-    ["fly", "--time-limit", "1e-320"],
-    ["sil", "--time-limit", "1e-320"],
-])
-def test_an_empty_path_or_name_option_or_a_vanishing_time_limit_is_an_argument_error(capsys, argv):
-    from subterra.cli import main
-    option = argv[-2]
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.startswith(f"error: argument {option}: ") and err.count("\n") == 1, err
